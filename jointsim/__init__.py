@@ -1,0 +1,9 @@
+"""jointsim: nonlinear dynamics of jointed structures.
+
+Data flows one way: scene -> model -> solver -> result -> HDF5 file -> plots.
+"""
+__version__ = "0.1.0"
+
+from .scene import Scene, SceneError, load_scene  # noqa: E402
+
+__all__ = ["Scene", "SceneError", "load_scene", "__version__"]

@@ -1,0 +1,114 @@
+"""Command line: ``jointsim run | post | info``.
+
+``jointsim run SCENE [-o OUT.h5] [--set key=value ...] [--post]``
+    Validate the scene (nothing is written if it is invalid), run its
+    analyses, and write the result file (default ``results/<scene>.h5``).
+``jointsim post OUT.h5 [OUT2.h5 ...]``
+    Make the figures of result files (next to each file, in ``<stem>_figures/``).
+``jointsim info OUT.h5``
+    Print a summary table.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from .scene import SceneError, load_scene
+
+log = logging.getLogger("jointsim")
+
+
+def _parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-v", "--verbose", action="store_true", help="debug log output")
+    common.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
+    p = argparse.ArgumentParser(prog="jointsim", description=__doc__.split("\n")[0])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("run", parents=[common], help="run a scene and write its result file")
+    r.add_argument("scene", help="scene file (TOML)")
+    r.add_argument("-o", "--output", help="result file (default: results/<scene>.h5)")
+    r.add_argument("--set", dest="overrides", action="append", default=[],
+                   metavar="KEY=VALUE", help="override a scene key (repeatable)")
+    r.add_argument("--resume", action="store_true",
+                   help="continue an interrupted result file of the same scene")
+    r.add_argument("--post", action="store_true", help="make the figures afterwards")
+
+    q = sub.add_parser("post", parents=[common], help="make figures from result files")
+    q.add_argument("results", nargs="+", help="result files (HDF5)")
+    q.add_argument("-d", "--outdir", help="figure folder (default: <stem>_figures/ "
+                                          "next to each file)")
+
+    i = sub.add_parser("info", parents=[common], help="print a summary of a result file")
+    i.add_argument("result", help="result file (HDF5)")
+
+    c = sub.add_parser("check", parents=[common], help="validate a scene without running it")
+    c.add_argument("scene")
+    c.add_argument("--set", dest="overrides", action="append", default=[],
+                   metavar="KEY=VALUE")
+    return p
+
+
+def default_output(scene_path: str) -> Path:
+    return Path("results") / (Path(scene_path).stem + ".h5")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    level = logging.WARNING if args.quiet else (logging.DEBUG if args.verbose else logging.INFO)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("numba").setLevel(logging.WARNING)
+    logging.getLogger("matplotlib").setLevel(logging.WARNING)
+    try:
+        if args.command in ("run", "check"):
+            scene = load_scene(args.scene, args.overrides)
+            if args.command == "check":
+                print(f"{args.scene}: valid ({scene.model.kind} model, kernels "
+                      f"{scene.kernels().tangential}/{scene.kernels().normal})")
+                return 0
+            from .run import run_scene
+            out = Path(args.output) if args.output else default_output(args.scene)
+            run_scene(scene, out, resume=args.resume)
+            print(out)
+            if args.post:
+                from .post import make_figures
+                for fig in make_figures(out):
+                    print(fig)
+            return 0
+        if args.command == "post":
+            from .post import make_figures
+            several = len(args.results) > 1
+            for res in args.results:
+                outdir = args.outdir
+                if outdir and several:  # keep each file's figures apart
+                    outdir = Path(outdir) / Path(res).stem
+                for fig in make_figures(res, outdir):
+                    print(fig)
+            if len(args.results) > 1:
+                from .post import combined_figures
+                for fig in combined_figures(args.results, args.outdir):
+                    print(fig)
+            return 0
+        if args.command == "info":
+            from .post.tables import info_text
+            print(info_text(args.result))
+            return 0
+    except SceneError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except (FileNotFoundError, OSError, ValueError, NotImplementedError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except RuntimeError as exc:
+        print(f"error: run did not succeed: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("interrupted; the result file holds what was computed", file=sys.stderr)
+        return 130
+    return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,267 @@
+"""Numba kernels of the contact laws, over plain arrays.
+
+Every tangential law is a *slider bank*: ``n_s`` Jenkins sliders in parallel,
+slider ``i`` of element ``e`` with stiffness ``k[e, i]`` [N/m] and slip force
+``g[e, i] * N`` [N] (``g`` is a slip force per unit normal load).  A Jenkins
+element is a bank of one slider (``k = kt A``, ``g = mu``); the discretised
+4-parameter Iwan element is a bank of ``n_sliders``.
+
+Two reversal rules exist:
+
+* ``anchor`` -- physical elastic dry friction (seed Eq. 1/3).  State: the
+  anchor ``w`` of every slider.  Trial force ``k (u - w)``; if it exceeds
+  ``g N`` the slider slips, ``f = g N sign`` and ``w = u - f / k``.  While
+  ``N <= 0`` the element is separated: ``f = 0`` and ``w = u``.
+* ``scaled`` -- the seed's Eq. 7 / condition 5.  At every reversal of ``u`` the
+  kernel stores ``(u_r, N_r, f_r,i)``; then
+  ``f_i = k_i (u - u_r) + f_r,i N / N_r``, clipped to ``+-g_i N`` (the
+  reference term is 0 when ``N_r <= 0``).  The memory survives separation; the
+  clip makes the force 0 while ``N <= 0``.
+
+All march kernels take inputs ``u`` and ``N`` of shape ``(n_e, n_t)``, march
+the samples in order from the given state, and return the force, its
+tangents with respect to ``u`` and ``N`` at each sample (state at the start of
+the sample held fixed: the consistent tangent of an implicit step), and the
+final state.  State arrays are never modified in place.
+
+Scalar ``*_step`` functions hold the law itself, with the full local
+Jacobian (including the derivatives with respect to the state), so that
+solvers that need derivatives through the history (AFT harmonic balance) use
+exactly the same law.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+# Layout of the scaled-law state, per element: 5 shared entries, then per
+# slider the previous force and the force at the last reversal.
+SC_U_PREV, SC_N_PREV, SC_DIR, SC_U_R, SC_N_R = 0, 1, 2, 3, 4
+SC_SHARED = 5
+
+
+@njit(cache=True, inline="always")
+def slider_anchor_step(u, N, w, k, g):
+    """One Jenkins slider with an anchor.
+
+    Parameters
+    ----------
+    u : float
+        Tangential displacement [m].
+    N : float
+        Normal load [N].
+    w : float
+        Anchor position at the start of the step [m].
+    k : float
+        Slider stiffness [N/m].
+    g : float
+        Slip force per unit normal load [-].
+
+    Returns
+    -------
+    f, dfdu, dfdN, dfdw, w1, dw1du, dw1dN, dw1dw : float
+        Force [N], its partial derivatives, the new anchor [m] and its partials.
+    """
+    if N <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0, u, 1.0, 0.0, 0.0
+    fs = g * N
+    ft = k * (u - w)
+    if ft > fs:
+        return fs, 0.0, g, 0.0, u - fs / k, 1.0, -g / k, 0.0
+    if ft < -fs:
+        return -fs, 0.0, -g, 0.0, u + fs / k, 1.0, g / k, 0.0
+    return ft, k, 0.0, -k, w, 0.0, 0.0, 1.0
+
+
+@njit(cache=True, inline="always")
+def slider_scaled_force(u, N, u_r, N_r, f_r, k, g):
+    """One slider of the scaled-reversal law (seed Eq. 7).
+
+    Returns
+    -------
+    f, dfdu, dfdN, dfdur, dfdNr, dfdfr : float
+        Force [N] and its partial derivatives with respect to the inputs and
+        the reversal memory.
+    """
+    if N <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    fs = g * N
+    if N_r > 0.0:
+        ratio = N / N_r
+        ft = k * (u - u_r) + f_r * ratio
+        dN = f_r / N_r
+        dNr = -f_r * ratio / N_r
+        dfr = ratio
+    else:
+        ft = k * (u - u_r)
+        dN = 0.0
+        dNr = 0.0
+        dfr = 0.0
+    if ft > fs:
+        return fs, 0.0, g, 0.0, 0.0, 0.0
+    if ft < -fs:
+        return -fs, 0.0, -g, 0.0, 0.0, 0.0
+    return ft, k, dN, -k, dNr, dfr
+
+
+@njit(cache=True, parallel=True)
+def bank_anchor_march(u, N, k, g, w0):
+    """March banks of anchored sliders over samples.
+
+    Parameters
+    ----------
+    u, N : ndarray, shape (n_e, n_t)
+        Tangential displacement [m] and normal load [N] at each sample.
+    k, g : ndarray, shape (n_e, n_s)
+        Slider stiffness [N/m] and slip force per unit normal load [-].
+    w0 : ndarray, shape (n_e, n_s)
+        Anchors at the start [m].
+
+    Returns
+    -------
+    f, dfdu, dfdN : ndarray, shape (n_e, n_t)
+        Force [N] and its tangents [N/m], [-].
+    w : ndarray, shape (n_e, n_s)
+        Anchors after the last sample [m].
+    """
+    ne, nt = u.shape
+    ns = k.shape[1]
+    f = np.zeros((ne, nt))
+    dfdu = np.zeros((ne, nt))
+    dfdN = np.zeros((ne, nt))
+    w = w0.copy()
+    for e in prange(ne):
+        for t in range(nt):
+            ut = u[e, t]
+            Nt = N[e, t]
+            fe = 0.0
+            de = 0.0
+            dn = 0.0
+            for i in range(ns):
+                fi, dfi, dni, _dw, w1, _a, _b, _c = slider_anchor_step(ut, Nt, w[e, i],
+                                                                        k[e, i], g[e, i])
+                w[e, i] = w1
+                fe += fi
+                de += dfi
+                dn += dni
+            f[e, t] = fe
+            dfdu[e, t] = de
+            dfdN[e, t] = dn
+    return f, dfdu, dfdN, w
+
+
+@njit(cache=True, parallel=True)
+def bank_scaled_march(u, N, k, g, s0):
+    """March banks of scaled-reversal sliders over samples.
+
+    Parameters
+    ----------
+    u, N : ndarray, shape (n_e, n_t)
+        Tangential displacement [m] and normal load [N].
+    k, g : ndarray, shape (n_e, n_s)
+        Slider stiffness [N/m] and slip force per unit normal load [-].
+    s0 : ndarray, shape (n_e, 5 + 2 n_s)
+        State: previous u [m], previous N [N], direction of motion (-1, 0, 1),
+        u_r [m], N_r [N], then the previous force of each slider and its force
+        at the last reversal [N].
+
+    Returns
+    -------
+    f, dfdu, dfdN : ndarray, shape (n_e, n_t)
+    s : ndarray, shape (n_e, 5 + 2 n_s)
+        State after the last sample.
+    """
+    ne, nt = u.shape
+    ns = k.shape[1]
+    f = np.zeros((ne, nt))
+    dfdu = np.zeros((ne, nt))
+    dfdN = np.zeros((ne, nt))
+    s = s0.copy()
+    for e in prange(ne):
+        for t in range(nt):
+            ut = u[e, t]
+            Nt = N[e, t]
+            du = ut - s[e, SC_U_PREV]
+            if du != 0.0:
+                d = 1.0 if du > 0.0 else -1.0
+                if s[e, SC_DIR] != 0.0 and d != s[e, SC_DIR]:
+                    # reversal at the previous sample
+                    s[e, SC_U_R] = s[e, SC_U_PREV]
+                    s[e, SC_N_R] = s[e, SC_N_PREV]
+                    for i in range(ns):
+                        s[e, SC_SHARED + ns + i] = s[e, SC_SHARED + i]
+                s[e, SC_DIR] = d
+            fe = 0.0
+            de = 0.0
+            dn = 0.0
+            for i in range(ns):
+                fi, dfi, dni, _a, _b, _c = slider_scaled_force(
+                    ut, Nt, s[e, SC_U_R], s[e, SC_N_R], s[e, SC_SHARED + ns + i],
+                    k[e, i], g[e, i])
+                s[e, SC_SHARED + i] = fi
+                fe += fi
+                de += dfi
+                dn += dni
+            s[e, SC_U_PREV] = ut
+            s[e, SC_N_PREV] = Nt
+            f[e, t] = fe
+            dfdu[e, t] = de
+            dfdN[e, t] = dn
+    return f, dfdu, dfdN, s
+
+
+@njit(cache=True, parallel=True)
+def linear_spring(u, k):
+    """Linear tangential spring (the ``stuck`` law).
+
+    Parameters
+    ----------
+    u : ndarray, shape (n_e, n_t)
+        Tangential displacement [m].
+    k : ndarray, shape (n_e,)
+        Stiffness [N/m].
+
+    Returns
+    -------
+    f, dfdu : ndarray, shape (n_e, n_t)
+    """
+    ne, nt = u.shape
+    f = np.empty((ne, nt))
+    dfdu = np.empty((ne, nt))
+    for e in prange(ne):
+        for t in range(nt):
+            f[e, t] = k[e] * u[e, t]
+            dfdu[e, t] = k[e]
+    return f, dfdu
+
+
+@njit(cache=True, parallel=True)
+def normal_penalty(g, kn, unilateral):
+    """Normal load from the gap: ``N = kn max(0, -g)`` (unilateral) or ``-kn g``.
+
+    Parameters
+    ----------
+    g : ndarray, shape (n_e, n_t)
+        Normal gap [m]; negative means interpenetration.
+    kn : ndarray, shape (n_e,)
+        Normal stiffness of the element (kn per area times area) [N/m].
+    unilateral : bool
+        Allow separation (N = 0 for an open gap).
+
+    Returns
+    -------
+    N, dNdg : ndarray, shape (n_e, n_t)
+        Normal load [N] (positive in compression) and its derivative [N/m].
+    """
+    ne, nt = g.shape
+    N = np.empty((ne, nt))
+    dNdg = np.empty((ne, nt))
+    for e in prange(ne):
+        for t in range(nt):
+            if unilateral and g[e, t] >= 0.0:
+                N[e, t] = 0.0
+                dNdg[e, t] = 0.0
+            else:
+                N[e, t] = -kn[e] * g[e, t]
+                dNdg[e, t] = -kn[e]
+    return N, dNdg

@@ -1,0 +1,281 @@
+"""Structural models: linear matrices plus a set of contact elements.
+
+Every model kind that has a structure (lumped, FE, ROM) is turned into a
+:class:`StructuralModel`: sparse ``M``, ``K``, ``C`` of the linear part and a
+:class:`ContactSet` that maps the structure's DOFs to each element's
+tangential slip and normal gap.  Solvers work on this object only.
+
+Sign conventions
+----------------
+* Tangential slip ``u_t = Tt @ x`` [m]; normal gap ``g = gap0 + Tn @ x`` [m],
+  negative in interpenetration; normal load ``N >= 0`` in compression.
+* The contact force on the structure (added to the internal forces, on the
+  left-hand side of ``M x'' + C x' + K x + f_c = f_ext``) is
+  ``f_c = Tt.T @ f_t - Tn.T @ N``.
+* With ``effects.normal = "fixed"`` the normal direction is a linear spring
+  ``kn A`` that is part of ``K`` (``K += Tn.T diag(kn A) Tn``), and the slip
+  limit uses the fixed load ``N0``; no gap is evaluated during the solve.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+from .contact import KernelChoice, TangentialLaw, make_tangential_law
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ContactSet:
+    """``n_e`` contact elements attached to a structure with ``n_dof`` DOFs.
+
+    Attributes
+    ----------
+    Tt : scipy.sparse.csr_matrix, shape (n_e, n_dof)
+        Tangential slip operator, ``u_t = Tt @ x`` [m].
+    Tn : scipy.sparse.csr_matrix, shape (n_e, n_dof)
+        Normal gap operator, ``g = gap0 + Tn @ x`` [m] (rows of zeros where an
+        element has no normal DOF).
+    gap0 : ndarray, shape (n_e,)
+        Gap at ``x = 0`` [m].
+    N0 : ndarray, shape (n_e,)
+        Normal load used when the normal load is fixed [N].
+    area : ndarray, shape (n_e,)
+        Element areas [m^2].
+    kn : ndarray, shape (n_e,)
+        Normal stiffness of each element, ``kn A`` [N/m].
+    law : TangentialLaw
+    kernels : KernelChoice
+    position : ndarray, shape (n_e, 2)
+        Element position for plots [m] (index along the interface for lumped models).
+    """
+
+    Tt: sp.csr_matrix
+    Tn: sp.csr_matrix
+    gap0: np.ndarray
+    N0: np.ndarray
+    area: np.ndarray
+    kn: np.ndarray
+    law: TangentialLaw
+    kernels: KernelChoice
+    position: np.ndarray
+
+    @property
+    def n_elements(self) -> int:
+        return self.Tt.shape[0]
+
+    def normal_load(self, g):
+        """Normal load and its derivative from gaps, for coupled scenes.
+
+        Parameters
+        ----------
+        g : ndarray, shape (n_e, n_t)
+            Gaps [m].
+
+        Returns
+        -------
+        N, dNdg : ndarray, shape (n_e, n_t)
+        """
+        from .contact._kernels import normal_penalty
+        if not self.kernels.coupled:
+            raise RuntimeError("normal load is fixed in this scene; no gap is evaluated")
+        return normal_penalty(np.ascontiguousarray(g, dtype=float), self.kn,
+                              self.kernels.normal == "unilateral")
+
+
+@dataclass(frozen=True)
+class StructuralModel:
+    """Linear structure plus contact elements.
+
+    Attributes
+    ----------
+    M, K, C : scipy.sparse.csr_matrix, shape (n_dof, n_dof)
+        Mass [kg], stiffness [N/m] and damping [N s/m] of the linear part.
+    contacts : ContactSet
+    load_dofs : ndarray of int, shape (n_loads,)
+        DOF of each external load.
+    load_signals : tuple of jointsim.scene.Signal
+        Force signal of each load [N].
+    f_static : ndarray, shape (n_dof,)
+        Constant force on the structure (e.g. bolt preload) [N].
+    dof_labels : tuple of str
+        A name for every DOF.
+    points : dict
+        Named DOFs (e.g. ``{"response": 12}``).
+    units : str
+        ``"SI"`` or ``"nondimensional"``.
+    extra : dict
+        Kind-specific data (mesh, reduction basis, ...), not used by solvers.
+    """
+
+    M: sp.csr_matrix
+    K: sp.csr_matrix
+    C: sp.csr_matrix
+    contacts: ContactSet
+    load_dofs: np.ndarray
+    load_signals: tuple
+    f_static: np.ndarray
+    dof_labels: tuple
+    points: dict = field(default_factory=dict)
+    units: str = "SI"
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n_dof(self) -> int:
+        return self.M.shape[0]
+
+    def force_coefficients(self, harmonics, scale: float = 1.0) -> np.ndarray:
+        """External force in harmonic coefficients.
+
+        Parameters
+        ----------
+        harmonics : sequence of int
+            Harmonics kept; coefficient order ``[0, 1c, 1s, 2c, 2s, ...]``.
+        scale : float
+            Multiplier of the harmonic (not the static) loads.
+
+        Returns
+        -------
+        ndarray, shape (n_coeff, n_dof)
+            Coefficients [N].  Static parts (the loads' constants and
+            ``f_static``) sit in the harmonic-0 row, unscaled, when 0 is kept.
+        """
+        from .signals import coefficient_harmonics, harmonic_coefficients
+        static = coefficient_harmonics(harmonics) == 0
+        F = np.zeros((static.size, self.n_dof))
+        for dof, sig in zip(self.load_dofs, self.load_signals):
+            c = harmonic_coefficients(sig, harmonics)
+            F[:, dof] += np.where(static, c, scale * c)
+        F[static] += self.f_static
+        return F
+
+
+def damping_matrix(M, K, damping, C0=None):
+    """Linear damping matrix from a scene's ``[damping]`` table.
+
+    Parameters
+    ----------
+    M, K : sparse matrix, shape (n, n)
+    damping : jointsim.scene.Damping
+    C0 : sparse matrix, optional
+        Damping given directly (lumped ``model.C``); added to the result.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, shape (n, n) [N s/m]
+    """
+    n = M.shape[0]
+    C = sp.csr_matrix((n, n)) if C0 is None else sp.csr_matrix(C0)
+    if damping.kind == "rayleigh":
+        C = C + damping.alpha * M + damping.beta * K
+    elif damping.kind == "modal":
+        zeta = np.asarray(damping.zeta, dtype=float)
+        if zeta.size == 0:
+            raise ValueError("damping.zeta must list at least one modal damping ratio")
+        if n > 2000:
+            raise NotImplementedError("modal damping of a model with more than 2000 DOFs: "
+                                      "reduce it first (Craig-Bampton) or use Rayleigh damping")
+        import scipy.linalg as sla
+        w2, phi = sla.eigh(K.toarray(), M.toarray())
+        m = min(zeta.size, n)
+        w = np.sqrt(np.maximum(w2[:m], 0.0))
+        Mphi = M @ phi[:, :m]
+        C = C + sp.csr_matrix(Mphi @ np.diag(2.0 * zeta[:m] * w) @ Mphi.T)
+    return sp.csr_matrix(C)
+
+
+def _selector(n_rows: int, n_cols: int, plus, minus) -> sp.csr_matrix:
+    """Rows of +1/-1 picking ``x[plus] - x[minus]``; index -1 means ground."""
+    rows, cols, vals = [], [], []
+    for r, (a, b) in enumerate(zip(plus, minus)):
+        if a >= 0:
+            rows.append(r), cols.append(a), vals.append(1.0)
+        if b >= 0:
+            rows.append(r), cols.append(b), vals.append(-1.0)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n_rows, n_cols))
+
+
+def make_contact_set(scene, Tt, Tn, gap0, N0, area, position) -> ContactSet:
+    """Contact set with the scene's law and kernels (shared by all model kinds)."""
+    kernels = scene.kernels()
+    area = np.asarray(area, dtype=float)
+    law = make_tangential_law(kernels.tangential, kernels.law, scene.joint, area)
+    return ContactSet(Tt=sp.csr_matrix(Tt), Tn=sp.csr_matrix(Tn),
+                      gap0=np.asarray(gap0, dtype=float), N0=np.asarray(N0, dtype=float),
+                      area=area, kn=scene.joint.kn * area, law=law, kernels=kernels,
+                      position=np.asarray(position, dtype=float))
+
+
+def with_fixed_normal_springs(K, contacts: ContactSet):
+    """``K`` plus the linear normal springs used when the normal load is fixed."""
+    if contacts.kernels.coupled or contacts.Tn.nnz == 0:
+        return sp.csr_matrix(K)
+    Tn = contacts.Tn
+    return sp.csr_matrix(K + Tn.T @ sp.diags(contacts.kn) @ Tn)
+
+
+def build_lumped(scene) -> StructuralModel:
+    """Structural model of a ``kind = "lumped"`` scene."""
+    m = scene.model
+    n = m.n_dof
+    M = sp.csr_matrix(np.array(m.M, dtype=float))
+    K = sp.csr_matrix(np.array(m.K, dtype=float))
+    C0 = None if m.C is None else np.array(m.C, dtype=float)
+    ne = len(m.contacts)
+    Tt = _selector(ne, n, [c.t_dof for c in m.contacts], [c.t_ref for c in m.contacts])
+    Tn = _selector(ne, n, [c.n_dof for c in m.contacts], [c.n_ref for c in m.contacts])
+    N0 = np.array([c.N0 if c.N0 is not None else 0.0 for c in m.contacts])
+    gap0 = np.array([c.gap0 for c in m.contacts])
+    area = np.array([c.area for c in m.contacts])
+    position = np.column_stack([np.arange(ne, dtype=float), np.zeros(ne)])
+    contacts = make_contact_set(scene, Tt, Tn, gap0, N0, area, position)
+    K = with_fixed_normal_springs(K, contacts)
+    C = damping_matrix(M, K, scene.damping, C0)
+    loads = scene.excitation.loads
+    return StructuralModel(
+        M=M, K=K, C=C, contacts=contacts,
+        load_dofs=np.array([ld.dof for ld in loads], dtype=np.int64),
+        load_signals=tuple(ld.force for ld in loads),
+        f_static=np.zeros(n), dof_labels=tuple(f"x{i}" for i in range(n)),
+        points={}, units=m.units)
+
+
+#: model kind -> builder(scene) -> StructuralModel.  FE and ROM builders
+#: register themselves here from their own modules.
+BUILDERS: dict[str, Callable] = {"lumped": build_lumped}
+
+
+def build_model(scene) -> StructuralModel:
+    """Build the structural model of a scene (lumped, FE or ROM).
+
+    Raises
+    ------
+    NotImplementedError
+        For a model kind that has no builder yet.
+    """
+    kind = scene.model.kind
+    if kind not in BUILDERS:
+        _load_builders()
+    if kind not in BUILDERS:
+        raise NotImplementedError(f"no structural model builder for model.kind = {kind!r}")
+    model = BUILDERS[kind](scene)
+    log.info("model %s: %d DOFs, %d contact elements (%s / %s kernels)", kind, model.n_dof,
+             model.contacts.n_elements, model.contacts.kernels.tangential,
+             model.contacts.kernels.normal)
+    return model
+
+
+def _load_builders() -> None:
+    """Import modules that register builders for the FE and ROM kinds."""
+    import importlib
+    for mod in ("jointsim.fem", "jointsim.reduction"):
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as exc:  # module not written yet
+            if exc.name != mod:
+                raise

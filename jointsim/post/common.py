@@ -1,0 +1,49 @@
+"""Helpers shared by the plotters and tables."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..io.hdf5 import unit
+
+
+def pyplot():
+    """matplotlib.pyplot with the non-interactive backend (imported lazily)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def quantity_label(symbol: str, quantity: str, units: str) -> str:
+    """Axis label ``symbol [unit]``."""
+    return f"{symbol} [{unit(quantity, units)}]"
+
+
+def scene_from_file(h5):
+    """The resolved scene stored in a result file."""
+    from .. import _toml
+    from ..scene import parse_scene
+    path = Path(h5.attrs.get("scene_path", "<stored scene>"))
+    data = _toml.loads(h5.attrs["scene"])
+    return parse_scene(data, str(path), path.parent)
+
+
+def law_from_file(h5, n_elements: int | None = None):
+    """The tangential law of the elements of a result file.
+
+    The law is rebuilt from the stored scene and the element areas stored in
+    ``/contacts/area`` (area 1 per element when absent: prescribed and lumped
+    scenes with default areas).
+    """
+    import numpy as np
+
+    from ..contact import make_tangential_law
+    scene = scene_from_file(h5)
+    k = scene.kernels()
+    if "contacts/area" in h5:
+        area = h5["contacts/area"][()]
+    elif scene.model.kind == "prescribed":
+        area = np.array([scene.model.area])
+    else:
+        area = np.ones(n_elements or h5["loops/u"].shape[1])
+    return make_tangential_law(k.tangential, k.law, scene.joint, area)

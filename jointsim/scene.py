@@ -1,0 +1,576 @@
+"""Scene files: TOML in, frozen dataclasses out.
+
+A scene declares everything a run needs: the model, the joint (contact law and
+its parameters), the *effects* (which physics exist), damping, excitation and
+the analyses to run.  Loading validates every key and names the file and the
+key on the first error::
+
+    models/x.toml: joint.mu must be >= 0, got -0.1
+
+Any key can be overridden with ``--set key=value`` (values are parsed as TOML,
+and fall back to a bare string, so ``--set joint.reversal=anchor`` works).
+Nothing in a scene is ever evaluated as code.
+
+Time-varying inputs (a prescribed motion, a normal load, a force) are
+:class:`Signal` tables: a constant plus harmonics given by cosine and sine
+coefficients, matching the harmonic-balance coefficient order
+``[0, 1c, 1s, 2c, 2s, ...]``; optionally clipped at zero; or samples from a
+file.  A bare number is shorthand for a constant signal.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+from . import _toml
+from ._schema import Context, SceneError, build, spec, to_plain
+
+__all__ = [
+    "SceneError", "Scene", "load_scene", "parse_scene", "apply_overrides",
+    "Signal", "Harmonic", "Joint", "Effects",
+]
+
+log = logging.getLogger(__name__)
+
+
+def _signal_shorthand(raw: Any) -> Any:
+    """A bare number means a constant signal."""
+    if isinstance(raw, (int, float)) and not isinstance(raw, bool):
+        return {"constant": raw}
+    return raw
+
+
+def _matrix_check(name: str, m: tuple, n: int | None = None) -> list[tuple[str, str]]:
+    rows = len(m)
+    if rows == 0:
+        return [(name, "must be a non-empty square matrix")]
+    for i, r in enumerate(m):
+        if len(r) != rows:
+            return [(name, f"must be square; row {i} has {len(r)} entries, expected {rows}")]
+    if n is not None and rows != n:
+        return [(name, f"must be {n} x {n} like model.M, got {rows} x {rows}")]
+    return []
+
+
+# --------------------------------------------------------------------------
+# Signals
+# --------------------------------------------------------------------------
+@dataclass(frozen=True, kw_only=True)
+class Harmonic:
+    """One harmonic of a :class:`Signal`: ``cos*cos(h w t) + sin*sin(h w t)``."""
+
+    h: int = spec(doc="harmonic number (multiple of the base frequency)", ge=1)
+    cos: float = spec(0.0, doc="cosine coefficient", unit="signal unit")
+    sin: float = spec(0.0, doc="sine coefficient", unit="signal unit")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Signal:
+    """A periodic input ``s(t) = constant + sum(cos_h cos(h w t) + sin_h sin(h w t))``.
+
+    With ``clip_at_zero`` the result is ``max(0, s(t))``.  With ``file`` the
+    samples come from a two-column text file (time [s] over one period, value),
+    interpolated periodically; ``constant`` and ``harmonics`` must then be absent.
+    """
+
+    constant: float = spec(0.0, doc="constant part", unit="signal unit")
+    harmonics: tuple[Harmonic, ...] = spec((), doc="array of {h, cos, sin} tables")
+    clip_at_zero: bool = spec(False, doc="clip the signal at zero from below")
+    file: Optional[str] = spec(None, doc="two-column text file (t [s], value) over one period",
+                               path=True)
+
+    def check(self):
+        if self.file is not None and (self.constant != 0.0 or self.harmonics):
+            return [("file", "cannot be combined with constant or harmonics")]
+        return []
+
+    @property
+    def max_harmonic(self) -> int:
+        return max((h.h for h in self.harmonics), default=0)
+
+
+# --------------------------------------------------------------------------
+# Models
+# --------------------------------------------------------------------------
+UNITS = ("SI", "nondimensional")
+
+
+@dataclass(frozen=True, kw_only=True)
+class PrescribedModel:
+    """One contact element driven by a prescribed tangential motion and normal load."""
+
+    kind: str = spec("prescribed", choices=("prescribed",))
+    u_t: Signal = spec(doc="tangential displacement u_t(t)", unit="m",
+                       coerce=_signal_shorthand)
+    N: Signal = spec(doc="normal load N(t)", unit="N", coerce=_signal_shorthand)
+    omega: float = spec(doc="base angular frequency", unit="rad/s", gt=0)
+    n_periods: int = spec(3, doc="periods marched from rest; the last one is reported",
+                          ge=2, le=10_000)
+    n_samples: int = spec(1024, doc="samples per period", ge=8, le=10_000_000)
+    area: float = spec(1.0, doc="contact area of the element", unit="m^2", gt=0)
+    units: str = spec("nondimensional", choices=UNITS,
+                      doc="'SI' or 'nondimensional' (consistent units)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class LumpedContact:
+    """A contact element of a lumped model.
+
+    Tangential slip ``u_t = x[t_dof] - x[t_ref]`` and, for coupled normal load,
+    normal gap ``g = gap0 + x[n_dof] - x[n_ref]``.  A reference of -1 is ground.
+    """
+
+    t_dof: int = spec(doc="DOF index (0-based) of the tangential motion", ge=0)
+    t_ref: int = spec(-1, doc="DOF index the slip is measured against (-1: ground)", ge=-1)
+    n_dof: int = spec(-1, doc="DOF index of the normal gap (-1: none)", ge=-1)
+    n_ref: int = spec(-1, doc="DOF index the gap is measured against (-1: ground)", ge=-1)
+    gap0: float = spec(0.0, doc="normal gap at x = 0 (negative: interference)", unit="m")
+    N0: Optional[float] = spec(None, doc="normal load used when effects.normal = 'fixed'",
+                               unit="N", ge=0)
+    area: float = spec(1.0, doc="contact area", unit="m^2", gt=0)
+
+    def check(self):
+        if self.t_ref == self.t_dof:
+            return [("t_ref", "must differ from t_dof")]
+        if self.n_dof >= 0 and self.n_ref == self.n_dof:
+            return [("n_ref", "must differ from n_dof")]
+        return []
+
+
+@dataclass(frozen=True, kw_only=True)
+class LumpedModel:
+    """Mass, stiffness and damping matrices plus contact elements between DOFs."""
+
+    kind: str = spec("lumped", choices=("lumped",))
+    M: tuple[tuple[float, ...], ...] = spec(doc="mass matrix (n x n)", unit="kg")
+    K: tuple[tuple[float, ...], ...] = spec(doc="stiffness matrix (n x n)", unit="N/m")
+    C: Optional[tuple[tuple[float, ...], ...]] = spec(
+        None, doc="viscous damping matrix (n x n); default zero", unit="N s/m")
+    contacts: tuple[LumpedContact, ...] = spec((), doc="array of contact-element tables")
+    units: str = spec("SI", choices=UNITS)
+
+    @property
+    def n_dof(self) -> int:
+        return len(self.M)
+
+    def check(self):
+        errs = _matrix_check("M", self.M) or _matrix_check("K", self.K, len(self.M))
+        if not errs and self.C is not None:
+            errs = _matrix_check("C", self.C, len(self.M))
+        if errs:
+            return errs
+        n = len(self.M)
+        for i, c in enumerate(self.contacts):
+            for name in ("t_dof", "t_ref", "n_dof", "n_ref"):
+                if getattr(c, name) >= n:
+                    return [(f"contacts[{i}].{name}",
+                             f"must be < {n} (the model has {n} DOFs), got {getattr(c, name)}")]
+        return []
+
+
+@dataclass(frozen=True, kw_only=True)
+class Bolt:
+    """A bolt of the FE lap joint: a spring across the lap plus a clamping force."""
+
+    x: float = spec(doc="axial position of the bolt", unit="m")
+    preload: float = spec(12e3, doc="clamping force", unit="N", ge=0)
+    stiffness: float = spec(2.0e8, doc="axial spring stiffness of the bolt", unit="N/m", gt=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FEModel:
+    """The 2D plane-stress lap joint built from a mesh with scikit-fem."""
+
+    kind: str = spec("fe", choices=("fe",))
+    mesh: str = spec(doc="mesh file readable by meshio, relative to the scene", path=True)
+    E: float = spec(200e9, doc="Young's modulus", unit="Pa", gt=0)
+    nu: float = spec(0.29, doc="Poisson's ratio", ge=0, lt=0.5)
+    rho: float = spec(7800.0, doc="density", unit="kg/m^3", gt=0)
+    thickness: float = spec(0.0254, doc="out-of-plane depth (plane stress)", unit="m", gt=0)
+    bolts: tuple[Bolt, ...] = spec((), doc="array of bolt tables")
+    suspension_stiffness: float = spec(
+        1.0e3, doc="stiffness of each soft suspension spring", unit="N/m", gt=0)
+    n_modes: int = spec(30, doc="fixed-interface modes kept by Craig-Bampton", ge=0)
+    preload_tangential: str = spec(
+        "stuck", choices=("stuck", "frictionless"),
+        doc="tangential state of the interface during the preload solve")
+    units: str = spec("SI", choices=("SI",))
+
+
+@dataclass(frozen=True, kw_only=True)
+class ROMModel:
+    """A reduced model brought from elsewhere (.npz, .mat or HDF5)."""
+
+    kind: str = spec("rom", choices=("rom",))
+    file: str = spec(doc="reduced model file (.npz, .mat, .h5)", path=True)
+    units: str = spec("SI", choices=UNITS)
+
+
+MODEL_KINDS = {"prescribed": PrescribedModel, "lumped": LumpedModel,
+               "fe": FEModel, "rom": ROMModel}
+
+
+# --------------------------------------------------------------------------
+# Joint, effects, damping, excitation
+# --------------------------------------------------------------------------
+@dataclass(frozen=True, kw_only=True)
+class Joint:
+    """Contact law and its parameters.
+
+    Stiffnesses are per unit area (N/m^3) so that FE interfaces with tributary
+    areas are consistent; for lumped and prescribed scenes the element area
+    defaults to 1, so they read as N/m.
+    """
+
+    law: str = spec("jenkins", choices=("jenkins", "iwan4", "stuck"),
+                    doc="tangential law")
+    reversal: str = spec("anchor", choices=("anchor", "scaled"),
+                         doc="'anchor': physical elastic dry friction; 'scaled': reversal "
+                             "force scaled by N(t)/N_r (seed Eq. 7, condition 5)")
+    mu: float = spec(0.1, doc="friction coefficient", ge=0)
+    kt: float = spec(1.0, doc="tangential stiffness per unit area", unit="N/m^3", gt=0)
+    kn: float = spec(1.0, doc="normal stiffness per unit area", unit="N/m^3", gt=0)
+    chi: float = spec(-0.5, doc="Iwan exponent of the slider density", gt=-1, le=1)
+    beta: float = spec(0.1, doc="Iwan ratio of the macroslip spike to the power-law part",
+                       ge=0)
+    n_sliders: int = spec(40, doc="Iwan sliders per element", ge=2, le=10_000)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Effects:
+    """Which physics exist; everything else is not computed."""
+
+    normal: str = spec("fixed", choices=("fixed", "coupled"),
+                       doc="'fixed': N is given (prescribed signal or preload, constant); "
+                           "'coupled': N = kn A max(0, -g) from the normal gap")
+    separation: bool = spec(True, doc="unilateral normal contact (N -> 0 when the gap opens); "
+                                      "false makes the normal spring bilateral")
+    friction: bool = spec(True, doc="tangential contact force; false: frictionless")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Damping:
+    """Linear damping added to the structure (lumped models may give C instead)."""
+
+    kind: str = spec("none", choices=("none", "rayleigh", "modal"),
+                     doc="'rayleigh': C = alpha M + beta K; 'modal': zeta per mode")
+    alpha: float = spec(0.0, doc="mass-proportional Rayleigh coefficient", unit="1/s", ge=0)
+    beta: float = spec(0.0, doc="stiffness-proportional Rayleigh coefficient", unit="s", ge=0)
+    zeta: tuple[float, ...] = spec((), doc="modal damping ratios, in mode order", ge=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Load:
+    """A harmonic (plus static) force on one DOF or on a named point of the mesh."""
+
+    force: Signal = spec(doc="force signal", unit="N", coerce=_signal_shorthand)
+    dof: int = spec(-1, doc="DOF index (lumped and ROM models)", ge=-1)
+    point: str = spec("", doc="named mesh point (FE models), e.g. 'excitation'")
+    direction: str = spec("y", choices=("x", "y"), doc="force direction at a mesh point")
+
+    def check(self):
+        if (self.dof < 0) == (self.point == ""):
+            return [("dof", "give exactly one of dof (lumped/ROM) or point (FE)")]
+        return []
+
+
+@dataclass(frozen=True, kw_only=True)
+class Excitation:
+    loads: tuple[Load, ...] = spec((), doc="array of load tables")
+
+
+# --------------------------------------------------------------------------
+# Analyses
+# --------------------------------------------------------------------------
+@dataclass(frozen=True, kw_only=True)
+class MasingAnalysis:
+    """Masing-manifold check of every element's steady loop."""
+
+    tol: float = spec(0.01, doc="on-manifold tolerance on the normalised deviation", gt=0)
+    points: tuple[int, ...] = spec((), doc="solution points whose loops are kept "
+                                           "(empty: all)", ge=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModesAnalysis:
+    n_modes: int = spec(10, doc="linear modes of the preloaded, stuck joint", ge=1)
+
+
+@dataclass(frozen=True, kw_only=True)
+class HBMAnalysis:
+    """Frequency response by AFT harmonic balance with continuation."""
+
+    harmonics: tuple[int, ...] = spec((0, 1, 2, 3, 4, 5, 6, 7), doc="harmonics kept", ge=0)
+    n_samples: int = spec(128, doc="AFT time samples per period", ge=4)
+    omega_start: float = spec(doc="start of the sweep", unit="rad/s", gt=0)
+    omega_end: float = spec(doc="end of the sweep", unit="rad/s", gt=0)
+    force_scale: tuple[float, ...] = spec((1.0,), doc="multipliers of the excitation; "
+                                                      "one branch each")
+    response_dof: int = spec(0, doc="DOF whose amplitude the FRC plots", ge=0)
+    step: float = spec(0.01, doc="initial arclength step (scaled units)", gt=0)
+    step_min: float = spec(1e-6, doc="smallest arclength step before giving up", gt=0)
+    step_max: float = spec(0.1, doc="largest arclength step", gt=0)
+    max_points: int = spec(2000, doc="maximum points per branch", ge=2)
+    tol: float = spec(1e-8, doc="Newton tolerance on the scaled residual", gt=0)
+    max_iter: int = spec(20, doc="Newton iterations per corrector", ge=1)
+
+
+@dataclass(frozen=True, kw_only=True)
+class EPMCAnalysis:
+    """Nonlinear mode by the extended periodic motion concept (Krack 2015)."""
+
+    mode: int = spec(1, doc="linear mode index followed (1-based, elastic modes)", ge=1)
+    harmonics: tuple[int, ...] = spec((0, 1, 2, 3, 4, 5, 6, 7), doc="harmonics kept", ge=0)
+    n_samples: int = spec(128, doc="AFT time samples per period", ge=4)
+    log10_amplitude_start: float = spec(doc="log10 of the starting modal amplitude")
+    log10_amplitude_end: float = spec(doc="log10 of the final modal amplitude")
+    step: float = spec(0.05, doc="initial arclength step", gt=0)
+    max_points: int = spec(500, doc="maximum points", ge=2)
+    tol: float = spec(1e-8, doc="Newton tolerance", gt=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class TransientAnalysis:
+    """Implicit time marching (generalized-alpha)."""
+
+    rho_inf: float = spec(0.9, doc="spectral radius at infinite frequency", ge=0, le=1)
+    omega: float = spec(0.0, doc="forcing frequency (0: free decay)", unit="rad/s", ge=0)
+    steps_per_period: int = spec(256, doc="time steps per forcing period", ge=8)
+    max_periods: int = spec(2000, doc="periods marched at most", ge=1)
+    steady_tol: float = spec(1e-6, doc="period-to-period relative change for steady state",
+                             gt=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class QSMAAnalysis:
+    """Quasi-static modal analysis (Lacayo and Allen)."""
+
+    mode: int = spec(1, doc="elastic mode index (1-based)", ge=1)
+    log10_amplitude_start: float = spec(doc="log10 of the smallest modal amplitude")
+    log10_amplitude_end: float = spec(doc="log10 of the largest modal amplitude")
+    n_steps: int = spec(60, doc="load increments", ge=2)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Analyses:
+    """The analyses a scene runs: each table present is one analysis."""
+
+    masing: MasingAnalysis = spec(default_factory=MasingAnalysis)
+    modes: Optional[ModesAnalysis] = spec(None)
+    hbm: Optional[HBMAnalysis] = spec(None)
+    epmc: Optional[EPMCAnalysis] = spec(None)
+    transient: Optional[TransientAnalysis] = spec(None)
+    qsma: Optional[QSMAAnalysis] = spec(None)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Meta:
+    name: str = spec("", doc="short name of the scene")
+    description: str = spec("", doc="what the scene is for")
+
+
+# --------------------------------------------------------------------------
+# The scene
+# --------------------------------------------------------------------------
+@dataclass(frozen=True, kw_only=True)
+class Scene:
+    """A validated scene.
+
+    Attributes
+    ----------
+    model : PrescribedModel | LumpedModel | FEModel | ROMModel
+    joint, effects, damping, excitation, analysis : section dataclasses
+    path : pathlib.Path
+        The scene file; relative paths inside it resolve against its folder.
+    text : str
+        The resolved scene (defaults and overrides applied) as TOML.
+    """
+
+    model: Any
+    joint: Joint
+    effects: Effects
+    damping: Damping
+    excitation: Excitation
+    analysis: Analyses
+    scene: Meta
+    path: Path
+    text: str = dataclasses.field(repr=False)
+
+    @property
+    def base_dir(self) -> Path:
+        return self.path.parent
+
+    def resolve(self, relative: str) -> Path:
+        """Absolute path of a file named in the scene (relative to the scene file)."""
+        return (self.base_dir / relative).resolve()
+
+    def kernels(self):
+        """The contact kernels this scene selects (see :mod:`jointsim.contact.select`)."""
+        from .contact.select import select_kernels
+        return select_kernels(self)
+
+
+SECTIONS = {"scene": Meta, "joint": Joint, "effects": Effects, "damping": Damping,
+            "excitation": Excitation, "analysis": Analyses}
+
+
+def parse_value(text: str) -> Any:
+    """Parse an override value as TOML, falling back to a bare string."""
+    try:
+        return _toml.loads(f"v = {text}")["v"]
+    except _toml.TOMLDecodeError:
+        return text
+
+
+def apply_overrides(data: dict, overrides: list[str] | tuple[str, ...], file: str) -> dict:
+    """Return a copy of ``data`` with ``key=value`` overrides applied.
+
+    Keys are dotted; an integer part indexes an array of tables
+    (``model.contacts.0.N0=2``).  Intermediate tables are created as needed;
+    whether the final key is valid is checked by the scene validation.
+    """
+    out = copy.deepcopy(data)
+    for item in overrides:
+        if "=" not in item:
+            raise SceneError(file, item, "override must look like key=value (from --set)")
+        key, value = item.split("=", 1)
+        key = key.strip()
+        parts = key.split(".")
+        if not key or any(p == "" for p in parts):
+            raise SceneError(file, key, "is not a valid dotted key (from --set)")
+        node: Any = out
+        for i, p in enumerate(parts[:-1]):
+            where = ".".join(parts[: i + 1])
+            if isinstance(node, list):
+                if not p.isdigit() or int(p) >= len(node):
+                    raise SceneError(file, where, f"index {p!r} is out of range (from --set)")
+                node = node[int(p)]
+            else:
+                nxt = node.setdefault(p, {})
+                if not isinstance(nxt, (dict, list)):
+                    raise SceneError(file, where, "is a value, not a table (from --set)")
+                node = nxt
+        last = parts[-1]
+        if isinstance(node, list):
+            if not last.isdigit() or int(last) >= len(node):
+                raise SceneError(file, key, "index is out of range (from --set)")
+            node[int(last)] = parse_value(value)
+        else:
+            node[last] = parse_value(value)
+    return out
+
+
+def parse_scene(data: dict, file: str = "<scene>", base_dir: Path | None = None) -> Scene:
+    """Validate a raw scene table and return a :class:`Scene`.
+
+    Parameters
+    ----------
+    data : dict
+        Parsed TOML (overrides already applied).
+    file : str
+        Name used in error messages.
+    base_dir : Path, optional
+        Folder that relative paths resolve against (default: the file's folder).
+    """
+    path = Path(file)
+    ctx = Context(file, base_dir if base_dir is not None else path.parent)
+    allowed = ["model", *SECTIONS]
+    for key in data:
+        if key not in allowed:
+            import difflib
+            close = difflib.get_close_matches(key, allowed, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ctx.error(key, f"is not a known section{hint}; known: {', '.join(allowed)}")
+    if "model" not in data:
+        raise ctx.error("model", "is required but missing")
+    model_raw = data["model"]
+    if not isinstance(model_raw, dict):
+        raise ctx.error("model", "must be a table")
+    kind = model_raw.get("kind")
+    if kind not in MODEL_KINDS:
+        raise ctx.error("model.kind", f"must be one of {', '.join(map(repr, MODEL_KINDS))}, "
+                                      f"got {kind!r}")
+    model = build(MODEL_KINDS[kind], model_raw, "model", ctx)
+    sections = {}
+    for name, cls in SECTIONS.items():
+        sections[name] = build(cls, data.get(name, {}), name, ctx)
+    resolved = {"model": to_plain(model)}
+    resolved.update({name: to_plain(sec) for name, sec in sections.items()})
+    scene = Scene(model=model, joint=sections["joint"], effects=sections["effects"],
+                  damping=sections["damping"], excitation=sections["excitation"],
+                  analysis=sections["analysis"], scene=sections["scene"], path=path,
+                  text=_toml.dumps(resolved))
+    _check_cross(scene, ctx)
+    scene.kernels()  # unsupported physics combinations fail here, before any work
+    return scene
+
+
+def _check_cross(scene: Scene, ctx: Context) -> None:
+    """Checks that involve several sections."""
+    m = scene.model
+    if isinstance(m, LumpedModel):
+        if not m.contacts and scene.effects.friction:
+            log.info("%s: lumped model without contacts is linear", ctx.file)
+        for i, c in enumerate(m.contacts):
+            if scene.effects.normal == "fixed" and c.N0 is None:
+                raise ctx.error(f"model.contacts[{i}].N0",
+                                "is required when effects.normal = 'fixed'")
+            if scene.effects.normal == "coupled" and c.n_dof < 0:
+                raise ctx.error(f"model.contacts[{i}].n_dof",
+                                "is required when effects.normal = 'coupled'")
+    for i, load in enumerate(scene.excitation.loads):
+        if isinstance(m, (LumpedModel,)) and load.dof >= m.n_dof:
+            raise ctx.error(f"excitation.loads[{i}].dof",
+                            f"must be < {m.n_dof} (the model has {m.n_dof} DOFs)")
+        if isinstance(m, (LumpedModel, ROMModel)) and load.dof < 0:
+            raise ctx.error(f"excitation.loads[{i}].dof", "is required for this model kind")
+        if isinstance(m, FEModel) and not load.point:
+            raise ctx.error(f"excitation.loads[{i}].point", "is required for an FE model")
+    a = scene.analysis
+    for name in ("hbm", "epmc"):
+        sec = getattr(a, name)
+        if sec is not None:
+            if 1 not in sec.harmonics:
+                raise ctx.error(f"analysis.{name}.harmonics", "must include harmonic 1")
+            if len(set(sec.harmonics)) != len(sec.harmonics):
+                raise ctx.error(f"analysis.{name}.harmonics", "must not repeat a harmonic")
+            hmax = max(sec.harmonics)
+            if sec.n_samples < 2 * hmax + 1:
+                raise ctx.error(f"analysis.{name}.n_samples",
+                                f"must be >= 2*max(harmonics)+1 = {2 * hmax + 1} to avoid "
+                                f"aliasing, got {sec.n_samples}")
+    if a.hbm is not None and a.hbm.step_min > a.hbm.step_max:
+        raise ctx.error("analysis.hbm.step_min", "must not exceed analysis.hbm.step_max")
+
+
+def load_scene(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> Scene:
+    """Read, override and validate a scene file.
+
+    Parameters
+    ----------
+    path : str or Path
+        TOML scene file.
+    overrides : sequence of str
+        ``key=value`` items, as given to ``--set``.
+
+    Raises
+    ------
+    SceneError
+        On any problem; the message names the file and the key.
+    """
+    file = str(path)
+    p = Path(path)
+    if not p.is_file():
+        raise SceneError(file, "", "does not exist or is not a file")
+    try:
+        data = _toml.loads(p.read_text(encoding="utf-8"))
+    except _toml.TOMLDecodeError as exc:
+        raise SceneError(file, "", f"is not valid TOML: {exc}") from None
+    except UnicodeDecodeError:
+        raise SceneError(file, "", "is not UTF-8 text") from None
+    data = apply_overrides(data, list(overrides), file)
+    return parse_scene(data, file, p.parent)

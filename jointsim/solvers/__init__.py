@@ -1,0 +1,1 @@
+"""Solvers: prescribed motion, statics, harmonic balance, continuation, time marching."""
