@@ -111,6 +111,12 @@ def _describe(value: Any) -> str:
     return repr(value)
 
 
+def suggest(name: str, known: list[str]) -> list[str]:
+    """Known names that ``name`` was probably meant to be (case-insensitive first)."""
+    same = [k for k in known if k.lower() == name.lower()]
+    return same or difflib.get_close_matches(name, known, n=1)
+
+
 def _convert_scalar(tp: type, value: Any, key: str, ctx: Context) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -197,7 +203,7 @@ def build(cls: type, data: dict, prefix: str, ctx: Context) -> Any:
     key_of = (lambda name: f"{prefix}.{name}") if prefix else (lambda name: name)
     for name in data:
         if name not in fields:
-            close = difflib.get_close_matches(name, list(fields), n=1)
+            close = suggest(name, list(fields))
             hint = f" (did you mean {key_of(close[0])!r}?)" if close else ""
             known = ", ".join(sorted(fields))
             raise ctx.error(key_of(name), f"is not a known key{hint}; known keys here: {known}")
@@ -240,8 +246,12 @@ def to_plain(obj: Any) -> Any:
     return obj
 
 
-def field_docs(cls: type, prefix: str = "") -> list[tuple[str, str, str, str]]:
-    """Rows (key, default, unit, doc) for every documented field, for the README."""
+def field_docs(cls: type, prefix: str = "", leaves: tuple = ()) -> list[tuple[str, str, str, str]]:
+    """Rows (key, default, unit, doc) for every field, for the README.
+
+    Nested dataclasses are expanded, except the types in ``leaves``, which
+    are documented on their own.
+    """
     rows = []
     hints = typing.get_type_hints(cls)
     for f in dataclasses.fields(cls):
@@ -249,8 +259,8 @@ def field_docs(cls: type, prefix: str = "") -> list[tuple[str, str, str, str]]:
             continue
         key = f"{prefix}.{f.name}" if prefix else f.name
         tp = hints[f.name]
-        if dataclasses.is_dataclass(tp):
-            rows.extend(field_docs(tp, key))
+        if dataclasses.is_dataclass(tp) and tp not in leaves:
+            rows.extend(field_docs(tp, key, leaves))
             continue
         if f.default is not dataclasses.MISSING:
             default = repr(f.default)

@@ -7,6 +7,10 @@
     Make the figures of result files (next to each file, in ``<stem>_figures/``).
 ``jointsim info OUT.h5``
     Print a summary table.
+``jointsim check SCENE [--set key=value ...]``
+    Validate a scene and print the kernels it selects.
+``jointsim keys``
+    Print every scene key with its default, unit and meaning (markdown).
 """
 from __future__ import annotations
 
@@ -43,6 +47,8 @@ def _parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("info", parents=[common], help="print a summary of a result file")
     i.add_argument("result", help="result file (HDF5)")
+
+    sub.add_parser("keys", parents=[common], help="print every scene key as a markdown table")
 
     c = sub.add_parser("check", parents=[common], help="validate a scene without running it")
     c.add_argument("scene")
@@ -90,6 +96,10 @@ def main(argv: list[str] | None = None) -> int:
                 from .post import combined_figures
                 for fig in combined_figures(args.results, args.outdir):
                     print(fig)
+            return 0
+        if args.command == "keys":
+            from .scene import key_table
+            print(key_table())
             return 0
         if args.command == "info":
             from .post.tables import info_text

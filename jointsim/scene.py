@@ -22,12 +22,13 @@ from __future__ import annotations
 import copy
 import dataclasses
 import logging
+import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
 from . import _toml
-from ._schema import Context, SceneError, build, spec, to_plain
+from ._schema import Context, SceneError, build, field_docs, spec, suggest, to_plain
 
 __all__ = [
     "SceneError", "Scene", "load_scene", "parse_scene", "apply_overrides",
@@ -104,9 +105,11 @@ class PrescribedModel:
     """One contact element driven by a prescribed tangential motion and normal load."""
 
     kind: str = spec("prescribed", choices=("prescribed",))
-    u_t: Signal = spec(doc="tangential displacement u_t(t)", unit="m",
+    u_t: Signal = spec(doc="tangential displacement u_t(t): a signal table or a number",
+                       unit="m",
                        coerce=_signal_shorthand)
-    N: Signal = spec(doc="normal load N(t)", unit="N", coerce=_signal_shorthand)
+    N: Signal = spec(doc="normal load N(t): a signal table or a number", unit="N",
+                     coerce=_signal_shorthand)
     omega: float = spec(doc="base angular frequency", unit="rad/s", gt=0)
     n_periods: int = spec(3, doc="periods marched from rest; the last one is reported",
                           ge=2, le=10_000)
@@ -267,7 +270,8 @@ class Damping:
 class Load:
     """A harmonic (plus static) force on one DOF or on a named point of the mesh."""
 
-    force: Signal = spec(doc="force signal", unit="N", coerce=_signal_shorthand)
+    force: Signal = spec(doc="force: a signal table or a number", unit="N",
+                         coerce=_signal_shorthand)
     dof: int = spec(-1, doc="DOF index (lumped and ROM models)", ge=-1)
     point: str = spec("", doc="named mesh point (FE models), e.g. 'excitation'")
     direction: str = spec("y", choices=("x", "y"), doc="force direction at a mesh point")
@@ -481,8 +485,7 @@ def parse_scene(data: dict, file: str = "<scene>", base_dir: Path | None = None)
     allowed = ["model", *SECTIONS]
     for key in data:
         if key not in allowed:
-            import difflib
-            close = difflib.get_close_matches(key, allowed, n=1)
+            close = suggest(key, allowed)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise ctx.error(key, f"is not a known section{hint}; known: {', '.join(allowed)}")
     if "model" not in data:
@@ -574,3 +577,30 @@ def load_scene(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) ->
         raise SceneError(file, "", "is not UTF-8 text") from None
     data = apply_overrides(data, list(overrides), file)
     return parse_scene(data, file, p.parent)
+
+
+def key_table() -> str:
+    """Every scene key with default, unit and meaning, as markdown tables."""
+    parts = [("model (kind = prescribed)", PrescribedModel, "model"),
+             ("model (kind = lumped)", LumpedModel, "model"),
+             ("model.contacts[] (lumped)", LumpedContact, "model.contacts[]"),
+             ("model (kind = fe)", FEModel, "model"),
+             ("model.bolts[] (fe)", Bolt, "model.bolts[]"),
+             ("model (kind = rom)", ROMModel, "model"),
+             ("signals (u_t, N, force)", Signal, "<signal>"),
+             ("signal harmonics", Harmonic, "<signal>.harmonics[]"),
+             ("scene", Meta, "scene"), ("joint", Joint, "joint"), ("effects", Effects, "effects"),
+             ("damping", Damping, "damping"),
+             ("excitation.loads[]", Load, "excitation.loads[]")]
+    for f in dataclasses.fields(Analyses):
+        tp = typing.get_type_hints(Analyses)[f.name]
+        cls = next(a for a in typing.get_args(tp) if a is not type(None)) \
+            if typing.get_origin(tp) is not None else tp
+        parts.append((f"analysis.{f.name}", cls, f"analysis.{f.name}"))
+    out = []
+    for title, cls, prefix in parts:
+        out += [f"**{title}**", "", "| key | default | unit | meaning |", "|---|---|---|---|"]
+        for key, default, unit, doc in field_docs(cls, prefix, leaves=(Signal,)):
+            out.append(f"| `{key}` | {default} | {unit} | {doc} |")
+        out.append("")
+    return "\n".join(out)

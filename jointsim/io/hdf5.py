@@ -110,6 +110,8 @@ class ResultWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb):
+        if not self.h5.id.valid:  # already finished
+            return False
         if exc_type is None:
             if self.h5.attrs.get("status") == "running":
                 self.finish("complete", "")

@@ -1,0 +1,80 @@
+"""The result-file contract (DESIGN §4) and incremental writing."""
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from jointsim import __version__
+from jointsim import _toml
+from jointsim.io.hdf5 import SCHEMA_VERSION, ResultWriter
+from jointsim.run import run_scene
+from jointsim.scene import load_scene
+
+SEED = Path(__file__).resolve().parents[1] / "models" / "seed_fig3"
+
+
+def test_contract_of_a_prescribed_run(tmp_path):
+    scene = load_scene(SEED / "sin2.toml")
+    out = run_scene(scene, tmp_path / "r.h5")
+    with h5py.File(out, "r") as h5:
+        a = h5.attrs
+        assert a["schema_version"] == SCHEMA_VERSION
+        assert a["jointsim_version"] == __version__
+        assert _toml.loads(a["scene"])["joint"]["reversal"] == "scaled"
+        assert "created" in a and a["status"] == "complete"
+        ns = scene.model.n_samples
+        for name in ("u", "f", "N"):
+            assert h5[f"loops/{name}"].shape == (1, 1, ns)
+            assert h5[f"loops/{name}"].dtype == np.float64
+            assert "unit" in h5[f"loops/{name}"].attrs
+        for name in ("dev_manifold", "dev_masing"):
+            assert h5[f"masing/{name}"].shape == (1, 1)
+        assert h5["masing/on_manifold"].dtype == bool
+        assert h5["masing"].attrs["tol"] == 0.01
+
+        def units_everywhere(name, obj):
+            if isinstance(obj, h5py.Dataset):
+                assert "unit" in obj.attrs, name
+        h5.visititems(units_everywhere)
+        # the loop is the last period of the stored history
+        np.testing.assert_array_equal(h5["loops/f"][0, 0], h5["prescribed/f"][0, -ns:])
+
+
+def test_interrupted_run_leaves_a_valid_file(tmp_path):
+    scene = load_scene(SEED / "const.toml")
+    path = tmp_path / "partial.h5"
+    with pytest.raises(RuntimeError):
+        with ResultWriter(path, scene) as w:
+            for i in range(3):
+                w.append("hbm/omega", np.float64(i), "rad/s")
+            raise RuntimeError("solver blew up")
+    with h5py.File(path, "r") as h5:
+        assert h5.attrs["status"] == "failed"
+        assert "solver blew up" in h5.attrs["message"]
+        np.testing.assert_array_equal(h5["hbm/omega"][()], [0.0, 1.0, 2.0])
+
+
+def test_resume_appends_and_rejects_another_scene(tmp_path):
+    scene = load_scene(SEED / "const.toml")
+    path = tmp_path / "r.h5"
+    with ResultWriter(path, scene) as w:
+        w.append("hbm/omega", np.float64(1.0), "rad/s")
+        w.finish("interrupted", "stopped")
+    with ResultWriter(path, scene, resume=True) as w:
+        assert w.rows("hbm/omega") == 1
+        w.append("hbm/omega", np.float64(2.0), "rad/s")
+    with h5py.File(path, "r") as h5:
+        assert list(h5["hbm/omega"][()]) == [1.0, 2.0]
+        assert h5.attrs["status"] == "complete"
+    other = load_scene(SEED / "const.toml", ["joint.mu=0.3"])
+    with pytest.raises(ValueError, match="different scene"):
+        ResultWriter(path, other, resume=True)
+
+
+def test_append_shape_mismatch_is_an_error(tmp_path):
+    scene = load_scene(SEED / "const.toml")
+    with ResultWriter(tmp_path / "r.h5", scene) as w:
+        w.append("x", np.zeros(3), "m")
+        with pytest.raises(ValueError, match="does not fit"):
+            w.append("x", np.zeros(4), "m")
