@@ -54,3 +54,18 @@ def test_sin2_physical_violates_eq4(tmp_path):
     m, _ = run(tmp_path, "sin2", "joint.reversal=anchor")
     assert not m["eq4_ok"] and m["eq4_margin"] < 0
     assert m["eq6_ok"]
+
+
+def test_normal_load_from_a_file_gives_the_same_loop(tmp_path):
+    """N(t) sampled into a two-column file reproduces the harmonic definition."""
+    import shutil
+    shutil.copy(SEED / "sin2.toml", tmp_path / "sin2.toml")
+    n = 1024
+    t = np.arange(n + 1) / n  # one period of w = 2 pi, closed
+    np.savetxt(tmp_path / "N.txt", np.column_stack([t[:-1], 5 + np.sin(4 * np.pi * t[:-1])]))
+    base = run_scene(load_scene(SEED / "sin2.toml"), tmp_path / "a.h5")
+    filed = run_scene(load_scene(tmp_path / "sin2.toml", ['model.N={ file = "N.txt" }']),
+                      tmp_path / "b.h5")
+    with h5py.File(base, "r") as a, h5py.File(filed, "r") as b:
+        np.testing.assert_allclose(b["loops/N"][()], a["loops/N"][()], atol=1e-12)
+        np.testing.assert_allclose(b["loops/f"][()], a["loops/f"][()], atol=1e-12)
