@@ -9,6 +9,8 @@
     Print a summary table.
 ``jointsim check SCENE [--set key=value ...]``
     Validate a scene and print the kernels it selects.
+``jointsim sweep SCENE --vary key=v1,v2,... [--scheduler ADDRESS]``
+    Run every combination of parameter values on dask.distributed.
 ``jointsim keys``
     Print every scene key with its default, unit and meaning (markdown).
 """
@@ -47,6 +49,19 @@ def _parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("info", parents=[common], help="print a summary of a result file")
     i.add_argument("result", help="result file (HDF5)")
+
+    w = sub.add_parser("sweep", parents=[common],
+                       help="run a scene for every combination of parameter values (dask)")
+    w.add_argument("scene")
+    w.add_argument("--vary", action="append", default=[], metavar="KEY=V1,V2,...",
+                   help="a sweep axis (repeatable; the sweep is their Cartesian product)")
+    w.add_argument("--set", dest="overrides", action="append", default=[],
+                   metavar="KEY=VALUE", help="override applied to every run")
+    w.add_argument("-o", "--outdir", default=None,
+                   help="folder of the result files (default: results/<scene>_sweep)")
+    w.add_argument("--scheduler", default=None,
+                   help="address of a running dask scheduler (default: a local cluster)")
+    w.add_argument("--workers", type=int, default=2, help="workers of the local cluster")
 
     sub.add_parser("keys", parents=[common], help="print every scene key as a markdown table")
 
@@ -96,6 +111,12 @@ def main(argv: list[str] | None = None) -> int:
                 from .post import combined_figures
                 for fig in combined_figures(args.results, args.outdir):
                     print(fig)
+            return 0
+        if args.command == "sweep":
+            from .sweep import run_sweep
+            outdir = args.outdir or Path("results") / (Path(args.scene).stem + "_sweep")
+            print(run_sweep(args.scene, args.vary, outdir, args.scheduler, args.workers,
+                            args.overrides))
             return 0
         if args.command == "keys":
             from .scene import key_table

@@ -1,0 +1,176 @@
+"""Parameter sweeps: one scene, many overrides, run on dask.distributed.
+
+A sweep is the Cartesian product of ``--vary key=v1,v2,...`` lists applied to
+one scene.  Every variant is validated before anything is submitted (a bad
+value names the key and writes nothing); each variant then runs as its own
+``jointsim run`` on a dask worker and writes its own result file.  An index
+file ``sweep.h5`` records, for every variant, its overrides, its result file
+and how it ended; it is written as variants finish, so an interrupted sweep
+shows what is done.
+
+Without a scheduler address a local cluster of processes is started on this
+machine; with ``--scheduler tcp://host:8786`` the variants go to an existing
+cluster that shares the file system.
+"""
+from __future__ import annotations
+
+import itertools
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .scene import SceneError, load_scene
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One point of a sweep: its overrides and its result file."""
+
+    index: int
+    overrides: tuple[str, ...]
+    output: Path
+
+
+def expand(vary: list[str], file: str) -> list[tuple[str, ...]]:
+    """Cartesian product of ``key=v1,v2,...`` lists into override tuples.
+
+    Values are split on commas outside brackets and braces, so
+    ``model.n_samples=[1,2],[3]`` is not what you want but
+    ``joint.mu=0.1,0.2`` and ``joint.law=jenkins,iwan4`` are.
+    """
+    axes = []
+    for item in vary:
+        if "=" not in item:
+            raise SceneError(file, item, "sweep axis must look like key=v1,v2,... (from --vary)")
+        key, values = item.split("=", 1)
+        parts = _split_top_level(values)
+        if not parts or any(p.strip() == "" for p in parts):
+            raise SceneError(file, key, "sweep axis has an empty value (from --vary)")
+        axes.append([f"{key.strip()}={p.strip()}" for p in parts])
+    return [tuple(c) for c in itertools.product(*axes)] if axes else [()]
+
+
+def _split_top_level(text: str) -> list[str]:
+    out, depth, cur = [], 0, []
+    for ch in text:
+        if ch in "[{":
+            depth += 1
+        elif ch in "]}":
+            depth -= 1
+        if ch == "," and depth == 0:
+            out.append("".join(cur))
+            cur = []
+        else:
+            cur.append(ch)
+    out.append("".join(cur))
+    return out
+
+
+def plan(scene_path, vary: list[str], outdir, common: list[str] = ()) -> list[Variant]:
+    """Validate every variant of a sweep and name its result file.
+
+    Raises
+    ------
+    SceneError
+        For the first invalid variant; nothing is written.
+    """
+    outdir = Path(outdir)
+    stem = Path(scene_path).stem
+    variants = []
+    for i, combo in enumerate(expand(vary, str(scene_path))):
+        overrides = tuple(common) + combo
+        load_scene(scene_path, list(overrides))  # validates; raises SceneError
+        variants.append(Variant(i, overrides, outdir / f"{stem}_{i:04d}.h5"))
+    return variants
+
+
+def run_variant(scene_path: str, variant: Variant) -> dict:
+    """Run one variant (on a worker).  Never raises: failures are reported."""
+    from .run import run_scene
+    try:
+        scene = load_scene(scene_path, list(variant.overrides))
+        run_scene(scene, variant.output)
+        return {"index": variant.index, "status": "complete", "message": ""}
+    except Exception as exc:  # reported in the index, the sweep goes on
+        return {"index": variant.index, "status": "failed",
+                "message": f"{type(exc).__name__}: {exc}"}
+
+
+def run_sweep(scene_path, vary: list[str], outdir, scheduler: str | None = None,
+              n_workers: int = 2, common: list[str] = ()) -> Path:
+    """Run a sweep and write its index ``outdir/sweep.h5``.
+
+    Parameters
+    ----------
+    scene_path : str or Path
+        The scene file.
+    vary : list of str
+        Sweep axes ``key=v1,v2,...``.
+    outdir : str or Path
+        Folder of the result files and the index.
+    scheduler : str, optional
+        Address of a running dask scheduler; default: a local cluster.
+    n_workers : int
+        Worker processes of the local cluster.
+    common : list of str
+        Overrides applied to every variant.
+
+    Returns
+    -------
+    Path
+        The index file.
+    """
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ModuleNotFoundError:
+        raise NotImplementedError("sweeps need dask.distributed: pip install 'jointsim[dask]'") \
+            from None
+    from tqdm import tqdm
+
+    variants = plan(scene_path, vary, outdir, common)
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    index = outdir / "sweep.h5"
+    with h5py.File(index, "w") as h5:
+        h5.attrs["scene_path"] = str(scene_path)
+        h5.attrs["axes"] = np.array(vary, dtype=h5py.string_dtype())
+        h5.attrs["common"] = np.array(list(common), dtype=h5py.string_dtype())
+        s = h5py.string_dtype()
+        h5.create_dataset("overrides", data=np.array([" ".join(v.overrides) for v in variants],
+                                                     dtype=s))
+        h5.create_dataset("output", data=np.array([v.output.name for v in variants], dtype=s))
+        h5.create_dataset("status", data=np.array(["pending"] * len(variants), dtype=s))
+        h5.create_dataset("message", data=np.array([""] * len(variants), dtype=s))
+        for name in ("overrides", "output", "status", "message"):
+            h5[name].attrs["unit"] = "1"
+    cluster = None
+    if scheduler:
+        client = Client(scheduler)
+    else:
+        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        client = Client(cluster)
+    n_failed = 0
+    try:
+        futures = [client.submit(run_variant, str(scene_path), v, pure=False) for v in variants]
+        with h5py.File(index, "a") as h5:
+            for fut in tqdm(as_completed(futures), total=len(futures), desc="sweep",
+                            unit="run"):
+                r = fut.result()
+                h5["status"][r["index"]] = r["status"]
+                h5["message"][r["index"]] = r["message"]
+                h5.flush()
+                if r["status"] != "complete":
+                    n_failed += 1
+                    log.warning("variant %d failed: %s", r["index"], r["message"])
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    log.info("sweep of %d runs done, %d failed; index %s", len(variants), n_failed, index)
+    return index
