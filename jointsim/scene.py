@@ -177,39 +177,59 @@ class LumpedModel:
 
 @dataclass(frozen=True, kw_only=True)
 class Bolt:
-    """A bolt of the FE lap joint: a spring across the lap plus a clamping force."""
+    """A bolt of the FE lap joint: an axial spring between two tagged mesh nodes
+    plus a clamping preload (bolt-load procedure: the preload is exact in the
+    preload state; the spring acts on changes of length afterwards)."""
 
-    x: float = spec(doc="axial position of the bolt", unit="m")
+    tag: str = spec(doc="mesh point sets '<tag>_lower' and '<tag>_upper' are the bolt's "
+                        "two ends (e.g. 'bolt1')")
     preload: float = spec(12e3, doc="clamping force", unit="N", ge=0)
     stiffness: float = spec(2.0e8, doc="axial spring stiffness of the bolt", unit="N/m", gt=0)
 
 
 @dataclass(frozen=True, kw_only=True)
 class FEModel:
-    """The 2D plane-stress lap joint built from a mesh with scikit-fem."""
+    """The 2D plane-stress lap joint built from a tagged mesh with scikit-fem,
+    preloaded and reduced by Craig-Bampton (see docs/fe.md)."""
 
     kind: str = spec("fe", choices=("fe",))
-    mesh: str = spec(doc="mesh file readable by meshio, relative to the scene", path=True)
+    mesh: str = spec(doc="tagged mesh file readable by meshio (gmsh .msh), relative to "
+                         "the scene", path=True)
     E: float = spec(200e9, doc="Young's modulus", unit="Pa", gt=0)
     nu: float = spec(0.29, doc="Poisson's ratio", ge=0, lt=0.5)
     rho: float = spec(7800.0, doc="density", unit="kg/m^3", gt=0)
     thickness: float = spec(0.0254, doc="out-of-plane depth (plane stress)", unit="m", gt=0)
     bolts: tuple[Bolt, ...] = spec((), doc="array of bolt tables")
     suspension_stiffness: float = spec(
-        1.0e3, doc="stiffness of each soft suspension spring", unit="N/m", gt=0)
+        1.0e3, doc="stiffness of each soft suspension spring (x and y at every mesh point "
+                   "set named 'suspension*')", unit="N/m", gt=0)
+    interface_lower: str = spec("interface_lower", doc="mesh edge set of the interface's "
+                                                       "lower side")
+    interface_upper: str = spec("interface_upper", doc="mesh edge set of the interface's "
+                                                       "upper side")
+    retain_points: tuple[str, ...] = spec(
+        ("excitation", "response"), doc="mesh point sets whose x and y DOFs Craig-Bampton "
+                                        "keeps (besides the interface and bolt DOFs)")
     n_modes: int = spec(30, doc="fixed-interface modes kept by Craig-Bampton", ge=0)
     preload_tangential: str = spec(
         "stuck", choices=("stuck", "frictionless"),
         doc="tangential state of the interface during the preload solve")
+    preload_tol: float = spec(1e-10, doc="relative residual tolerance of the preload solve",
+                              gt=0, lt=1e-2)
     units: str = spec("SI", choices=("SI",))
 
 
 @dataclass(frozen=True, kw_only=True)
 class ROMModel:
-    """A reduced model brought from elsewhere (.npz, .mat or HDF5)."""
+    """A reduced model brought from elsewhere (.npz, .mat or HDF5; see docs/fe.md)."""
 
     kind: str = spec("rom", choices=("rom",))
     file: str = spec(doc="reduced model file (.npz, .mat, .h5)", path=True)
+    preload_tangential: str = spec(
+        "stuck", choices=("stuck", "frictionless"),
+        doc="tangential state of the interface during the preload solve")
+    preload_tol: float = spec(1e-10, doc="relative residual tolerance of the preload solve",
+                              gt=0, lt=1e-2)
     units: str = spec("SI", choices=UNITS)
 
 
@@ -301,7 +321,16 @@ class MasingAnalysis:
 
 @dataclass(frozen=True, kw_only=True)
 class ModesAnalysis:
+    """Linear modes of the preloaded joint with a stuck interface."""
+
     n_modes: int = spec(10, doc="linear modes of the preloaded, stuck joint", ge=1)
+    suspension_hz: float = spec(20.0, doc="modes below this frequency are rigid-body "
+                                          "(suspension) modes, not elastic ones", unit="Hz",
+                                ge=0)
+    full_model: bool = spec(False, doc="also solve the unreduced FE model and compare "
+                                       "(FE models)")
+    monolithic: bool = spec(False, doc="also solve the monolithic beam: the same mesh with "
+                                       "coincident nodes glued (FE models)")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -1,0 +1,345 @@
+"""Nonlinear static equilibrium with contact (bolt preload, quasi-static loading).
+
+Solves ``R(x) = K x + Tt^T f_t(x) - Tn^T N(x) - f = 0`` for a structure with
+a :class:`~jointsim.model.ContactSet` (sign conventions in
+:mod:`jointsim.model`), by Newton's method with a backtracking line search and
+load stepping: the load goes from ``f_start`` to ``f`` in increments; a
+failed increment is halved and retried, and a solve that gives up returns the
+last converged state with the reason.
+
+Normal contact (``normal``):
+
+* ``"unilateral"``: ``N = kn A max(0, -g)``, ``g = gap0 + Tn x``;
+* ``"bilateral"``: ``N = -kn A g``;
+* ``"fixed"``: ``N = N0`` (the normal springs, if any, are already in ``K``).
+
+Tangential contact (``tangential``):
+
+* ``"stuck"``: a Jenkins element that never slips, ``f_t = kt A (u_t - w)``
+  while in contact (``g <= 0``; ``N0 > 0`` for a fixed normal load) and 0
+  while separated (``w``: the anchors, from ``state``,
+  default 0);
+* ``"linear"``: the spring ``kt A (u_t - w)`` whatever ``N``;
+* ``"frictionless"``: ``f_t = 0``;
+* ``"law"``: the contact set's law marched by one step from ``state`` (one
+  quasi-static load increment, friction history included); the returned
+  ``state`` is the law state at the solution.
+
+The Jacobian is exact (piecewise): ``K + Tt^T D_u Tt + Tt^T D_N D_g Tn -
+Tn^T D_g Tn`` with ``D_u = df_t/du_t``, ``D_N = df_t/dN``, ``D_g = dN/dg``.
+At a converged point it is the tangent stiffness of the state.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..results import NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS, Convergence
+
+log = logging.getLogger(__name__)
+
+NORMAL_MODES = ("unilateral", "bilateral", "fixed")
+TANGENTIAL_MODES = ("stuck", "linear", "frictionless", "law")
+
+
+@dataclass(frozen=True)
+class StaticResult:
+    """A static equilibrium.
+
+    Attributes
+    ----------
+    x : ndarray, shape (n_dof,)
+        Displacements [m].
+    N : ndarray, shape (n_e,)
+        Normal loads [N].
+    gap : ndarray, shape (n_e,)
+        Normal gaps ``gap0 + Tn x`` [m].
+    u_t : ndarray, shape (n_e,)
+        Tangential slips ``Tt x`` [m].
+    f_t : ndarray, shape (n_e,)
+        Tangential forces [N].
+    state : ndarray
+        Tangential state at the solution (anchors for ``stuck``/``linear``,
+        the law's state for ``law``).
+    K_t : scipy.sparse.csr_matrix, shape (n_dof, n_dof)
+        Tangent stiffness at ``x`` [N/m].  For ``tangential = "law"`` it is
+        the consistent tangent of the last load increment (sliders that
+        slipped in it have zero stiffness: the tangent for continued
+        loading); :func:`tangent_stiffness` with the returned ``state``
+        gives the tangent for a reversal (everything sticks).
+    load_factor : float
+        Fraction of the load increment ``f - f_start`` reached (1 on success).
+    residual : float
+        Final ``||R|| / scale`` [-].
+    convergence : Convergence
+        ``iterations`` counts Newton iterations over all increments.
+    """
+
+    x: np.ndarray
+    N: np.ndarray
+    gap: np.ndarray
+    u_t: np.ndarray
+    f_t: np.ndarray
+    state: np.ndarray
+    K_t: sp.csr_matrix
+    load_factor: float
+    residual: float
+    convergence: Convergence = field(repr=False)
+
+
+class _Problem:
+    """Residual and Jacobian of the static equations (one load increment)."""
+
+    def __init__(self, K, contacts, normal, tangential, state):
+        self.K = sp.csr_matrix(K)
+        self.c = contacts
+        self.Tt = sp.csr_matrix(contacts.Tt)
+        self.Tn = sp.csr_matrix(contacts.Tn)
+        self.normal = normal
+        self.tangential = tangential
+        self.state = state
+        ne = contacts.n_elements
+        self.kt = contacts.law.kt if tangential in ("stuck", "linear") else np.zeros(ne)
+
+    def evaluate(self, x, f, jacobian=True):
+        c = self.c
+        g = c.gap0 + self.Tn @ x
+        # the boundary g = 0 belongs to the closed side (a generalised
+        # Jacobian): starting from touching surfaces, the first Newton step
+        # sees the contact stiffness, so bodies held only by the contact are
+        # not singular
+        if self.normal == "unilateral":
+            N = c.kn * np.maximum(0.0, -g)
+            closed = g <= 0.0
+            dNdg = np.where(closed, -c.kn, 0.0)
+        elif self.normal == "bilateral":
+            N = -c.kn * g
+            closed = g <= 0.0
+            dNdg = -c.kn.copy()
+        else:
+            N = np.asarray(c.N0, dtype=float).copy()
+            closed = N > 0.0
+            dNdg = np.zeros_like(N)
+        u = self.Tt @ x
+        new_state = self.state
+        if self.tangential in ("stuck", "linear"):
+            on = closed if self.tangential == "stuck" else np.ones(N.shape, bool)
+            dfdu = np.where(on, self.kt, 0.0)
+            ft = dfdu * (u - self.state)
+            dfdN = np.zeros_like(ft)
+        elif self.tangential == "frictionless":
+            ft = np.zeros_like(u)
+            dfdu = np.zeros_like(u)
+            dfdN = np.zeros_like(u)
+        else:
+            ft, dfdu, dfdN, new_state = c.law.march(u[:, None], N[:, None], self.state)
+            ft, dfdu, dfdN = ft[:, 0], dfdu[:, 0], dfdN[:, 0]
+        fint = self.K @ x + self.Tt.T @ ft - self.Tn.T @ N
+        R = fint - f
+        scale = max(np.linalg.norm(f), np.linalg.norm(self.Tn.T @ N),
+                    np.linalg.norm(self.Tt.T @ ft), 1e-300)
+        out = dict(R=R, scale=scale, N=N, g=g, u=u, ft=ft, state=new_state)
+        if jacobian:
+            Tt, Tn = self.Tt, self.Tn
+            J = (self.K + Tt.T @ sp.diags(dfdu) @ Tt + Tt.T @ sp.diags(dfdN * dNdg) @ Tn
+                 - Tn.T @ sp.diags(dNdg) @ Tn)
+            out["J"] = sp.csr_matrix(J)
+        return out
+
+
+def _default_modes(contacts, normal, tangential):
+    k = contacts.kernels
+    if normal is None:
+        normal = {"given": "fixed", "unilateral": "unilateral",
+                  "bilateral": "bilateral"}[k.normal]
+    if tangential is None:
+        tangential = "law"
+    if tangential == "law" and k.tangential == "none":
+        tangential = "frictionless"
+    if tangential == "law" and k.tangential == "linear":
+        tangential = "linear"
+    if normal not in NORMAL_MODES:
+        raise ValueError(f"normal must be one of {NORMAL_MODES}, got {normal!r}")
+    if tangential not in TANGENTIAL_MODES:
+        raise ValueError(f"tangential must be one of {TANGENTIAL_MODES}, got {tangential!r}")
+    return normal, tangential
+
+
+def _initial_state(contacts, tangential, state):
+    if state is not None:
+        return np.array(state, dtype=float, copy=True)
+    ne = contacts.n_elements
+    if tangential == "law":
+        return contacts.law.rest_state(contacts.N0)
+    return np.zeros(ne)
+
+
+def stuck_mode(contacts) -> str:
+    """The tangential mode of a stuck interface for the scene's law.
+
+    ``"linear"`` for the linear (``stuck``) law, ``"frictionless"`` without
+    friction, else ``"stuck"`` (sticks where the element is in contact, like
+    the friction laws at small amplitude).
+    """
+    k = contacts.kernels.tangential
+    return {"linear": "linear", "none": "frictionless"}.get(k, "stuck")
+
+
+def tangent_stiffness(K, contacts, x, *, tangential=None, normal=None, state=None):
+    """Tangent stiffness ``dR/dx`` at ``x``.
+
+    Parameters
+    ----------
+    K : sparse matrix, shape (n_dof, n_dof)
+    contacts : jointsim.model.ContactSet
+    x : ndarray, shape (n_dof,)
+    tangential, normal : str, optional
+        Modes as in :func:`solve_static`; ``tangential`` defaults to the stuck
+        interface (:func:`stuck_mode`), ``normal`` to the scene's kernel.
+    state : ndarray, optional
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, shape (n_dof, n_dof) [N/m]
+    """
+    if tangential is None:
+        tangential = stuck_mode(contacts)
+    normal, tangential = _default_modes(contacts, normal, tangential)
+    prob = _Problem(K, contacts, normal, tangential,
+                    _initial_state(contacts, tangential, state))
+    return prob.evaluate(np.asarray(x, dtype=float), np.zeros(K.shape[0]))["J"]
+
+
+def residual(K, f, contacts, x, *, tangential=None, normal=None, state=None):
+    """Residual ``R(x)`` of the static equations [N], shape (n_dof,)."""
+    normal, tangential = _default_modes(contacts, normal, tangential)
+    prob = _Problem(K, contacts, normal, tangential,
+                    _initial_state(contacts, tangential, state))
+    return prob.evaluate(np.asarray(x, dtype=float), np.asarray(f, dtype=float),
+                         jacobian=False)["R"]
+
+
+def _factor_solve(J, b):
+    J = sp.csc_matrix(J)
+    if J.shape[0] <= 400:
+        return np.linalg.solve(J.toarray(), b)
+    return spla.splu(J).solve(b)
+
+
+def _newton(prob, x, f, tol, max_iter):
+    """Newton with backtracking line search; returns (ok, x, ev, iterations, message)."""
+    ev = prob.evaluate(x, f)
+    r = np.linalg.norm(ev["R"])
+    for it in range(1, max_iter + 1):
+        if not np.all(np.isfinite(ev["R"])):
+            return False, x, ev, it - 1, "non-finite residual"
+        if r <= tol * ev["scale"]:
+            return True, x, ev, it - 1, "converged"
+        try:
+            dx = _factor_solve(ev["J"], -ev["R"])
+        except (RuntimeError, np.linalg.LinAlgError) as exc:
+            return False, x, ev, it, f"singular tangent stiffness ({exc})"
+        if not np.all(np.isfinite(dx)):
+            return False, x, ev, it, "non-finite Newton step (singular tangent?)"
+        alpha = 1.0
+        while True:
+            x_try = x + alpha * dx
+            ev_try = prob.evaluate(x_try, f)
+            r_try = np.linalg.norm(ev_try["R"])
+            if r_try <= (1.0 - 1e-4 * alpha) * r or alpha < 1.0 / 32:
+                break
+            alpha *= 0.5
+        x, ev, r = x_try, ev_try, r_try
+    ok = r <= tol * ev["scale"]
+    return ok, x, ev, max_iter, ("converged" if ok else
+                                 f"no convergence in {max_iter} Newton iterations "
+                                 f"(residual {r / ev['scale']:.2e})")
+
+
+def solve_static(K, f, contacts, *, tangential=None, normal=None, state=None,
+                 x_start=None, f_start=None, tol: float = 1e-10, max_iter: int = 30,
+                 n_increments: int = 1, min_increment: float = 1e-4) -> StaticResult:
+    """Static equilibrium of a structure with contact.
+
+    Parameters
+    ----------
+    K : sparse matrix, shape (n_dof, n_dof)
+        Linear stiffness [N/m]; nonsingular on its own is not required.
+    f : ndarray, shape (n_dof,)
+        Applied load [N].
+    contacts : jointsim.model.ContactSet
+    tangential : str, optional
+        ``stuck``, ``linear``, ``frictionless`` or ``law`` (default ``law``;
+        see the module docstring).
+    normal : str, optional
+        ``unilateral``, ``bilateral`` or ``fixed`` (default: the scene's
+        normal kernel).
+    state : ndarray, optional
+        Tangential state at the start (anchors of shape (n_e,) for
+        ``stuck``/``linear``; the law's state for ``law``; default rest).
+    x_start : ndarray, shape (n_dof,), optional
+        Converged state at ``f_start`` (default 0).
+    f_start : ndarray, shape (n_dof,), optional
+        Load at ``x_start`` (default 0).
+    tol : float
+        Relative residual tolerance ``||R|| <= tol * scale`` with ``scale``
+        the largest of ``||f||``, ``||Tn^T N||``, ``||Tt^T f_t||``.
+    max_iter : int
+        Newton iterations per increment.
+    n_increments : int
+        Initial number of load increments (grows after successes, halves
+        after failures).
+    min_increment : float
+        Smallest load-factor increment before giving up.
+
+    Returns
+    -------
+    StaticResult
+    """
+    normal, tangential = _default_modes(contacts, normal, tangential)
+    n = K.shape[0]
+    f = np.asarray(f, dtype=float)
+    x = np.zeros(n) if x_start is None else np.array(x_start, dtype=float)
+    f0 = np.zeros(n) if f_start is None else np.asarray(f_start, dtype=float)
+    st = _initial_state(contacts, tangential, state)
+    lam, dlam = 0.0, 1.0 / max(1, n_increments)
+    total_it, message, status = 0, "", SUCCESS
+    ev = _Problem(K, contacts, normal, tangential, st).evaluate(x, f0)
+    while lam < 1.0:
+        step = min(dlam, 1.0 - lam)
+        prob = _Problem(K, contacts, normal, tangential, st)
+        f_l = f0 + (lam + step) * (f - f0)
+        ok, x_new, ev_new, its, msg = _newton(prob, x, f_l, tol, max_iter)
+        total_it += its
+        if ok:
+            x, ev = x_new, ev_new
+            lam = 1.0 if step >= 1.0 - lam else lam + step
+            st = ev["state"]
+            dlam = min(2.0 * step, 1.0)
+            continue
+        if msg.startswith("non-finite"):
+            status, message = NON_FINITE, msg
+        dlam = 0.5 * step
+        log.debug("static: increment %.3g failed (%s); retrying with %.3g", step, msg, dlam)
+        if dlam < min_increment:
+            status = status if status == NON_FINITE else STEP_TOO_SMALL
+            message = (f"gave up at load factor {lam:.4g}: increment below {min_increment:g}"
+                       f" ({msg})")
+            break
+    if lam >= 1.0:
+        message = (f"converged in {total_it} Newton iterations "
+                   f"(residual {np.linalg.norm(ev['R']) / ev['scale']:.1e})")
+    success = lam >= 1.0
+    if not success and status == SUCCESS:
+        status = NOT_CONVERGED
+    conv = Convergence(success, status if not success else SUCCESS, message, total_it)
+    res = np.linalg.norm(ev["R"]) / ev["scale"]
+    if not success:
+        log.warning("static solve: %s", message)
+    return StaticResult(x=x, N=ev["N"], gap=ev["g"], u_t=ev["u"], f_t=ev["ft"], state=st,
+                        K_t=ev["J"], load_factor=lam, residual=float(res), convergence=conv)
+
