@@ -331,6 +331,8 @@ class ModesAnalysis:
                                        "(FE models)")
     monolithic: bool = spec(False, doc="also solve the monolithic beam: the same mesh with "
                                        "coincident nodes glued (FE models)")
+    export_rom: str = spec("", doc="write the reduced model to this file (.npz, .mat or "
+                                   ".h5; relative to the result file's folder); '' skips it")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -11,7 +11,9 @@ Normal contact (``normal``):
 
 * ``"unilateral"``: ``N = kn A max(0, -g)``, ``g = gap0 + Tn x``;
 * ``"bilateral"``: ``N = -kn A g``;
-* ``"fixed"``: ``N = N0`` (the normal springs, if any, are already in ``K``).
+* ``"fixed"``: ``N = N0`` is the slip limit only; the normal force is the
+  linear spring already in ``K`` (:func:`jointsim.model.with_fixed_normal_springs`),
+  so the ``Tn^T N`` term is left out.
 
 Tangential contact (``tangential``):
 
@@ -138,7 +140,9 @@ class _Problem:
         else:
             ft, dfdu, dfdN, new_state = c.law.march(u[:, None], N[:, None], self.state)
             ft, dfdu, dfdN = ft[:, 0], dfdu[:, 0], dfdN[:, 0]
-        fint = self.K @ x + self.Tt.T @ ft - self.Tn.T @ N
+        fint = self.K @ x + self.Tt.T @ ft
+        if self.normal != "fixed":  # a fixed normal load is a linear spring in K
+            fint = fint - self.Tn.T @ N
         R = fint - f
         scale = max(np.linalg.norm(f), np.linalg.norm(self.Tn.T @ N),
                     np.linalg.norm(self.Tt.T @ ft), 1e-300)
