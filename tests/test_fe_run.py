@@ -90,3 +90,18 @@ def test_rom_scene_runs_from_the_exported_file(result, tmp_path):
                                    rtol=1e-9)
         np.testing.assert_allclose(a["static/N"][()], b["static/N"][()], rtol=0,
                                    atol=1e-9 * b["static/N"][()].max())
+
+
+@pytest.mark.parametrize("override,key", [
+    ("model.bolts.0.tag=bolt9", "model.bolts[0].tag"),
+    ("model.retain_points=['nowhere']", "model.retain_points"),
+    ("model.interface_lower=top", "model.interface_lower"),
+    ("excitation.loads.0.point=nowhere", "excitation.loads[0].point"),
+])
+def test_bad_fe_scene_names_the_key(override, key):
+    from jointsim.model import build_model
+    from jointsim.scene import SceneError, load_scene
+    scene = load_scene(SCENE, [COARSE, override])
+    with pytest.raises(SceneError) as err:
+        build_model(scene)
+    assert err.value.key == key and "lap_joint.toml" in str(err.value)

@@ -167,7 +167,10 @@ def read_mesh(path) -> FEMesh:
     """
     import meshio
     path = Path(path)
-    mesh = from_meshio(meshio.read(path), str(path))
+    # '.msh' is ambiguous to meshio (ANSYS or gmsh); it tries both and prints
+    # the failure of the first, so name the format
+    fmt = "gmsh" if path.suffix.lower() == ".msh" else None
+    mesh = from_meshio(meshio.read(path, file_format=fmt), str(path))
     log.debug("%s: %d nodes, %d quads, sets %s", path, len(mesh.points), len(mesh.quads),
               sorted([*mesh.cell_sets, *mesh.edge_sets, *mesh.point_sets]))
     return mesh
