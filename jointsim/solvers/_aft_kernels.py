@@ -44,6 +44,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+#: Elements from which the drivers run in parallel threads (below, thread start-up
+#: and barrier waits cost more than the work, badly so on a loaded machine).
+PARALLEL_MIN = 64
+
 from ..contact._kernels import (SC_DIR, SC_N_PREV, SC_N_R, SC_SHARED, SC_U_PREV, SC_U_R,
                                 slider_anchor_step, slider_scaled_force)
 
@@ -66,7 +70,91 @@ def _flush_run(Juu, Jug, e, CP, Gam, t0, t1, coef, s, a, b, coupled):
                 Jug[e, kk, j] += pb * Gam[s, j]
 
 
+@njit(cache=True)
+def _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
+                f, au, ag, Juu, Jug, periods, change):
+    """One element of :func:`anchor_aft` (outputs written in place)."""
+    nt = u.shape[1]
+    ns = k.shape[1]
+    nc = Gam.shape[1]
+    w = np.zeros(ns)
+    wstart = np.zeros(ns)
+    s = np.full(ns, -1, dtype=np.int64)
+    a = np.zeros(ns)
+    b = np.zeros(ns)
+    start = np.zeros(ns, dtype=np.int64)
+    umax = 0.0
+    for t in range(nt):
+        umax = max(umax, abs(u[e, t]))
+    for p in range(max_periods):
+        for kk in range(nc):
+            for j in range(nc):
+                Juu[e, kk, j] = 0.0
+                Jug[e, kk, j] = 0.0
+        for i in range(ns):
+            start[i] = 0
+            wstart[i] = w[i]
+        for t in range(nt):
+            ut = u[e, t]
+            Nt = N[e, t]
+            dn = dNdg[e, t]
+            fe = 0.0
+            de = 0.0
+            dg = 0.0
+            for i in range(ns):
+                fi, dfi, dni, _dfw, w1, dw1du, dw1dN, dw1dw = slider_anchor_step(
+                    ut, Nt, w[i], k[e, i], g[e, i])
+                if dw1dw == 0.0:
+                    # slipped or separated: the anchor follows the inputs at t
+                    _flush_run(Juu, Jug, e, CP, Gam, start[i], t, -k[e, i], s[i],
+                               a[i], b[i], coupled)
+                    s[i] = t
+                    a[i] = dw1du
+                    b[i] = dw1dN * dn
+                    start[i] = t + 1
+                w[i] = w1
+                fe += fi
+                de += dfi
+                dg += dni * dn
+            f[e, t] = fe
+            au[e, t] = de
+            ag[e, t] = dg
+        wmax = 0.0
+        ch = 0.0
+        for i in range(ns):
+            _flush_run(Juu, Jug, e, CP, Gam, start[i], nt, -k[e, i], s[i], a[i], b[i],
+                       coupled)
+            ch = max(ch, abs(w[i] - wstart[i]))
+            wmax = max(wmax, abs(w[i]))
+        scale = umax + wmax
+        rel = ch / scale if scale > 0.0 else 0.0
+        periods[e] = p + 1
+        change[e] = rel
+        if p + 1 >= min_periods and rel <= tol:
+            break
+
+
+def _alloc(ne, nt, nc):
+    return (np.zeros((ne, nt)), np.zeros((ne, nt)), np.zeros((ne, nt)), np.zeros((ne, nc, nc)),
+            np.zeros((ne, nc, nc)), np.zeros(ne, dtype=np.int64), np.zeros(ne))
+
+
+@njit(cache=True)
+def _anchor_serial(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
+                   f, au, ag, Juu, Jug, periods, change):
+    for e in range(u.shape[0]):
+        _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
+                    f, au, ag, Juu, Jug, periods, change)
+
+
 @njit(cache=True, parallel=True)
+def _anchor_parallel(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
+                     f, au, ag, Juu, Jug, periods, change):
+    for e in prange(u.shape[0]):
+        _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
+                    f, au, ag, Juu, Jug, periods, change)
+
+
 def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled):
     """Periodic march of banks of anchored sliders with history derivatives.
 
@@ -101,75 +189,152 @@ def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled
         Largest anchor change over the last period, relative [-].
     """
     ne, nt = u.shape
+    out = _alloc(ne, nt, Gam.shape[1])
+    run = _anchor_parallel if ne >= PARALLEL_MIN else _anchor_serial
+    run(u, N, dNdg, k, g, CP, Gam, int(min_periods), int(max_periods), float(tol),
+        bool(coupled), *out)
+    return out
+
+
+@njit(cache=True)
+def _scaled_one(e, u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol,
+                coupled, f, au, ag, Juu, Jug, periods, change):
+    """One element of :func:`scaled_aft` (outputs written in place)."""
+    nt = u.shape[1]
     ns = k.shape[1]
     nc = Gam.shape[1]
-    f = np.zeros((ne, nt))
-    au = np.zeros((ne, nt))
-    ag = np.zeros((ne, nt))
-    Juu = np.zeros((ne, nc, nc))
-    Jug = np.zeros((ne, nc, nc))
-    periods = np.zeros(ne, dtype=np.int64)
-    change = np.zeros(ne)
-    for e in prange(ne):
-        w = np.zeros(ns)
-        wstart = np.zeros(ns)
-        s = np.full(ns, -1, dtype=np.int64)
-        a = np.zeros(ns)
-        b = np.zeros(ns)
-        start = np.zeros(ns, dtype=np.int64)
-        umax = 0.0
-        for t in range(nt):
-            umax = max(umax, abs(u[e, t]))
-        for p in range(max_periods):
+    nstate = SC_SHARED + 2 * ns
+    st = np.zeros(nstate)
+    st[SC_N_PREV] = N_rest[e]
+    st[SC_N_R] = N_rest[e]
+    st0 = np.zeros(nstate)
+    # reversal memory derivatives: du_r = Gam[r] (u part), dN_r = cN Gam[r] (g part)
+    r = -1
+    cN = 0.0
+    DFu = np.zeros((ns, nc))      # d f_r / dU per slider
+    DFg = np.zeros((ns, nc))      # d f_r / dG per slider
+    # partials of each slider's force at the previous sample
+    pu = np.zeros(ns)
+    pN = np.zeros(ns)
+    pur = np.zeros(ns)
+    pNr = np.zeros(ns)
+    pfr = np.zeros(ns)
+    tprev = -1
+    # per-slider sums of P[:, t] times the partials, since the last reversal
+    Aur = np.zeros((ns, nc))
+    ANr = np.zeros((ns, nc))
+    Afr = np.zeros((ns, nc))
+    newu = np.zeros(nc)
+    newg = np.zeros(nc)
+    for p in range(max_periods):
+        for kk in range(nc):
+            for j in range(nc):
+                Juu[e, kk, j] = 0.0
+                Jug[e, kk, j] = 0.0
+        for i in range(ns):
             for kk in range(nc):
-                for j in range(nc):
-                    Juu[e, kk, j] = 0.0
-                    Jug[e, kk, j] = 0.0
+                Aur[i, kk] = 0.0
+                ANr[i, kk] = 0.0
+                Afr[i, kk] = 0.0
+        for q in range(nstate):
+            st0[q] = st[q]
+        for t in range(nt):
+            ut = u[e, t]
+            Nt = N[e, t]
+            dn = dNdg[e, t]
+            du = ut - st[SC_U_PREV]
+            if du != 0.0:
+                d = 1.0 if du > 0.0 else -1.0
+                if st[SC_DIR] != 0.0 and d != st[SC_DIR]:
+                    # reversal at the previous sample: flush the sums, then
+                    # move the memory (and its derivatives) to that sample
+                    for i in range(ns):
+                        _flush_scaled(Juu, Jug, e, Gam, Aur[i], ANr[i], Afr[i], DFu[i],
+                                      DFg[i], r, cN, coupled)
+                        for kk in range(nc):
+                            Aur[i, kk] = 0.0
+                            ANr[i, kk] = 0.0
+                            Afr[i, kk] = 0.0
+                    for i in range(ns):
+                        dnp = dNdg[e, tprev]
+                        for j in range(nc):
+                            gu = Gam[tprev, j]
+                            vu = pu[i] * gu + pfr[i] * DFu[i, j]
+                            vg = pN[i] * dnp * gu + pfr[i] * DFg[i, j]
+                            if r >= 0:
+                                vu += pur[i] * Gam[r, j]
+                                vg += pNr[i] * cN * Gam[r, j]
+                            newu[j] = vu
+                            newg[j] = vg
+                        for j in range(nc):
+                            DFu[i, j] = newu[j]
+                            DFg[i, j] = newg[j]
+                    r = tprev
+                    cN = dNdg[e, tprev]
+                    st[SC_U_R] = st[SC_U_PREV]
+                    st[SC_N_R] = st[SC_N_PREV]
+                    for i in range(ns):
+                        st[SC_SHARED + ns + i] = st[SC_SHARED + i]
+                st[SC_DIR] = d
+            fe = 0.0
+            de = 0.0
+            dg = 0.0
             for i in range(ns):
-                start[i] = 0
-                wstart[i] = w[i]
-            for t in range(nt):
-                ut = u[e, t]
-                Nt = N[e, t]
-                dn = dNdg[e, t]
-                fe = 0.0
-                de = 0.0
-                dg = 0.0
-                for i in range(ns):
-                    fi, dfi, dni, _dfw, w1, dw1du, dw1dN, dw1dw = slider_anchor_step(
-                        ut, Nt, w[i], k[e, i], g[e, i])
-                    if dw1dw == 0.0:
-                        # slipped or separated: the anchor follows the inputs at t
-                        _flush_run(Juu, Jug, e, CP, Gam, start[i], t, -k[e, i], s[i],
-                                   a[i], b[i], coupled)
-                        s[i] = t
-                        a[i] = dw1du
-                        b[i] = dw1dN * dn
-                        start[i] = t + 1
-                    w[i] = w1
-                    fe += fi
-                    de += dfi
-                    dg += dni * dn
-                f[e, t] = fe
-                au[e, t] = de
-                ag[e, t] = dg
-            wmax = 0.0
-            ch = 0.0
-            for i in range(ns):
-                _flush_run(Juu, Jug, e, CP, Gam, start[i], nt, -k[e, i], s[i], a[i], b[i],
-                           coupled)
-                ch = max(ch, abs(w[i] - wstart[i]))
-                wmax = max(wmax, abs(w[i]))
-            scale = umax + wmax
-            rel = ch / scale if scale > 0.0 else 0.0
-            periods[e] = p + 1
-            change[e] = rel
-            if p + 1 >= min_periods and rel <= tol:
-                break
-    return f, au, ag, Juu, Jug, periods, change
+                fi, dfi, dni, dur, dNr, dfr = slider_scaled_force(
+                    ut, Nt, st[SC_U_R], st[SC_N_R], st[SC_SHARED + ns + i], k[e, i],
+                    g[e, i])
+                st[SC_SHARED + i] = fi
+                pu[i] = dfi
+                pN[i] = dni
+                pur[i] = dur
+                pNr[i] = dNr
+                pfr[i] = dfr
+                if dur != 0.0 or dNr != 0.0 or dfr != 0.0:
+                    for kk in range(nc):
+                        pk = P[kk, t]
+                        Aur[i, kk] += pk * dur
+                        ANr[i, kk] += pk * dNr
+                        Afr[i, kk] += pk * dfr
+                fe += fi
+                de += dfi
+                dg += dni * dn
+            st[SC_U_PREV] = ut
+            st[SC_N_PREV] = Nt
+            tprev = t
+            f[e, t] = fe
+            au[e, t] = de
+            ag[e, t] = dg
+        for i in range(ns):
+            _flush_scaled(Juu, Jug, e, Gam, Aur[i], ANr[i], Afr[i], DFu[i], DFg[i], r,
+                          cN, coupled)
+        ch = 0.0
+        big = 0.0
+        for q in range(nstate):
+            ch = max(ch, abs(st[q] - st0[q]))
+            big = max(big, abs(st[q]))
+        rel = ch / big if big > 0.0 else 0.0
+        periods[e] = p + 1
+        change[e] = rel
+        if p + 1 >= min_periods and rel <= tol:
+            break
+
+
+@njit(cache=True)
+def _scaled_serial(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol, coupled,
+                   f, au, ag, Juu, Jug, periods, change):
+    for e in range(u.shape[0]):
+        _scaled_one(e, u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol,
+                    coupled, f, au, ag, Juu, Jug, periods, change)
 
 
 @njit(cache=True, parallel=True)
+def _scaled_parallel(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol, coupled,
+                     f, au, ag, Juu, Jug, periods, change):
+    for e in prange(u.shape[0]):
+        _scaled_one(e, u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol,
+                    coupled, f, au, ag, Juu, Jug, periods, change)
+
+
 def scaled_aft(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol, coupled):
     """Periodic march of banks of scaled-reversal sliders with history derivatives.
 
@@ -195,131 +360,11 @@ def scaled_aft(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol, 
         As for :func:`anchor_aft`.
     """
     ne, nt = u.shape
-    ns = k.shape[1]
-    nc = Gam.shape[1]
-    nstate = SC_SHARED + 2 * ns
-    f = np.zeros((ne, nt))
-    au = np.zeros((ne, nt))
-    ag = np.zeros((ne, nt))
-    Juu = np.zeros((ne, nc, nc))
-    Jug = np.zeros((ne, nc, nc))
-    periods = np.zeros(ne, dtype=np.int64)
-    change = np.zeros(ne)
-    for e in prange(ne):
-        st = np.zeros(nstate)
-        st[SC_N_PREV] = N_rest[e]
-        st[SC_N_R] = N_rest[e]
-        st0 = np.zeros(nstate)
-        # reversal memory derivatives: du_r = Gam[r] (u part), dN_r = cN Gam[r] (g part)
-        r = -1
-        cN = 0.0
-        DFu = np.zeros((ns, nc))      # d f_r / dU per slider
-        DFg = np.zeros((ns, nc))      # d f_r / dG per slider
-        # partials of each slider's force at the previous sample
-        pu = np.zeros(ns)
-        pN = np.zeros(ns)
-        pur = np.zeros(ns)
-        pNr = np.zeros(ns)
-        pfr = np.zeros(ns)
-        tprev = -1
-        # per-slider sums of P[:, t] times the partials, since the last reversal
-        Aur = np.zeros((ns, nc))
-        ANr = np.zeros((ns, nc))
-        Afr = np.zeros((ns, nc))
-        newu = np.zeros(nc)
-        newg = np.zeros(nc)
-        for p in range(max_periods):
-            for kk in range(nc):
-                for j in range(nc):
-                    Juu[e, kk, j] = 0.0
-                    Jug[e, kk, j] = 0.0
-            for i in range(ns):
-                for kk in range(nc):
-                    Aur[i, kk] = 0.0
-                    ANr[i, kk] = 0.0
-                    Afr[i, kk] = 0.0
-            for q in range(nstate):
-                st0[q] = st[q]
-            for t in range(nt):
-                ut = u[e, t]
-                Nt = N[e, t]
-                dn = dNdg[e, t]
-                du = ut - st[SC_U_PREV]
-                if du != 0.0:
-                    d = 1.0 if du > 0.0 else -1.0
-                    if st[SC_DIR] != 0.0 and d != st[SC_DIR]:
-                        # reversal at the previous sample: flush the sums, then
-                        # move the memory (and its derivatives) to that sample
-                        for i in range(ns):
-                            _flush_scaled(Juu, Jug, e, Gam, Aur[i], ANr[i], Afr[i], DFu[i],
-                                          DFg[i], r, cN, coupled)
-                            for kk in range(nc):
-                                Aur[i, kk] = 0.0
-                                ANr[i, kk] = 0.0
-                                Afr[i, kk] = 0.0
-                        for i in range(ns):
-                            dnp = dNdg[e, tprev]
-                            for j in range(nc):
-                                gu = Gam[tprev, j]
-                                vu = pu[i] * gu + pfr[i] * DFu[i, j]
-                                vg = pN[i] * dnp * gu + pfr[i] * DFg[i, j]
-                                if r >= 0:
-                                    vu += pur[i] * Gam[r, j]
-                                    vg += pNr[i] * cN * Gam[r, j]
-                                newu[j] = vu
-                                newg[j] = vg
-                            for j in range(nc):
-                                DFu[i, j] = newu[j]
-                                DFg[i, j] = newg[j]
-                        r = tprev
-                        cN = dNdg[e, tprev]
-                        st[SC_U_R] = st[SC_U_PREV]
-                        st[SC_N_R] = st[SC_N_PREV]
-                        for i in range(ns):
-                            st[SC_SHARED + ns + i] = st[SC_SHARED + i]
-                    st[SC_DIR] = d
-                fe = 0.0
-                de = 0.0
-                dg = 0.0
-                for i in range(ns):
-                    fi, dfi, dni, dur, dNr, dfr = slider_scaled_force(
-                        ut, Nt, st[SC_U_R], st[SC_N_R], st[SC_SHARED + ns + i], k[e, i],
-                        g[e, i])
-                    st[SC_SHARED + i] = fi
-                    pu[i] = dfi
-                    pN[i] = dni
-                    pur[i] = dur
-                    pNr[i] = dNr
-                    pfr[i] = dfr
-                    if dur != 0.0 or dNr != 0.0 or dfr != 0.0:
-                        for kk in range(nc):
-                            pk = P[kk, t]
-                            Aur[i, kk] += pk * dur
-                            ANr[i, kk] += pk * dNr
-                            Afr[i, kk] += pk * dfr
-                    fe += fi
-                    de += dfi
-                    dg += dni * dn
-                st[SC_U_PREV] = ut
-                st[SC_N_PREV] = Nt
-                tprev = t
-                f[e, t] = fe
-                au[e, t] = de
-                ag[e, t] = dg
-            for i in range(ns):
-                _flush_scaled(Juu, Jug, e, Gam, Aur[i], ANr[i], Afr[i], DFu[i], DFg[i], r,
-                              cN, coupled)
-            ch = 0.0
-            big = 0.0
-            for q in range(nstate):
-                ch = max(ch, abs(st[q] - st0[q]))
-                big = max(big, abs(st[q]))
-            rel = ch / big if big > 0.0 else 0.0
-            periods[e] = p + 1
-            change[e] = rel
-            if p + 1 >= min_periods and rel <= tol:
-                break
-    return f, au, ag, Juu, Jug, periods, change
+    out = _alloc(ne, nt, Gam.shape[1])
+    run = _scaled_parallel if ne >= PARALLEL_MIN else _scaled_serial
+    run(u, N, dNdg, k, g, N_rest, P, Gam, int(min_periods), int(max_periods), float(tol),
+        bool(coupled), *out)
+    return out
 
 
 @njit(cache=True, inline="always")
@@ -344,7 +389,44 @@ def _flush_scaled(Juu, Jug, e, Gam, Aur, ANr, Afr, DFu, DFg, r, cN, coupled):
                 Jug[e, kk, j] += vg
 
 
+@njit(cache=True)
+def _diag_one(e, J, Ac, As, hk, sk, wk):
+    nc = hk.shape[0]
+    for kk in range(nc):
+        hK = hk[kk]
+        for j in range(nc):
+            hJ = hk[j]
+            dm = hK - hJ
+            sgn = 1.0
+            if dm < 0:
+                dm = -dm
+                sgn = -1.0
+            sm = hK + hJ
+            if sk[kk] == 0 and sk[j] == 0:
+                v = 0.5 * (Ac[e, dm] + Ac[e, sm])
+            elif sk[kk] == 1 and sk[j] == 1:
+                v = 0.5 * (Ac[e, dm] - Ac[e, sm])
+            elif sk[kk] == 0:
+                # cos(hK) sin(hJ) = (sin(hK + hJ) - sin(hK - hJ)) / 2
+                v = 0.5 * (As[e, sm] - sgn * As[e, dm])
+            else:
+                # sin(hK) cos(hJ) = (sin(hK + hJ) + sin(hK - hJ)) / 2
+                v = 0.5 * (As[e, sm] + sgn * As[e, dm])
+            J[e, kk, j] += wk[kk] * v
+
+
+@njit(cache=True)
+def _diag_serial(J, Ac, As, hk, sk, wk):
+    for e in range(J.shape[0]):
+        _diag_one(e, J, Ac, As, hk, sk, wk)
+
+
 @njit(cache=True, parallel=True)
+def _diag_parallel(J, Ac, As, hk, sk, wk):
+    for e in prange(J.shape[0]):
+        _diag_one(e, J, Ac, As, hk, sk, wk)
+
+
 def add_diag_products(J, Ac, As, hk, sk, wk):
     """Add ``P diag(alpha) Gam`` to per-element blocks from Fourier sums of alpha.
 
@@ -364,27 +446,5 @@ def add_diag_products(J, Ac, As, hk, sk, wk):
     wk : ndarray, shape (n_c,)
         DFT weight of each coefficient (``1/n_t`` for h = 0, else ``2/n_t``).
     """
-    ne = J.shape[0]
-    nc = hk.shape[0]
-    for e in prange(ne):
-        for kk in range(nc):
-            hK = hk[kk]
-            for j in range(nc):
-                hJ = hk[j]
-                dm = hK - hJ
-                sgn = 1.0
-                if dm < 0:
-                    dm = -dm
-                    sgn = -1.0
-                sm = hK + hJ
-                if sk[kk] == 0 and sk[j] == 0:
-                    v = 0.5 * (Ac[e, dm] + Ac[e, sm])
-                elif sk[kk] == 1 and sk[j] == 1:
-                    v = 0.5 * (Ac[e, dm] - Ac[e, sm])
-                elif sk[kk] == 0:
-                    # cos(hK) sin(hJ) = (sin(hK + hJ) - sin(hK - hJ)) / 2
-                    v = 0.5 * (As[e, sm] - sgn * As[e, dm])
-                else:
-                    # sin(hK) cos(hJ) = (sin(hK + hJ) + sin(hK - hJ)) / 2
-                    v = 0.5 * (As[e, sm] + sgn * As[e, dm])
-                J[e, kk, j] += wk[kk] * v
+    run = _diag_parallel if J.shape[0] >= PARALLEL_MIN else _diag_serial
+    run(J, np.ascontiguousarray(Ac), np.ascontiguousarray(As), hk, sk, wk)

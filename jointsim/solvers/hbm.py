@@ -725,3 +725,233 @@ def harmonic_amplitude(basis: HarmonicBasis, X, h: int = 1):
     if h == 0:
         return np.abs(X[ic])
     return np.hypot(X[ic], X[is_])
+
+
+# --------------------------------------------------------------------------
+# Frequency-response curves
+# --------------------------------------------------------------------------
+def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: int = 9):
+    """Variable and residual scales of an FRC from the stuck linear response.
+
+    One Newton step from ``z = 0`` (the response with every element at its
+    rest tangent) at ``n`` frequencies of the range gives a displacement
+    scale ``q_ref = max |z|``; the residual scale is the largest condensed
+    force ``max |R(0)|``.
+
+    Returns
+    -------
+    scale : ndarray, shape (n_z + 1,)
+        ``q_ref`` for every coefficient, ``|omega_end - omega_start|`` for omega.
+    rscale : float
+    """
+    qref, rref = 0.0, 0.0
+    z0 = np.zeros(system.n_z)
+    for w in np.linspace(omega_start, omega_end, n):
+        ev = system.evaluate(z0, w, F, wrt=())
+        rref = max(rref, float(np.abs(ev.R).max(initial=0.0)))
+        if system.n_z:
+            try:
+                z = np.linalg.solve(ev.J, -ev.R)
+                qref = max(qref, float(np.abs(z).max()))
+            except np.linalg.LinAlgError:
+                pass
+    if not qref > 0.0:
+        qref = 1.0
+    if not rref > 0.0:
+        rref = 1.0
+    scale = np.full(system.n_z + 1, qref)
+    scale[-1] = max(abs(omega_end - omega_start), 1e-12 * abs(omega_start), 1e-300)
+    return scale, rref
+
+
+def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float):
+    """Refine the largest amplitude of a branch by maximising over frequency.
+
+    Only where the branch is single-valued around its largest point (the
+    frequency increases through it); at a fold the largest computed point is
+    returned unrefined.
+
+    Returns
+    -------
+    omega_peak, amplitude_peak : float
+    refined : bool
+    """
+    from scipy.optimize import minimize_scalar
+    i = int(np.argmax(amplitude))
+    n = len(omega)
+    if i == 0 or i == n - 1 or not (omega[i - 1] < omega[i] < omega[i + 1]):
+        return float(omega[i]), float(amplitude[i]), False
+    zs = {"z": Z[i]}
+
+    def neg_amp(w):
+        sol = solve_point(system, w, F, z0=zs["z"], tol=tol)
+        if not sol.convergence.success:
+            return -float(amplitude[i])
+        zs["z"] = sol.z
+        return -float(harmonic_amplitude(system.basis, sol.X[:, dof]))
+
+    lo, hi = float(omega[i - 1]), float(omega[i + 1])
+    res = minimize_scalar(neg_amp, bounds=(lo, hi), method="bounded",
+                          options={"xatol": 1e-12 * max(abs(hi), 1.0)})
+    a = -float(res.fun)
+    if a < amplitude[i]:
+        return float(omega[i]), float(amplitude[i]), False
+    return float(res.x), a, True
+
+
+def run_hbm_analysis(scene, model, writer) -> None:
+    """Runner of ``[analysis.hbm]``: one FRC branch per force scale, written point by point.
+
+    File layout (all per solution point unless said otherwise):
+
+    * ``/hbm/omega`` [rad/s], ``/hbm/X`` [n_points, n_coeff, n_dof],
+      ``/hbm/q`` (contact coordinates, used by ``--resume``), ``/hbm/branch``
+      (index into ``/hbm/force_scale``), ``/hbm/amplitude`` (fundamental
+      amplitude at the response DOF), ``/hbm/max_abs`` (``max_t |x(t)|`` there),
+      ``/hbm/iterations``, ``/hbm/residual``, ``/hbm/step``,
+      ``/hbm/aft_periods`` (largest number of periods the laws were marched),
+      ``/hbm/tangent``;
+    * once: ``/hbm/harmonics``, ``/hbm/force_scale`` [n_branches], and per
+      branch ``/hbm/peak_omega``, ``/hbm/peak_amplitude``, ``/hbm/peak_refined``;
+      group attributes ``branch<b>_status`` / ``branch<b>_message``;
+    * ``/loops/*``, ``/masing/*`` for every point (or those listed in
+      ``analysis.masing.points``, global point indices).
+    """
+    from ..io.hdf5 import unit, write_loops
+    from ..masing import check_loops
+    from .continuation import continue_branch
+
+    a = scene.analysis.hbm
+    units = model.units
+    system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods)
+    if not 0 <= a.response_dof < model.n_dof:
+        raise ValueError(f"{scene.path}: analysis.hbm.response_dof = {a.response_dof} is out "
+                         f"of range (the model has {model.n_dof} DOFs)")
+    b = system.basis
+    dof = a.response_dof
+    d_u, f_u, w_u = unit("displacement", units), unit("force", units), \
+        unit("angular_frequency", units)
+    g = writer.group("hbm", n_samples=a.n_samples, response_dof=dof,
+                     omega_start=a.omega_start, omega_end=a.omega_end,
+                     n_contact_coordinates=system.n_r, condensation="modal" if system.lin.modal
+                     else "direct", amplitude_definition="fundamental harmonic amplitude "
+                     "sqrt(X_1c^2 + X_1s^2) at the response DOF")
+    if "hbm/harmonics" not in writer.h5:
+        writer.write("hbm/harmonics", np.array(a.harmonics, dtype=np.int64), "1",
+                     "harmonics kept; coefficient order [0, 1c, 1s, 2c, 2s, ...]")
+        writer.write("hbm/force_scale", np.array(a.force_scale, dtype=float), "1",
+                     "multiplier of the excitation of each branch")
+        writer.write("hbm/coefficient_harmonic", b.hk, "1", "harmonic of each coefficient")
+    if "contacts/area" not in writer.h5 and model.contacts.n_elements:
+        writer.write("contacts/area", model.contacts.area, "m^2" if units == "SI" else "length^2",
+                     "contact area of each element")
+    masing_points = set(scene.analysis.masing.points)
+    law = model.contacts.law
+    n_br = len(a.force_scale)
+    peaks = {k: np.full(n_br, np.nan) for k in ("omega", "amplitude")}
+    refined = np.zeros(n_br, dtype=bool)
+    for name in ("omega", "amplitude"):
+        if f"hbm/peak_{name}" in writer.h5:
+            peaks[name][:] = writer.h5[f"hbm/peak_{name}"][()]
+    if "hbm/peak_refined" in writer.h5:
+        refined[:] = writer.h5["hbm/peak_refined"][()]
+    failures = []
+    for ib, fs in enumerate(a.force_scale):
+        status = g.attrs.get(f"branch{ib}_status", "")
+        if status in ("complete", "gave up"):
+            log.info("hbm branch %d (force scale %g) already %s; skipped", ib, fs, status)
+            continue
+        F = system.force_coefficients(fs)
+        scale, rscale = frc_scales(system, F, a.omega_start, a.omega_end)
+        resume_rows = np.zeros(0, dtype=np.int64)
+        if "hbm/branch" in writer.h5:
+            resume_rows = np.flatnonzero(writer.h5["hbm/branch"][()] == ib)
+        if resume_rows.size:
+            last = int(resume_rows[-1])
+            y0 = np.append(writer.h5["hbm/q"][last], writer.h5["hbm/omega"][last])
+            t0 = writer.h5["hbm/tangent"][last]
+            h0 = float(writer.h5["hbm/step"][last]) or a.step
+            solve_first, max_pts = False, a.max_points - resume_rows.size + 1
+            log.info("hbm branch %d: resuming from point %d (omega = %g)", ib, last, y0[-1])
+        else:
+            y0 = np.append(np.zeros(system.n_z), a.omega_start)
+            t0, h0, solve_first, max_pts = None, a.step, True, a.max_points
+
+        def fun(y, F=F):
+            ev = system.evaluate(y[:-1], y[-1], F)
+            J = np.hstack([ev.J, ev.dR["omega"][:, None]]) if system.n_z else \
+                np.zeros((0, 1))
+            return ev.R, J, ev
+
+        def on_point(i, y, info, F=F, ib=ib, fs=fs, skip=not solve_first):
+            if skip and i == 0:
+                return
+            w = float(y[-1])
+            X = system.reconstruct(y[:-1], w, F)
+            xs = b.samples(X[:, dof])
+            p = writer.rows("hbm/omega")
+            writer.append("hbm/omega", w, w_u, "angular frequency of the point")
+            writer.append("hbm/X", X, d_u, "harmonic coefficients [n_coeff, n_dof]")
+            writer.append("hbm/q", y[:-1], d_u, "coefficients of the contact coordinates")
+            writer.append("hbm/branch", np.int64(ib), "1", "branch (force level) of the point")
+            writer.append("hbm/amplitude", float(harmonic_amplitude(b, X[:, dof])), d_u,
+                          "fundamental amplitude at the response DOF")
+            writer.append("hbm/max_abs", float(np.abs(xs).max()), d_u,
+                          "max |x(t)| at the response DOF over the AFT samples")
+            writer.append("hbm/iterations", np.int64(info.iterations), "1",
+                          "Newton iterations of the corrector")
+            writer.append("hbm/residual", info.residual, "1",
+                          "max |R| / residual scale at the point")
+            writer.append("hbm/step", info.step, "1", "scaled arclength step to the point")
+            writer.append("hbm/tangent", info.tangent, "1", "unit tangent (scaled variables)")
+            ev = info.extra
+            aft = ev.aft if ev is not None else None
+            writer.append("hbm/aft_periods",
+                          np.int64(aft.periods.max() if aft is not None else 0), "1",
+                          "largest number of periods the laws were marched")
+            if aft is not None and (not masing_points or p in masing_points):
+                u = system.slips(X)
+                report = check_loops(u, aft.f, aft.N, law, scene.analysis.masing.tol)
+                write_loops(writer, p, u, aft.f, aft.N, report, units)
+                writer.h5["loops"].attrs["analysis"] = "hbm"
+
+        br = continue_branch(
+            fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,
+            step_max=a.step_max, max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
+            solve_first=solve_first, tangent0=t0, on_point=on_point,
+            desc=f"hbm branch {ib + 1}/{n_br} (x{fs:g})")
+        conv = br.convergence
+        g.attrs[f"branch{ib}_status"] = "complete" if conv.success else "gave up"
+        g.attrs[f"branch{ib}_message"] = conv.message
+        rows = np.flatnonzero(writer.h5["hbm/branch"][()] == ib)
+        if rows.size:
+            om = writer.h5["hbm/omega"][()][rows]
+            amp = writer.h5["hbm/amplitude"][()][rows]
+            Z = writer.h5["hbm/q"][()][rows]
+            if a.refine_peak:
+                pw, pa, ok = refine_peak(system, F, om, Z, amp, dof, min(a.tol, 1e-10))
+            else:
+                i = int(np.argmax(amp))
+                pw, pa, ok = float(om[i]), float(amp[i]), False
+            peaks["omega"][ib], peaks["amplitude"][ib], refined[ib] = pw, pa, ok
+            writer.write("hbm/peak_omega", peaks["omega"], w_u, "frequency of the largest "
+                         "amplitude of each branch")
+            writer.write("hbm/peak_amplitude", peaks["amplitude"], d_u,
+                         "largest fundamental amplitude of each branch")
+            writer.write("hbm/peak_refined", refined, "1", "peak refined by maximising "
+                         "over frequency (false: largest computed point, e.g. at a fold)")
+        log.info("hbm branch %d (force scale %g): %s; peak %.6g at omega = %.6g", ib, fs,
+                 conv.message, peaks["amplitude"][ib], peaks["omega"][ib])
+        if not conv.success:
+            failures.append(f"branch {ib} (force scale {fs:g}): {conv.message}")
+    _ = f_u
+    if failures:
+        raise RuntimeError("hbm: " + "; ".join(failures))
+
+
+def _register():
+    from ..run import ANALYSES
+    ANALYSES["hbm"] = run_hbm_analysis
+
+
+_register()
