@@ -9,7 +9,10 @@ tolerances refer to the scaled quantities.
   previous one; ``yh_pred = yh + h t``.
 * Corrector: Newton on ``[Rh(yh); t . (yh - yh_k) - h] = 0`` (the point
   stays on the hyperplane normal to the tangent, so turning points pass).
-  Converged when ``max|Rh| <= tol`` after at least one iteration.
+  Converged when ``max|Rh| <= tol`` after at least one iteration.  A step
+  that increases the residual is halved (up to ``backtrack - 1`` times): the
+  AFT residual is only piecewise smooth, and plain Newton can cycle across a
+  kink.
 * Step control: after a success the step grows or shrinks towards
   ``target_iter`` iterations; a failed corrector (no convergence, non-finite
   values, or a jump farther than ``max_jump * h`` from the predictor) halves
@@ -32,6 +35,8 @@ import numpy as np
 from ..results import (NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS, Convergence)
 
 log = logging.getLogger(__name__)
+
+CORNERS = True
 
 
 @dataclass
@@ -104,9 +109,40 @@ def tangent(J, t_prev):
     return t
 
 
+def _corner(F, yk, t, h, tol, max_iter):
+    """Try to leave a corner at ``yk`` along the tangent of the piece beyond it.
+
+    Returns ``(y, R, J, extra, iterations)`` or None.
+    """
+    _R, Jb, _e = F(yk + 1e-7 * t)
+    tb = tangent(Jb, t)
+    best = None
+    for d in (tb, -tb):
+        if d @ (-t) > 0.99:  # that is the branch we came along
+            continue
+        yk1 = yk + h * d
+        yc = yk1.copy()
+        R, J, extra = F(yc)
+        for it in range(1, max_iter + 1):
+            A = np.vstack([J, d[None, :]])
+            b = -np.concatenate([R, [d @ (yc - yk) - h]])
+            yc = yc + _solve(A, b)
+            R, J, extra = F(yc)
+            rn = np.abs(R).max(initial=0.0)
+            if not np.isfinite(rn):
+                break
+            if rn <= tol:
+                if (yc - yk) @ (-t) / max(np.linalg.norm(yc - yk), 1e-300) < 0.99:
+                    best = (yc, R, J, extra, it)
+                break
+        if best is not None:
+            return best
+    return None
+
+
 def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: float,
                     step_min: float, step_max: float, max_points: int, tol: float,
-                    max_iter: int = 20, target_iter: int = 4, max_jump: float = 2.0,
+                    max_iter: int = 20, target_iter: int = 4, max_jump: float = 2.0, backtrack: int = 4,
                     solve_first: bool = True, tangent0=None, on_point=None,
                     progress: bool = True, desc: str = "continuation") -> Branch:
     """Follow the solution branch of ``R(z, lam) = 0`` from ``y0`` to ``lam = lam_end``.
@@ -133,6 +169,8 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
         Tolerance on ``max|R| / rscale``.
     max_iter, target_iter : int
         Corrector iterations at most / aimed at by the step control.
+    backtrack : int
+        Halvings of a Newton step that increases the residual (1: none).
     max_jump : float
         A corrector landing farther than ``max_jump * h`` from its predictor
         is rejected (guards against jumping to another branch).
@@ -223,6 +261,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
         t = tangent(J, t_prev)
         accept(yh, PointInfo(it, float(np.abs(R).max(initial=0.0)), 0.0, t, extra))
         h = float(step)
+        corner_tries = 0
         lam_start_h = lam0 / scale[-1]
         lam_end_h = lam_end / scale[-1]
         while len(ys) < max_points:
@@ -236,12 +275,22 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
             yc = pred.copy()
             ok = False
             R, J, extra = F(yc)
+            rn = np.abs(R).max(initial=0.0)
             for it in range(1, max_iter + 1):
                 A = np.vstack([J, t[None, :]])
                 b = -np.concatenate([R, [t @ (yc - yk) - h]])
-                yc = yc + _solve(A, b)
-                R, J, extra = F(yc)
-                rn = np.abs(R).max(initial=0.0)
+                dy = _solve(A, b)
+                # backtracking: the residual is only piecewise smooth (stick/slip
+                # switches at samples) and a full step can cycle across a kink
+                lam = 1.0
+                for _ in range(backtrack):
+                    yn = yc + lam * dy
+                    Rn, Jn, en = F(yn)
+                    rnn = np.abs(Rn).max(initial=0.0)
+                    if np.isfinite(rnn) and (rnn <= rn or rnn <= tol):
+                        break
+                    lam *= 0.5
+                yc, R, J, extra, rn = yn, Rn, Jn, en, rnn
                 if not np.isfinite(rn) or not np.all(np.isfinite(yc)):
                     break
                 if rn <= tol:
@@ -251,6 +300,16 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                 ok = False
                 log.debug("%s: corrector jumped %.3g from the predictor (h = %.3g); retrying",
                           desc, np.linalg.norm(yc - pred), h)
+            if not ok and CORNERS and corner_tries < 2 and h < 0.05 * step_max:
+                # a corner of the piecewise-smooth branch: take the tangent of the
+                # piece beyond it and try both orientations (not back the old way)
+                corner_tries += 1
+                got = _corner(F, yk, t, max(h, 1e3 * step_min), tol, max_iter)
+                if got is not None:
+                    yc, R, J, extra, it = got
+                    ok = True
+                    log.debug("%s: passed a corner of the branch at lam = %.8g", desc,
+                              yk[-1] * scale[-1])
             if not ok:
                 h *= 0.5
                 if h < step_min:
@@ -260,7 +319,8 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                                           f"step_min = {step_min:g} at lam = "
                                           f"{yk[-1] * scale[-1]:.8g} after {len(ys)} points")
                 continue
-            t_new = tangent(J, t)
+            corner_tries = 0
+            t_new = tangent(J, (yc - yk) / max(np.linalg.norm(yc - yk), 1e-300))
             lam_new = yc[-1]
             if (lam_new - lam_end_h) * direction >= 0:
                 # passed the end: close the branch exactly at lam_end
