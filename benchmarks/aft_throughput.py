@@ -36,18 +36,13 @@ def contact_set(ne):
 
 
 def best_of(fn, repeat, min_time=0.2):
-    """Smallest mean time of ``repeat`` batches, each at least ``min_time`` long."""
-    best = np.inf
-    for _ in range(repeat):
-        n, t0 = 0, time.perf_counter()
-        while True:
-            fn()
-            n += 1
-            dt = time.perf_counter() - t0
-            if dt >= min_time:
-                break
-        best = min(best, dt / n)
-    return best
+    """Median time of single calls, over at least ``repeat`` calls and ``min_time``."""
+    times, t_start = [], time.perf_counter()
+    while len(times) < repeat or time.perf_counter() - t_start < min_time:
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
 
 
 def main():
