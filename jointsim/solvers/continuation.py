@@ -36,6 +36,7 @@ from ..results import (NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS, Conve
 
 log = logging.getLogger(__name__)
 
+#: Try to pass corners of piecewise-smooth branches (a switch for debugging).
 CORNERS = True
 
 
