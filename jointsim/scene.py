@@ -352,20 +352,37 @@ class HBMAnalysis:
     max_points: int = spec(2000, doc="maximum points per branch", ge=2)
     tol: float = spec(1e-8, doc="Newton tolerance on the scaled residual", gt=0)
     max_iter: int = spec(20, doc="Newton iterations per corrector", ge=1)
+    min_periods: int = spec(2, doc="AFT: periods the laws are marched at least", ge=2)
+    max_periods: int = spec(50, doc="AFT: periods marched at most until the law state "
+                                    "repeats", ge=2)
+    refine_peak: bool = spec(True, doc="refine each branch's largest amplitude by "
+                                       "maximising over frequency (single-valued peaks)")
 
 
 @dataclass(frozen=True, kw_only=True)
 class EPMCAnalysis:
-    """Nonlinear mode by the extended periodic motion concept (Krack 2015)."""
+    """Nonlinear mode by the extended periodic motion concept (Krack 2015).
+
+    The amplitude is the modal amplitude of the fundamental harmonic,
+    ``a = |phi^T M (X_1c - i X_1s)|`` with ``phi`` the mass-normalised mode of
+    the structure with every contact at its rest tangent (stuck).
+    """
 
     mode: int = spec(1, doc="linear mode index followed (1-based, elastic modes)", ge=1)
+    rigid_cutoff_hz: float = spec(0.0, doc="modes below this frequency count as rigid-body "
+                                           "modes and are skipped by `mode`", unit="Hz", ge=0)
     harmonics: tuple[int, ...] = spec((0, 1, 2, 3, 4, 5, 6, 7), doc="harmonics kept", ge=0)
     n_samples: int = spec(128, doc="AFT time samples per period", ge=4)
     log10_amplitude_start: float = spec(doc="log10 of the starting modal amplitude")
     log10_amplitude_end: float = spec(doc="log10 of the final modal amplitude")
     step: float = spec(0.05, doc="initial arclength step", gt=0)
+    step_min: float = spec(1e-6, doc="smallest arclength step before giving up", gt=0)
+    step_max: float = spec(0.2, doc="largest arclength step", gt=0)
     max_points: int = spec(500, doc="maximum points", ge=2)
     tol: float = spec(1e-8, doc="Newton tolerance", gt=0)
+    max_iter: int = spec(20, doc="Newton iterations per corrector", ge=1)
+    min_periods: int = spec(2, doc="AFT: periods the laws are marched at least", ge=2)
+    max_periods: int = spec(50, doc="AFT: periods marched at most", ge=2)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -577,8 +594,22 @@ def _check_cross(scene: Scene, ctx: Context) -> None:
                 raise ctx.error(f"analysis.{name}.n_samples",
                                 f"must be >= 2*max(harmonics)+1 = {2 * hmax + 1} to avoid "
                                 f"aliasing, got {sec.n_samples}")
-    if a.hbm is not None and a.hbm.step_min > a.hbm.step_max:
-        raise ctx.error("analysis.hbm.step_min", "must not exceed analysis.hbm.step_max")
+    for name in ("hbm", "epmc"):
+        sec = getattr(a, name)
+        if sec is None:
+            continue
+        if sec.step_min > sec.step_max:
+            raise ctx.error(f"analysis.{name}.step_min",
+                            f"must not exceed analysis.{name}.step_max")
+        if sec.min_periods > sec.max_periods:
+            raise ctx.error(f"analysis.{name}.min_periods",
+                            f"must not exceed analysis.{name}.max_periods")
+    if a.hbm is not None and isinstance(m, LumpedModel) and a.hbm.response_dof >= m.n_dof:
+        raise ctx.error("analysis.hbm.response_dof",
+                        f"must be < {m.n_dof} (the model has {m.n_dof} DOFs)")
+    if a.epmc is not None and a.epmc.log10_amplitude_end == a.epmc.log10_amplitude_start:
+        raise ctx.error("analysis.epmc.log10_amplitude_end",
+                        "must differ from log10_amplitude_start")
 
 
 def load_scene(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> Scene:

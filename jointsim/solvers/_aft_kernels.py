@@ -1,0 +1,450 @@
+"""Numba kernels of the AFT harmonic balance: periodic march of the contact
+laws with forward-mode derivatives through the history.
+
+Every kernel works on one period of samples of the element inputs (the
+inputs are periodic, so sample ``t`` of any period is sample ``t`` of the
+first), marches the law from its rest state period after period until the
+state at the end of a period equals the state at its start (at least
+``min_periods`` periods), and returns the force over the last period.
+
+Derivatives
+-----------
+The force at sample ``t`` depends on the inputs at ``t`` (the instantaneous
+tangents ``au = df/du`` and ``ag = df/dN * dN/dg``, returned per sample) and,
+through the law's state, on the inputs at earlier samples (the *history*
+terms).  The unknowns are the harmonic coefficients ``U`` of ``u`` and ``G``
+of the normal gap, with ``u(t) = Gam[t] @ U``.  The history part of the
+Jacobian of the force coefficients ``F = P @ f``,
+``sum_t P[:, t] (df_t/dstate) (dstate/d(U, G))``, is accumulated here, in
+the last period only, as outer products:
+
+* ``bank_anchor`` -- the derivative of a slider's anchor is always
+  ``a Gam[s] (u part) + b Gam[s] (g part)`` with ``s`` the last sample where
+  the slider slipped or was separated (``dw1/dw = 0`` there); while it sticks
+  ``df/dw = -k``.  A stick run ``[t0, t1)`` contributes
+  ``-k (CP[:, t1] - CP[:, t0]) (x) (a Gam[s], b Gam[s])`` with ``CP`` the
+  prefix sums of the columns of ``P``: ``O(n_c^2)`` per run, not per sample.
+* ``bank_scaled`` -- the reversal memory ``(u_r, N_r, f_r)`` changes only at
+  reversals; ``du_r`` and ``dN_r`` are single rows of ``Gam`` and ``df_r``
+  is a dense vector per slider, updated at each reversal by the chain rule
+  through the law's partials.  Between reversals the per-sample weights are
+  summed (``O(n_c)`` per sample) and flushed as outer products at the next
+  reversal.
+
+The instantaneous part ``P diag(a) Gam`` is assembled from the Fourier sums
+of the tangents up to harmonic ``2 max(h)`` (:func:`add_diag_products`), so no
+``n_c x n_t x n_c`` product is formed per element.
+
+The laws themselves are the scalar functions of
+:mod:`jointsim.contact._kernels` (``slider_anchor_step``,
+``slider_scaled_force``); this module only marches them.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+#: Elements from which the drivers run in parallel threads (below, thread start-up
+#: and barrier waits cost more than the work, badly so on a loaded machine).
+PARALLEL_MIN = 64
+
+from ..contact._kernels import (SC_DIR, SC_N_PREV, SC_N_R, SC_SHARED, SC_U_PREV, SC_U_R,
+                                slider_anchor_step, slider_scaled_force)
+
+
+@njit(cache=True, inline="always")
+def _flush_run(Juu, Jug, e, CP, Gam, t0, t1, coef, s, a, b, coupled):
+    """Add ``coef * (CP[:, t1] - CP[:, t0]) (x) (a Gam[s], b Gam[s])``."""
+    if s < 0 or t1 <= t0:
+        return
+    nc = Gam.shape[1]
+    for kk in range(nc):
+        pk = coef * (CP[kk, t1] - CP[kk, t0])
+        if pk == 0.0:
+            continue
+        pa = pk * a
+        pb = pk * b
+        for j in range(nc):
+            Juu[e, kk, j] += pa * Gam[s, j]
+            if coupled:
+                Jug[e, kk, j] += pb * Gam[s, j]
+
+
+@njit(cache=True)
+def _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
+                f, au, ag, Juu, Jug, periods, change):
+    """One element of :func:`anchor_aft` (outputs written in place)."""
+    nt = u.shape[1]
+    ns = k.shape[1]
+    nc = Gam.shape[1]
+    w = np.zeros(ns)
+    wstart = np.zeros(ns)
+    s = np.full(ns, -1, dtype=np.int64)
+    a = np.zeros(ns)
+    b = np.zeros(ns)
+    start = np.zeros(ns, dtype=np.int64)
+    umax = 0.0
+    for t in range(nt):
+        umax = max(umax, abs(u[e, t]))
+    for p in range(max_periods):
+        for kk in range(nc):
+            for j in range(nc):
+                Juu[e, kk, j] = 0.0
+                Jug[e, kk, j] = 0.0
+        for i in range(ns):
+            start[i] = 0
+            wstart[i] = w[i]
+        for t in range(nt):
+            ut = u[e, t]
+            Nt = N[e, t]
+            dn = dNdg[e, t]
+            fe = 0.0
+            de = 0.0
+            dg = 0.0
+            for i in range(ns):
+                fi, dfi, dni, _dfw, w1, dw1du, dw1dN, dw1dw = slider_anchor_step(
+                    ut, Nt, w[i], k[e, i], g[e, i])
+                if dw1dw == 0.0:
+                    # slipped or separated: the anchor follows the inputs at t
+                    _flush_run(Juu, Jug, e, CP, Gam, start[i], t, -k[e, i], s[i],
+                               a[i], b[i], coupled)
+                    s[i] = t
+                    a[i] = dw1du
+                    b[i] = dw1dN * dn
+                    start[i] = t + 1
+                w[i] = w1
+                fe += fi
+                de += dfi
+                dg += dni * dn
+            f[e, t] = fe
+            au[e, t] = de
+            ag[e, t] = dg
+        wmax = 0.0
+        ch = 0.0
+        for i in range(ns):
+            _flush_run(Juu, Jug, e, CP, Gam, start[i], nt, -k[e, i], s[i], a[i], b[i],
+                       coupled)
+            ch = max(ch, abs(w[i] - wstart[i]))
+            wmax = max(wmax, abs(w[i]))
+        scale = umax + wmax
+        rel = ch / scale if scale > 0.0 else 0.0
+        periods[e] = p + 1
+        change[e] = rel
+        if p + 1 >= min_periods and rel <= tol:
+            break
+
+
+def _alloc(ne, nt, nc):
+    return (np.zeros((ne, nt)), np.zeros((ne, nt)), np.zeros((ne, nt)), np.zeros((ne, nc, nc)),
+            np.zeros((ne, nc, nc)), np.zeros(ne, dtype=np.int64), np.zeros(ne))
+
+
+@njit(cache=True)
+def _anchor_serial(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
+                   f, au, ag, Juu, Jug, periods, change):
+    for e in range(u.shape[0]):
+        _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
+                    f, au, ag, Juu, Jug, periods, change)
+
+
+@njit(cache=True, parallel=True)
+def _anchor_parallel(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
+                     f, au, ag, Juu, Jug, periods, change):
+    for e in prange(u.shape[0]):
+        _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
+                    f, au, ag, Juu, Jug, periods, change)
+
+
+def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled):
+    """Periodic march of banks of anchored sliders with history derivatives.
+
+    Parameters
+    ----------
+    u, N, dNdg : ndarray, shape (n_e, n_t)
+        Tangential displacement [m], normal load [N] and ``dN/dg`` [N/m] at
+        the samples of one period.
+    k, g : ndarray, shape (n_e, n_s)
+        Slider stiffness [N/m] and slip force per unit normal load [-].
+    CP : ndarray, shape (n_c, n_t + 1)
+        Prefix sums of the columns of the DFT matrix ``P`` (``n_c x n_t``).
+    Gam : ndarray, shape (n_t, n_c)
+        Inverse DFT matrix (samples from coefficients).
+    min_periods, max_periods : int
+        Periods marched at least / at most.
+    tol : float
+        Periodicity tolerance on the anchors, relative to ``max |u| + max |w|``.
+    coupled : bool
+        Compute the derivatives with respect to the gap coefficients.
+
+    Returns
+    -------
+    f, au, ag : ndarray, shape (n_e, n_t)
+        Force [N] over the last period and its instantaneous tangents
+        ``df/du`` [N/m] and ``df/dN * dN/dg`` [N/m].
+    Juu, Jug : ndarray, shape (n_e, n_c, n_c)
+        History part of ``dF/dU`` and ``dF/dG`` (``F = P f``).
+    periods : ndarray of int, shape (n_e,)
+        Periods marched.
+    change : ndarray, shape (n_e,)
+        Largest anchor change over the last period, relative [-].
+    """
+    ne, nt = u.shape
+    out = _alloc(ne, nt, Gam.shape[1])
+    run = _anchor_parallel if ne >= PARALLEL_MIN else _anchor_serial
+    run(u, N, dNdg, k, g, CP, Gam, int(min_periods), int(max_periods), float(tol),
+        bool(coupled), *out)
+    return out
+
+
+@njit(cache=True)
+def _scaled_one(e, u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol,
+                coupled, f, au, ag, Juu, Jug, periods, change):
+    """One element of :func:`scaled_aft` (outputs written in place)."""
+    nt = u.shape[1]
+    ns = k.shape[1]
+    nc = Gam.shape[1]
+    nstate = SC_SHARED + 2 * ns
+    st = np.zeros(nstate)
+    st[SC_N_PREV] = N_rest[e]
+    st[SC_N_R] = N_rest[e]
+    st0 = np.zeros(nstate)
+    # reversal memory derivatives: du_r = Gam[r] (u part), dN_r = cN Gam[r] (g part)
+    r = -1
+    cN = 0.0
+    DFu = np.zeros((ns, nc))      # d f_r / dU per slider
+    DFg = np.zeros((ns, nc))      # d f_r / dG per slider
+    # partials of each slider's force at the previous sample
+    pu = np.zeros(ns)
+    pN = np.zeros(ns)
+    pur = np.zeros(ns)
+    pNr = np.zeros(ns)
+    pfr = np.zeros(ns)
+    tprev = -1
+    # per-slider sums of P[:, t] times the partials, since the last reversal
+    Aur = np.zeros((ns, nc))
+    ANr = np.zeros((ns, nc))
+    Afr = np.zeros((ns, nc))
+    newu = np.zeros(nc)
+    newg = np.zeros(nc)
+    for p in range(max_periods):
+        for kk in range(nc):
+            for j in range(nc):
+                Juu[e, kk, j] = 0.0
+                Jug[e, kk, j] = 0.0
+        for i in range(ns):
+            for kk in range(nc):
+                Aur[i, kk] = 0.0
+                ANr[i, kk] = 0.0
+                Afr[i, kk] = 0.0
+        for q in range(nstate):
+            st0[q] = st[q]
+        for t in range(nt):
+            ut = u[e, t]
+            Nt = N[e, t]
+            dn = dNdg[e, t]
+            du = ut - st[SC_U_PREV]
+            if du != 0.0:
+                d = 1.0 if du > 0.0 else -1.0
+                if st[SC_DIR] != 0.0 and d != st[SC_DIR]:
+                    # reversal at the previous sample: flush the sums, then
+                    # move the memory (and its derivatives) to that sample
+                    for i in range(ns):
+                        _flush_scaled(Juu, Jug, e, Gam, Aur[i], ANr[i], Afr[i], DFu[i],
+                                      DFg[i], r, cN, coupled)
+                        for kk in range(nc):
+                            Aur[i, kk] = 0.0
+                            ANr[i, kk] = 0.0
+                            Afr[i, kk] = 0.0
+                    for i in range(ns):
+                        dnp = dNdg[e, tprev]
+                        for j in range(nc):
+                            gu = Gam[tprev, j]
+                            vu = pu[i] * gu + pfr[i] * DFu[i, j]
+                            vg = pN[i] * dnp * gu + pfr[i] * DFg[i, j]
+                            if r >= 0:
+                                vu += pur[i] * Gam[r, j]
+                                vg += pNr[i] * cN * Gam[r, j]
+                            newu[j] = vu
+                            newg[j] = vg
+                        for j in range(nc):
+                            DFu[i, j] = newu[j]
+                            DFg[i, j] = newg[j]
+                    r = tprev
+                    cN = dNdg[e, tprev]
+                    st[SC_U_R] = st[SC_U_PREV]
+                    st[SC_N_R] = st[SC_N_PREV]
+                    for i in range(ns):
+                        st[SC_SHARED + ns + i] = st[SC_SHARED + i]
+                st[SC_DIR] = d
+            fe = 0.0
+            de = 0.0
+            dg = 0.0
+            for i in range(ns):
+                fi, dfi, dni, dur, dNr, dfr = slider_scaled_force(
+                    ut, Nt, st[SC_U_R], st[SC_N_R], st[SC_SHARED + ns + i], k[e, i],
+                    g[e, i])
+                st[SC_SHARED + i] = fi
+                pu[i] = dfi
+                pN[i] = dni
+                pur[i] = dur
+                pNr[i] = dNr
+                pfr[i] = dfr
+                if dur != 0.0 or dNr != 0.0 or dfr != 0.0:
+                    for kk in range(nc):
+                        pk = P[kk, t]
+                        Aur[i, kk] += pk * dur
+                        ANr[i, kk] += pk * dNr
+                        Afr[i, kk] += pk * dfr
+                fe += fi
+                de += dfi
+                dg += dni * dn
+            st[SC_U_PREV] = ut
+            st[SC_N_PREV] = Nt
+            tprev = t
+            f[e, t] = fe
+            au[e, t] = de
+            ag[e, t] = dg
+        for i in range(ns):
+            _flush_scaled(Juu, Jug, e, Gam, Aur[i], ANr[i], Afr[i], DFu[i], DFg[i], r,
+                          cN, coupled)
+        ch = 0.0
+        big = 0.0
+        for q in range(nstate):
+            ch = max(ch, abs(st[q] - st0[q]))
+            big = max(big, abs(st[q]))
+        rel = ch / big if big > 0.0 else 0.0
+        periods[e] = p + 1
+        change[e] = rel
+        if p + 1 >= min_periods and rel <= tol:
+            break
+
+
+@njit(cache=True)
+def _scaled_serial(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol, coupled,
+                   f, au, ag, Juu, Jug, periods, change):
+    for e in range(u.shape[0]):
+        _scaled_one(e, u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol,
+                    coupled, f, au, ag, Juu, Jug, periods, change)
+
+
+@njit(cache=True, parallel=True)
+def _scaled_parallel(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol, coupled,
+                     f, au, ag, Juu, Jug, periods, change):
+    for e in prange(u.shape[0]):
+        _scaled_one(e, u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol,
+                    coupled, f, au, ag, Juu, Jug, periods, change)
+
+
+def scaled_aft(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol, coupled):
+    """Periodic march of banks of scaled-reversal sliders with history derivatives.
+
+    Parameters
+    ----------
+    u, N, dNdg : ndarray, shape (n_e, n_t)
+        As for :func:`anchor_aft`.
+    k, g : ndarray, shape (n_e, n_s)
+    N_rest : ndarray, shape (n_e,)
+        Normal load of the rest state (the reference ``N_r`` before the first
+        reversal) [N].
+    P : ndarray, shape (n_c, n_t)
+        DFT matrix (coefficients from samples).
+    Gam : ndarray, shape (n_t, n_c)
+    min_periods, max_periods : int
+    tol : float
+        Periodicity tolerance on the state, relative to its largest entry.
+    coupled : bool
+
+    Returns
+    -------
+    f, au, ag, Juu, Jug, periods, change
+        As for :func:`anchor_aft`.
+    """
+    ne, nt = u.shape
+    out = _alloc(ne, nt, Gam.shape[1])
+    run = _scaled_parallel if ne >= PARALLEL_MIN else _scaled_serial
+    run(u, N, dNdg, k, g, N_rest, P, Gam, int(min_periods), int(max_periods), float(tol),
+        bool(coupled), *out)
+    return out
+
+
+@njit(cache=True, inline="always")
+def _flush_scaled(Juu, Jug, e, Gam, Aur, ANr, Afr, DFu, DFg, r, cN, coupled):
+    """Outer products of the summed weights with the memory derivatives."""
+    nc = Gam.shape[1]
+    for kk in range(nc):
+        x_ur = Aur[kk]
+        x_Nr = ANr[kk]
+        x_fr = Afr[kk]
+        if x_ur == 0.0 and x_Nr == 0.0 and x_fr == 0.0:
+            continue
+        for j in range(nc):
+            vu = x_fr * DFu[j]
+            if r >= 0:
+                vu += x_ur * Gam[r, j]
+            Juu[e, kk, j] += vu
+            if coupled:
+                vg = x_fr * DFg[j]
+                if r >= 0:
+                    vg += x_Nr * cN * Gam[r, j]
+                Jug[e, kk, j] += vg
+
+
+@njit(cache=True)
+def _diag_one(e, J, Ac, As, hk, sk, wk):
+    nc = hk.shape[0]
+    for kk in range(nc):
+        hK = hk[kk]
+        for j in range(nc):
+            hJ = hk[j]
+            dm = hK - hJ
+            sgn = 1.0
+            if dm < 0:
+                dm = -dm
+                sgn = -1.0
+            sm = hK + hJ
+            if sk[kk] == 0 and sk[j] == 0:
+                v = 0.5 * (Ac[e, dm] + Ac[e, sm])
+            elif sk[kk] == 1 and sk[j] == 1:
+                v = 0.5 * (Ac[e, dm] - Ac[e, sm])
+            elif sk[kk] == 0:
+                # cos(hK) sin(hJ) = (sin(hK + hJ) - sin(hK - hJ)) / 2
+                v = 0.5 * (As[e, sm] - sgn * As[e, dm])
+            else:
+                # sin(hK) cos(hJ) = (sin(hK + hJ) + sin(hK - hJ)) / 2
+                v = 0.5 * (As[e, sm] + sgn * As[e, dm])
+            J[e, kk, j] += wk[kk] * v
+
+
+@njit(cache=True)
+def _diag_serial(J, Ac, As, hk, sk, wk):
+    for e in range(J.shape[0]):
+        _diag_one(e, J, Ac, As, hk, sk, wk)
+
+
+@njit(cache=True, parallel=True)
+def _diag_parallel(J, Ac, As, hk, sk, wk):
+    for e in prange(J.shape[0]):
+        _diag_one(e, J, Ac, As, hk, sk, wk)
+
+
+def add_diag_products(J, Ac, As, hk, sk, wk):
+    """Add ``P diag(alpha) Gam`` to per-element blocks from Fourier sums of alpha.
+
+    With ``Ac[e, m] = sum_t alpha[e, t] cos(m theta_t)`` and ``As`` the sine
+    sums (``m = 0 .. 2 max(h)``), product-to-sum identities give every entry
+    exactly (aliasing included, since the sums are over the same samples).
+
+    Parameters
+    ----------
+    J : ndarray, shape (n_e, n_c, n_c)
+        Blocks, updated in place.
+    Ac, As : ndarray, shape (n_e, 2 max(h) + 1)
+    hk : ndarray of int, shape (n_c,)
+        Harmonic of each coefficient.
+    sk : ndarray of int, shape (n_c,)
+        1 for a sine coefficient, 0 for cosine (and the constant).
+    wk : ndarray, shape (n_c,)
+        DFT weight of each coefficient (``1/n_t`` for h = 0, else ``2/n_t``).
+    """
+    run = _diag_parallel if J.shape[0] >= PARALLEL_MIN else _diag_serial
+    run(J, np.ascontiguousarray(Ac), np.ascontiguousarray(As), hk, sk, wk)

@@ -1,0 +1,350 @@
+"""Pseudo-arclength continuation of ``R(z, lam) = 0``.
+
+The unknowns ``y = (z, lam)`` (``n + 1`` values, ``lam`` last) are scaled,
+``y = scale * yh``, and so is the residual, ``Rh = R / rscale``; steps and
+tolerances refer to the scaled quantities.
+
+* Predictor: the unit tangent ``t`` of the branch, from ``[J; t_prev^T] t =
+  [0; 1]`` (``J`` the scaled Jacobian ``n x (n+1)``), oriented like the
+  previous one; ``yh_pred = yh + h t``.
+* Corrector: Newton on ``[Rh(yh); t . (yh - yh_k) - h] = 0`` (the point
+  stays on the hyperplane normal to the tangent, so turning points pass).
+  Converged when ``max|Rh| <= tol`` after at least one iteration.  A step
+  that increases the residual is halved (up to ``backtrack - 1`` times): the
+  AFT residual is only piecewise smooth, and plain Newton can cycle across a
+  kink.
+* Step control: after a success the step grows or shrinks towards
+  ``target_iter`` iterations; a failed corrector (no convergence, non-finite
+  values, or a jump farther than ``max_jump * h`` from the predictor) halves
+  the step and retries; below ``step_min`` the branch gives up and returns
+  what it has with the reason.
+* End: when a point passes ``lam_end`` the branch is closed by a Newton
+  solve at ``lam = lam_end`` exactly.  A branch that turns back out of the
+  range through ``lam_start`` stops there.
+
+Every accepted point is handed to ``on_point`` at once, so a caller can
+write it to disk (an interrupted run keeps the branch so far).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..results import (NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS, Convergence)
+
+log = logging.getLogger(__name__)
+
+#: Try to pass corners of piecewise-smooth branches (a switch for debugging).
+CORNERS = True
+
+
+@dataclass
+class PointInfo:
+    """Bookkeeping of one accepted point.
+
+    Attributes
+    ----------
+    iterations : int
+        Newton iterations of its corrector.
+    residual : float
+        ``max|R| / rscale`` at the point.
+    step : float
+        Scaled arclength step that led to it (0 for the first point).
+    tangent : ndarray, shape (n + 1,)
+        Unit tangent at the point (scaled variables).
+    extra : object
+        What the residual function returned besides ``R`` and ``J``.
+    """
+
+    iterations: int
+    residual: float
+    step: float
+    tangent: np.ndarray
+    extra: object = None
+
+
+@dataclass
+class Branch:
+    """A continued branch.
+
+    Attributes
+    ----------
+    y : ndarray, shape (n_points, n + 1)
+        Accepted points (unscaled), ``lam`` last.
+    iterations, residual, step : ndarray, shape (n_points,)
+    convergence : jointsim.results.Convergence
+        ``iterations`` counts accepted points.
+    """
+
+    y: np.ndarray
+    iterations: np.ndarray
+    residual: np.ndarray
+    step: np.ndarray
+    convergence: Convergence
+    tangents: list = field(default_factory=list, repr=False)
+
+
+def _solve(A, b):
+    try:
+        x = np.linalg.solve(A, b)
+    except np.linalg.LinAlgError:
+        x = np.linalg.lstsq(A, b, rcond=None)[0]
+    return x
+
+
+def tangent(J, t_prev):
+    """Unit tangent of ``J t = 0`` oriented like ``t_prev`` (scaled variables)."""
+    n1 = J.shape[1]
+    A = np.vstack([J, t_prev[None, :]])
+    rhs = np.zeros(n1)
+    rhs[-1] = 1.0
+    t = _solve(A, rhs)
+    nt = np.linalg.norm(t)
+    if not np.isfinite(nt) or nt == 0.0:
+        return t_prev.copy()
+    t /= nt
+    if t @ t_prev < 0.0:
+        t = -t
+    return t
+
+
+def _corner(F, yk, t, h, tol, max_iter):
+    """Try to leave a corner at ``yk`` along the tangent of the piece beyond it.
+
+    Returns ``(y, R, J, extra, iterations)`` or None.
+    """
+    _R, Jb, _e = F(yk + 1e-7 * t)
+    tb = tangent(Jb, t)
+    best = None
+    for d in (tb, -tb):
+        if d @ (-t) > 0.99:  # that is the branch we came along
+            continue
+        yk1 = yk + h * d
+        yc = yk1.copy()
+        R, J, extra = F(yc)
+        for it in range(1, max_iter + 1):
+            A = np.vstack([J, d[None, :]])
+            b = -np.concatenate([R, [d @ (yc - yk) - h]])
+            yc = yc + _solve(A, b)
+            R, J, extra = F(yc)
+            rn = np.abs(R).max(initial=0.0)
+            if not np.isfinite(rn):
+                break
+            if rn <= tol:
+                if (yc - yk) @ (-t) / max(np.linalg.norm(yc - yk), 1e-300) < 0.99:
+                    best = (yc, R, J, extra, it)
+                break
+        if best is not None:
+            return best
+    return None
+
+
+def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: float,
+                    step_min: float, step_max: float, max_points: int, tol: float,
+                    max_iter: int = 20, target_iter: int = 4, max_jump: float = 2.0, backtrack: int = 4,
+                    solve_first: bool = True, tangent0=None, on_point=None,
+                    progress: bool = True, desc: str = "continuation") -> Branch:
+    """Follow the solution branch of ``R(z, lam) = 0`` from ``y0`` to ``lam = lam_end``.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(y) -> (R, J, extra)`` with ``R`` of shape (n,) and ``J = dR/dy``
+        of shape (n, n + 1) (the last column is ``dR/dlam``).
+    y0 : ndarray, shape (n + 1,)
+        Start (``lam`` last).  With ``solve_first`` it is corrected at fixed
+        ``lam`` first; otherwise it must already be a solution.
+    lam_end : float
+        End of the range; the direction is from ``y0[-1]`` towards it.
+    scale : ndarray, shape (n + 1,)
+        Variable scales (``y = scale * yh``).
+    rscale : float
+        Residual scale.
+    step, step_min, step_max : float
+        Initial, smallest and largest scaled arclength steps.
+    max_points : int
+        Points at most (including the first).
+    tol : float
+        Tolerance on ``max|R| / rscale``.
+    max_iter, target_iter : int
+        Corrector iterations at most / aimed at by the step control.
+    backtrack : int
+        Halvings of a Newton step that increases the residual (1: none).
+    max_jump : float
+        A corrector landing farther than ``max_jump * h`` from its predictor
+        is rejected (guards against jumping to another branch).
+    tangent0 : ndarray, optional
+        Tangent guess at the start (scaled); default ``+-e_lam`` towards the end.
+    on_point : callable, optional
+        ``on_point(index, y, info: PointInfo)`` for every accepted point.
+    progress : bool
+        Show a tqdm bar of the progress through the ``lam`` range.
+
+    Returns
+    -------
+    Branch
+    """
+    from tqdm.auto import tqdm
+
+    y0 = np.asarray(y0, dtype=float).copy()
+    scale = np.asarray(scale, dtype=float)
+    n1 = y0.size
+    lam0 = float(y0[-1])
+    direction = 1.0 if lam_end >= lam0 else -1.0
+    span = abs(lam_end - lam0)
+    rs = float(rscale)
+
+    def F(yh):
+        R, J, extra = fun(yh * scale)
+        return R / rs, (J * scale[None, :]) / rs, extra
+
+    ys, its, res, steps, tans = [], [], [], [], []
+    bar = tqdm(total=1000, desc=desc, disable=(not progress) or None, leave=False,
+               bar_format="{l_bar}{bar}| {postfix}")
+
+    def accept(yh, info):
+        y = yh * scale
+        ys.append(y)
+        its.append(info.iterations)
+        res.append(info.residual)
+        steps.append(info.step)
+        tans.append(info.tangent)
+        if on_point is not None:
+            on_point(len(ys) - 1, y, info)
+        frac = 0.0 if span == 0 else min(max((y[-1] - lam0) * direction / span, 0.0), 1.0)
+        bar.n = int(1000 * frac)
+        bar.set_postfix_str(f"{len(ys)} pts, lam={y[-1]:.6g}, h={info.step:.2g}")
+        bar.refresh()
+
+    def corrector_fixed(yh, lam_h):
+        """Newton in z at fixed lam (scaled)."""
+        yh = yh.copy()
+        yh[-1] = lam_h
+        R, J, extra = F(yh)
+        for it in range(1, max_iter + 1):
+            if n1 == 1:
+                return yh, R, J, extra, it, True
+            dz = _solve(J[:, :-1], -R)
+            yh[:-1] += dz
+            R, J, extra = F(yh)
+            rn = np.abs(R).max(initial=0.0)
+            if not np.isfinite(rn):
+                return yh, R, J, extra, it, False
+            if rn <= tol:
+                return yh, R, J, extra, it, True
+        return yh, R, J, extra, max_iter, False
+
+    def finish(status, message):
+        bar.close()
+        conv = Convergence(status == SUCCESS, status, message, len(ys))
+        if status != SUCCESS:
+            log.warning("%s: %s", desc, message)
+        return Branch(y=np.array(ys).reshape(len(ys), n1), iterations=np.array(its),
+                      residual=np.array(res), step=np.array(steps), convergence=conv,
+                      tangents=tans)
+
+    yh = y0 / scale
+    t_prev = np.zeros(n1)
+    t_prev[-1] = direction
+    if tangent0 is not None:
+        t_prev = np.asarray(tangent0, dtype=float) / np.linalg.norm(tangent0)
+    try:
+        if solve_first:
+            yh, R, J, extra, it, ok = corrector_fixed(yh, yh[-1])
+            if not ok:
+                return finish(NOT_CONVERGED, f"the first point (lam = {lam0:g}) did not "
+                                             f"converge in {max_iter} Newton iterations")
+        else:
+            R, J, extra = F(yh)
+            it = 0
+        t = tangent(J, t_prev)
+        accept(yh, PointInfo(it, float(np.abs(R).max(initial=0.0)), 0.0, t, extra))
+        h = float(step)
+        corner_tries = 0
+        lam_start_h = lam0 / scale[-1]
+        lam_end_h = lam_end / scale[-1]
+        while len(ys) < max_points:
+            yk = yh
+            # do not aim (much) past the end of the range
+            if t[-1] * direction > 0:
+                to_end = (lam_end_h - yk[-1]) / t[-1]
+                if 0 < to_end < h:
+                    h = max(to_end * 1.001, step_min)
+            pred = yk + h * t
+            yc = pred.copy()
+            ok = False
+            R, J, extra = F(yc)
+            rn = np.abs(R).max(initial=0.0)
+            for it in range(1, max_iter + 1):
+                A = np.vstack([J, t[None, :]])
+                b = -np.concatenate([R, [t @ (yc - yk) - h]])
+                dy = _solve(A, b)
+                # backtracking: the residual is only piecewise smooth (stick/slip
+                # switches at samples) and a full step can cycle across a kink
+                lam = 1.0
+                for _ in range(backtrack):
+                    yn = yc + lam * dy
+                    Rn, Jn, en = F(yn)
+                    rnn = np.abs(Rn).max(initial=0.0)
+                    if np.isfinite(rnn) and (rnn <= rn or rnn <= tol):
+                        break
+                    lam *= 0.5
+                yc, R, J, extra, rn = yn, Rn, Jn, en, rnn
+                if not np.isfinite(rn) or not np.all(np.isfinite(yc)):
+                    break
+                if rn <= tol:
+                    ok = True
+                    break
+            if ok and np.linalg.norm(yc - pred) > max_jump * h:
+                ok = False
+                log.debug("%s: corrector jumped %.3g from the predictor (h = %.3g); retrying",
+                          desc, np.linalg.norm(yc - pred), h)
+            if not ok and CORNERS and corner_tries < 2 and h < 0.05 * step_max:
+                # a corner of the piecewise-smooth branch: take the tangent of the
+                # piece beyond it and try both orientations (not back the old way)
+                corner_tries += 1
+                got = _corner(F, yk, t, max(h, 1e3 * step_min), tol, max_iter)
+                if got is not None:
+                    yc, R, J, extra, it = got
+                    ok = True
+                    log.debug("%s: passed a corner of the branch at lam = %.8g", desc,
+                              yk[-1] * scale[-1])
+            if not ok:
+                h *= 0.5
+                if h < step_min:
+                    status = NON_FINITE if not np.isfinite(np.abs(R).max(initial=0.0)) \
+                        else STEP_TOO_SMALL
+                    return finish(status, f"corrector failed with the step shrunk below "
+                                          f"step_min = {step_min:g} at lam = "
+                                          f"{yk[-1] * scale[-1]:.8g} after {len(ys)} points")
+                continue
+            corner_tries = 0
+            t_new = tangent(J, (yc - yk) / max(np.linalg.norm(yc - yk), 1e-300))
+            lam_new = yc[-1]
+            if (lam_new - lam_end_h) * direction >= 0:
+                # passed the end: close the branch exactly at lam_end
+                a = (lam_end_h - yk[-1]) / (lam_new - yk[-1]) if lam_new != yk[-1] else 1.0
+                guess = yk + a * (yc - yk)
+                yf, Rf, Jf, ef, itf, okf = corrector_fixed(guess, lam_end_h)
+                if okf:
+                    accept(yf, PointInfo(itf, float(np.abs(Rf).max(initial=0.0)),
+                                         float(np.linalg.norm(yf - yk)), tangent(Jf, t), ef))
+                else:
+                    accept(yc, PointInfo(it, float(np.abs(R).max(initial=0.0)), h, t_new,
+                                         extra))
+                return finish(SUCCESS, f"reached lam = {lam_end:g} with {len(ys)} points")
+            if (lam_new - lam_start_h) * direction < 0 and len(ys) > 1:
+                accept(yc, PointInfo(it, float(np.abs(R).max(initial=0.0)), h, t_new, extra))
+                return finish(SUCCESS, f"the branch turned back out of the range through "
+                                       f"lam = {lam0:g} after {len(ys)} points")
+            accept(yc, PointInfo(it, float(np.abs(R).max(initial=0.0)), h, t_new, extra))
+            yh, t = yc, t_new
+            fac = np.sqrt(target_iter / max(it, 1))
+            h = float(np.clip(h * np.clip(fac, 0.5, 2.0), step_min, step_max))
+        return finish(NOT_CONVERGED, f"stopped at max_points = {max_points} before lam = "
+                                     f"{lam_end:g} (reached {ys[-1][-1]:.8g})")
+    except BaseException:
+        bar.close()
+        raise

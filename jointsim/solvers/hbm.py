@@ -1,0 +1,957 @@
+"""AFT harmonic balance with the linear structure condensed onto the contacts.
+
+Formulation
+-----------
+The structure ``M x'' + C x' + K x + f_c = f_ext`` with
+``f_c = Tt^T f_t - Tn^T N`` (see :mod:`jointsim.model`) is sought as
+``x(t) = X_0 + sum_h (X_hc cos h w t + X_hs sin h w t)``; coefficient order
+``[0, 1c, 1s, 2c, 2s, ...]`` over the kept harmonics.  Per harmonic, with
+``nu = h w`` and the complex amplitude ``Xh = X_hc - i X_hs``, the linear part
+is the dynamic stiffness ``D_h = K - nu^2 M + i nu C``.
+
+*Condensation onto the contact coordinates.*  The contact forces depend on
+``x`` only through ``q = T x``, the stacked tangential slips ``Tt x`` (when
+there is friction) and normal gap changes ``Tn x`` (when the normal load is
+coupled), ``n_r`` rows of full rank.  With ``Psi = T^T (T T^T)^-1`` (so
+``T Psi = I``) and ``Z`` an orthonormal basis of the null space of ``T``
+(``T Z = 0``), every ``x = Psi q + Z y``, and ``[Psi Z]^T T^T = [I; 0]``, so
+that per harmonic
+
+    [A  B ] [q]   [F_q - phi_h(q)]        A = Psi^T D Psi, B = Psi^T D Z,
+    [B' E ] [y] = [F_y           ]        B' = Z^T D Psi,  E = Z^T D Z,
+
+with ``phi = (f_t, -N)`` the element forces in the contact coordinates.  The
+``y`` equations are linear and are eliminated per harmonic:
+
+    S_h(w) q_h + phi_h(q) = F_q - B E^-1 F_y,     S_h = A - B E^-1 B'
+
+(a dynamic Schur complement; ``y = E^-1 (F_y - B' q)`` rebuilds ``x``).  The
+Newton unknowns are the ``n_coeff x n_r`` harmonic coefficients of ``q`` only:
+one slip (and one gap) per contact element, whatever the number of structural
+DOFs.  ``Z`` is chosen M-orthonormal and K-orthogonal (the modes of the
+structure with the contact coordinates held at zero), so ``E`` is diagonal
+when the damping is (Rayleigh or modal); otherwise ``E`` is factorised per
+harmonic.  ``E`` is singular only at an undamped resonance of the structure
+with the contacts *welded* (``q = 0``); with damping it is not, and the
+formulation is exact (the linear FRF is reproduced to round-off).
+
+*AFT.*  The coefficients of ``q`` are turned into ``n_t`` samples per period
+(``u = Gam U``), the element laws are marched over the samples from rest,
+period after period, until their state repeats (at least two periods), and
+the last period's forces are transformed back (``F = P f``).  The Jacobian is
+analytic: the instantaneous tangents plus the history terms carried
+forward through the march (see :mod:`jointsim.solvers._aft_kernels`).  With
+``effects.normal = "fixed"`` the normal load is ``N0`` and no gap is
+evaluated; with ``"coupled"``, ``N = kn A max(0, -g)`` (or bilateral).
+
+The frequency derivative of the residual is analytic too:
+``dR/dw = A_w q + B_w y + B y_w`` with ``y_w = -E^-1 (B'_w q + E_w y)``.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg as sla
+
+from ..signals import coefficient_harmonics
+from . import _aft_kernels as AK
+
+log = logging.getLogger(__name__)
+
+#: Above this many structural DOFs the dense condensation is refused.
+MAX_DENSE_DOF = 6000
+
+
+# --------------------------------------------------------------------------
+# Harmonic bases
+# --------------------------------------------------------------------------
+class HarmonicBasis:
+    """Sampling and DFT matrices of a harmonic set.
+
+    Parameters
+    ----------
+    harmonics : sequence of int
+        Harmonics kept, each at most once.
+    n_samples : int
+        AFT samples per period, ``>= 2 max(h) + 1``.
+
+    Attributes
+    ----------
+    hk : ndarray of int, shape (n_c,)
+        Harmonic of each coefficient (order ``[0, 1c, 1s, ...]``).
+    sk : ndarray of int, shape (n_c,)
+        1 for sine coefficients.
+    Gam : ndarray, shape (n_t, n_c)
+        Samples from coefficients, ``x(t_j) = Gam[j] @ X``.
+    P : ndarray, shape (n_c, n_t)
+        Coefficients from samples (exact for the kept harmonics).
+    CP : ndarray, shape (n_c, n_t + 1)
+        Prefix sums of the columns of ``P``.
+    cosm, sinm : ndarray, shape (n_t, 2 max(h) + 1)
+        ``cos(m theta_j)``, ``sin(m theta_j)``.
+    """
+
+    def __init__(self, harmonics, n_samples: int):
+        harmonics = tuple(int(h) for h in harmonics)
+        if len(set(harmonics)) != len(harmonics) or min(harmonics) < 0:
+            raise ValueError(f"harmonics must be distinct and >= 0, got {harmonics}")
+        hmax = max(harmonics)
+        if n_samples < 2 * hmax + 1:
+            raise ValueError(f"n_samples must be >= 2*max(h)+1 = {2 * hmax + 1}")
+        self.harmonics = harmonics
+        self.n_samples = int(n_samples)
+        self.hk = coefficient_harmonics(harmonics)
+        sk = []
+        for h in harmonics:
+            sk.extend([0] if h == 0 else [0, 1])
+        self.sk = np.array(sk, dtype=np.int64)
+        self.n_coeff = self.hk.size
+        theta = 2.0 * np.pi * np.arange(n_samples) / n_samples
+        self.theta = theta
+        arg = np.outer(theta, self.hk)
+        self.Gam = np.where(self.sk[None, :] == 1, np.sin(arg), np.cos(arg))
+        self.wk = np.where(self.hk == 0, 1.0 / n_samples, 2.0 / n_samples)
+        self.P = np.ascontiguousarray((self.Gam * self.wk[None, :]).T)
+        self.CP = np.zeros((self.n_coeff, n_samples + 1))
+        np.cumsum(self.P, axis=1, out=self.CP[:, 1:])
+        m = np.arange(2 * hmax + 1)
+        self.cosm = np.cos(np.outer(theta, m))
+        self.sinm = np.sin(np.outer(theta, m))
+        # coefficient index of (harmonic, cos) and (harmonic, sin)
+        self.index = {}
+        i = 0
+        for h in harmonics:
+            if h == 0:
+                self.index[h] = (i, -1)
+                i += 1
+            else:
+                self.index[h] = (i, i + 1)
+                i += 2
+
+    def samples(self, X):
+        """Samples over one period of coefficient arrays ``X`` (n_c, ...) -> (n_t, ...)."""
+        return np.tensordot(self.Gam, X, axes=(1, 0))
+
+    def diag_product(self, alpha):
+        """``P diag(alpha_e) Gam`` for every row of ``alpha`` (n_e, n_t) -> (n_e, n_c, n_c)."""
+        J = np.zeros((alpha.shape[0], self.n_coeff, self.n_coeff))
+        self.add_diag_product(J, alpha)
+        return J
+
+    def add_diag_product(self, J, alpha):
+        alpha = np.ascontiguousarray(alpha)
+        AK.add_diag_products(J, alpha @ self.cosm, alpha @ self.sinm, self.hk, self.sk, self.wk)
+
+
+# --------------------------------------------------------------------------
+# AFT evaluation of the contact elements
+# --------------------------------------------------------------------------
+@dataclass
+class AFTResult:
+    """Element forces and their derivatives for one set of coefficients.
+
+    Attributes
+    ----------
+    Ft, Nc : ndarray, shape (n_e, n_c)
+        Coefficients of the tangential force and the normal load [N].
+    Juu, Jug, JNN : ndarray, shape (n_e, n_c, n_c) or None
+        ``dFt/dU``, ``dFt/dG`` and ``dNc/dG`` (None when not computed or not
+        applicable).
+    u, f, N : ndarray, shape (n_e, n_t)
+        Slip, tangential force and normal load over the last period.
+    periods : ndarray of int, shape (n_e,)
+        Periods marched until the state repeated.
+    change : ndarray, shape (n_e,)
+        Relative state change over the last period (0 when periodic).
+    """
+
+    Ft: np.ndarray
+    Nc: np.ndarray
+    Juu: np.ndarray | None
+    Jug: np.ndarray | None
+    JNN: np.ndarray | None
+    u: np.ndarray
+    f: np.ndarray
+    N: np.ndarray
+    periods: np.ndarray
+    change: np.ndarray
+
+
+class AFT:
+    """Alternating frequency-time evaluation of a :class:`~jointsim.model.ContactSet`.
+
+    Parameters
+    ----------
+    contacts : jointsim.model.ContactSet
+    basis : HarmonicBasis
+    min_periods, max_periods : int
+        Periods marched at least / at most until the law's state repeats.
+    periodic_tol : float
+        Relative state change below which a period counts as periodic.
+    """
+
+    def __init__(self, contacts, basis: HarmonicBasis, min_periods: int = 2,
+                 max_periods: int = 50, periodic_tol: float = 1e-10):
+        self.contacts = contacts
+        self.basis = basis
+        self.law = contacts.law
+        self.kind = contacts.law.kind
+        self.coupled = bool(contacts.kernels.coupled)
+        self.unilateral = contacts.kernels.normal == "unilateral"
+        self.min_periods = int(min_periods)
+        self.max_periods = int(max(max_periods, min_periods))
+        self.periodic_tol = float(periodic_tol)
+        self.n_e = contacts.n_elements
+
+    def evaluate(self, U, G=None, jacobian: bool = True) -> AFTResult:
+        """Forces of all elements from slip (and gap-change) coefficients.
+
+        Parameters
+        ----------
+        U : ndarray, shape (n_c, n_e)
+            Coefficients of the tangential slip [m].
+        G : ndarray, shape (n_c, n_e), optional
+            Coefficients of ``Tn x`` (the gap minus ``gap0``) [m]; required
+            when the normal load is coupled.
+        jacobian : bool
+            Compute the derivative blocks.
+        """
+        b = self.basis
+        c = self.contacts
+        ne, nt = self.n_e, b.n_samples
+        u = np.ascontiguousarray((b.Gam @ U).T)
+        if self.coupled:
+            g = c.gap0[:, None] + (b.Gam @ G).T
+            N, dNdg = c.normal_load(g)
+        else:
+            N = np.ascontiguousarray(np.broadcast_to(c.N0[:, None], (ne, nt)), dtype=float)
+            dNdg = np.zeros((ne, nt))
+        kind = self.kind
+        periods = np.ones(ne, dtype=np.int64)
+        change = np.zeros(ne)
+        Juu = Jug = None
+        if kind == "bank_anchor":
+            f, au, ag, Juu, Jug, periods, change = AK.anchor_aft(
+                u, N, dNdg, self.law.k, self.law.g, b.CP, b.Gam, self.min_periods,
+                self.max_periods, self.periodic_tol, self.coupled)
+        elif kind == "bank_scaled":
+            f, au, ag, Juu, Jug, periods, change = AK.scaled_aft(
+                u, N, dNdg, self.law.k, self.law.g, np.ascontiguousarray(N[:, 0]), b.P, b.Gam,
+                self.min_periods, self.max_periods, self.periodic_tol, self.coupled)
+        elif kind == "linear":
+            k = self.law.k[:, 0]
+            f = k[:, None] * u
+            au = np.broadcast_to(k[:, None], u.shape)
+            ag = None
+        else:  # "none": frictionless
+            f = np.zeros_like(u)
+            au = ag = None
+        Ft = f @ b.P.T
+        Nc = N @ b.P.T
+        JNN = None
+        if jacobian:
+            nc = b.n_coeff
+            if Juu is None:
+                Juu = np.zeros((ne, nc, nc))
+            if au is not None:
+                b.add_diag_product(Juu, au)
+            if self.coupled:
+                if Jug is None:
+                    Jug = np.zeros((ne, nc, nc))
+                if ag is not None:
+                    b.add_diag_product(Jug, ag)
+                JNN = b.diag_product(dNdg)
+            else:
+                Jug = None
+        if np.any(periods >= self.max_periods) and np.any(change > self.periodic_tol):
+            log.debug("AFT: %d elements not periodic after %d periods (largest change %.1e)",
+                      int(np.sum(change > self.periodic_tol)), self.max_periods, change.max())
+        return AFTResult(Ft=Ft, Nc=Nc, Juu=Juu, Jug=Jug, JNN=JNN, u=u, f=f, N=N,
+                         periods=periods, change=change)
+
+
+# --------------------------------------------------------------------------
+# Linear part condensed onto the contact coordinates
+# --------------------------------------------------------------------------
+def _dense(A):
+    return np.asarray(A.toarray() if hasattr(A, "toarray") else A, dtype=float)
+
+
+class ReducedLinear:
+    """The linear structure seen from the contact coordinates ``q = T x``.
+
+    Parameters
+    ----------
+    M, K, C : array or sparse, shape (n, n)
+        Mass, stiffness and damping of the linear part.
+    T : array or sparse, shape (n_r, n)
+        Contact coordinates (full row rank).
+
+    See the module docstring for the formulation.
+    """
+
+    def __init__(self, M, K, C, T):
+        M, K, C, T = _dense(M), _dense(K), _dense(C), _dense(T)
+        n = M.shape[0]
+        if n > MAX_DENSE_DOF:
+            raise NotImplementedError(
+                f"the harmonic balance condenses the structure densely and the model has {n} "
+                f"DOFs (> {MAX_DENSE_DOF}); reduce it first (Craig-Bampton)")
+        n_r = T.shape[0]
+        self.n, self.n_r, self.n_y = n, n_r, n - n_r
+        if n_r:
+            sv = np.linalg.svd(T, compute_uv=False)
+            if n_r > n or sv.min() <= 1e-10 * sv.max():
+                raise ValueError(
+                    "the contact coordinates are linearly dependent (two contact elements "
+                    "measure the same relative motion, or an element's slip and gap coincide); "
+                    "merge such elements or give them distinct DOFs")
+            Psi = np.linalg.solve(T @ T.T, T).T
+            Qf, _ = np.linalg.qr(T.T, mode="complete")
+            Z0 = Qf[:, n_r:]
+        else:
+            Psi = np.zeros((n, 0))
+            Z0 = np.eye(n)
+        self.modal = False
+        Z = Z0
+        if self.n_y:
+            Kyy = Z0.T @ K @ Z0
+            Myy = Z0.T @ M @ Z0
+            try:
+                lam, Phi = sla.eigh(0.5 * (Kyy + Kyy.T), 0.5 * (Myy + Myy.T))
+                Zm = Z0 @ Phi
+                Cyy = Zm.T @ C @ Zm
+                off = Cyy - np.diag(np.diag(Cyy))
+                ref = max(np.abs(Cyy).max(), 1e-300)
+                sym = (np.allclose(K, K.T, rtol=0, atol=1e-12 * np.abs(K).max())
+                       and np.allclose(M, M.T, rtol=0, atol=1e-12 * np.abs(M).max()))
+                if sym and np.abs(off).max() <= 1e-11 * ref:
+                    Z = Zm
+                    self.modal = True
+            except (np.linalg.LinAlgError, ValueError):
+                pass
+        self.Psi, self.Z = Psi, Z
+        V = np.hstack([Psi, Z])
+        Kt, Mt, Ct = V.T @ K @ V, V.T @ M @ V, V.T @ C @ V
+        r = slice(0, n_r)
+        y = slice(n_r, n)
+        self.K = {b: Kt[i, j] for b, (i, j) in _blocks(r, y).items()}
+        self.M = {b: Mt[i, j] for b, (i, j) in _blocks(r, y).items()}
+        self.C = {b: Ct[i, j] for b, (i, j) in _blocks(r, y).items()}
+        if self.modal:
+            self.lam = np.diag(self.K["yy"]).copy()
+            self.myy = np.diag(self.M["yy"]).copy()
+            self.cyy = np.diag(self.C["yy"]).copy()
+        self._Mfull = M
+
+    # -- blocks of the transformed dynamic stiffness --------------------------
+    def blocks(self, nu: float, xi: float = 0.0):
+        """``A, B, B', E`` at angular frequency ``nu`` with damping ``C - xi M``.
+
+        ``E`` is a 1-D array (its diagonal) when the condensation is modal.
+        """
+        def mat(b):
+            return (self.K[b] - nu * nu * self.M[b]) + 1j * nu * (self.C[b] - xi * self.M[b])
+        A, B, Bp = mat("qq"), mat("qy"), mat("yq")
+        if self.modal:
+            E = (self.lam - nu * nu * self.myy) + 1j * nu * (self.cyy - xi * self.myy)
+        else:
+            E = mat("yy")
+        return A, B, Bp, E
+
+    def dblocks(self, nu: float, xi: float, wrt: str, h: int):
+        """Derivatives of ``A, B, B', E`` with respect to ``omega`` (``nu = h omega``) or ``xi``."""
+        if wrt == "omega":
+            def d(b):
+                return h * (-2.0 * nu * self.M[b] + 1j * (self.C[b] - xi * self.M[b]))
+            dE = (h * (-2.0 * nu * self.myy + 1j * (self.cyy - xi * self.myy))
+                  if self.modal else d("yy"))
+        else:
+            def d(b):
+                return -1j * nu * self.M[b]
+            dE = -1j * nu * self.myy if self.modal else d("yy")
+        return d("qq"), d("qy"), d("yq"), dE
+
+    def solve_E(self, E, rhs):
+        """``E^-1 rhs`` for diagonal (1-D) or full ``E``."""
+        if E.ndim == 1:
+            if np.any(E == 0):
+                raise np.linalg.LinAlgError("the structure with welded contacts is singular "
+                                            "at this frequency (an undamped resonance or an "
+                                            "unrestrained rigid-body motion)")
+            return rhs / (E[:, None] if rhs.ndim == 2 else E)
+        return np.linalg.solve(E, rhs)
+
+
+def _blocks(r, y):
+    return {"qq": (r, r), "qy": (r, y), "yq": (y, r), "yy": (y, y)}
+
+
+# --------------------------------------------------------------------------
+# The harmonic-balance system
+# --------------------------------------------------------------------------
+@dataclass
+class Evaluation:
+    """Residual and derivatives of the condensed HBM equations at one point.
+
+    Attributes
+    ----------
+    R : ndarray, shape (n_c * n_r,)
+        Residual [N] (harmonic-major: index ``k * n_r + r``).
+    J : ndarray, shape (n_c * n_r, n_c * n_r) or None
+        ``dR/dz``.
+    dR : dict of str -> ndarray, shape (n_c * n_r,)
+        Derivatives with respect to ``omega`` and/or ``xi``.
+    aft : AFTResult or None
+    """
+
+    R: np.ndarray
+    J: np.ndarray | None
+    dR: dict = field(default_factory=dict)
+    aft: AFTResult | None = None
+
+
+class HBMSystem:
+    """Condensed AFT harmonic-balance equations of a :class:`~jointsim.model.StructuralModel`.
+
+    The unknown ``z`` holds the harmonic coefficients of the contact
+    coordinates ``q`` (``n_c x n_r``, harmonic-major, flattened).  For element
+    ``e``, ``q[t_row[e]]`` is its slip and ``q[n_row[e]]`` its gap change.
+
+    Parameters
+    ----------
+    model : jointsim.model.StructuralModel
+    harmonics : sequence of int
+    n_samples : int
+    min_periods, max_periods : int
+        AFT march periods (see :class:`AFT`).
+    """
+
+    def __init__(self, model, harmonics, n_samples: int, min_periods: int = 2,
+                 max_periods: int = 50):
+        self.model = model
+        self.basis = HarmonicBasis(harmonics, n_samples)
+        c = model.contacts
+        self.contacts = c
+        self.aft = AFT(c, self.basis, min_periods, max_periods)
+        ne = c.n_elements
+        self.n_e = ne
+        self.friction = c.law.kind != "none"
+        self.coupled = bool(c.kernels.coupled)
+        rows = []
+        self.t_row = np.full(ne, -1, dtype=np.int64)
+        self.n_row = np.full(ne, -1, dtype=np.int64)
+        nr = 0
+        if self.friction and ne:
+            rows.append(_dense(c.Tt))
+            self.t_row = np.arange(ne)
+            nr = ne
+        if self.coupled and ne:
+            rows.append(_dense(c.Tn))
+            self.n_row = nr + np.arange(ne)
+            nr += ne
+        T = np.vstack(rows) if rows else np.zeros((0, model.n_dof))
+        self.T = T
+        self.lin = ReducedLinear(model.M, model.K, model.C, T)
+        self.n_r = nr
+        self.n_c = self.basis.n_coeff
+        self.n_z = self.n_c * nr
+        self._Tt = _dense(c.Tt) if ne else np.zeros((0, model.n_dof))
+        log.debug("HBM system: %d DOFs condensed onto %d contact coordinates x %d "
+                  "coefficients (%s condensation)", model.n_dof, nr, self.n_c,
+                  "modal" if self.lin.modal else "direct")
+
+    # -- forcing -------------------------------------------------------------
+    def force_coefficients(self, scale: float = 1.0):
+        """External force coefficients, shape (n_c, n_dof) [N] (see StructuralModel)."""
+        return self.model.force_coefficients(self.basis.harmonics, scale)
+
+    def _complex(self, X, h):
+        """Complex amplitude of harmonic ``h`` from coefficient rows of ``X``."""
+        ic, is_ = self.basis.index[h]
+        if h == 0:
+            return X[ic].astype(complex)
+        return X[ic] - 1j * X[is_]
+
+    def _store(self, out, h, v):
+        ic, is_ = self.basis.index[h]
+        if h == 0:
+            out[ic] = v.real
+        else:
+            out[ic] = v.real
+            out[is_] = -v.imag
+
+    # -- residual --------------------------------------------------------------
+    def evaluate(self, z, omega: float, F, xi: float = 0.0, jacobian: bool = True,
+                 wrt=("omega",)) -> Evaluation:
+        """Residual ``S(w) q + phi(q) - F_red`` and its analytic derivatives.
+
+        Parameters
+        ----------
+        z : ndarray, shape (n_z,)
+            Coefficients of the contact coordinates [m].
+        omega : float
+            Base angular frequency [rad/s].
+        F : ndarray, shape (n_c, n_dof)
+            External force coefficients [N].
+        xi : float
+            Self-excitation of the EPMC (damping ``C - xi M``) [1/s].
+        jacobian : bool
+            Also compute ``dR/dz`` and the derivatives named in ``wrt``.
+        wrt : tuple of str
+            Parameters to differentiate by: ``"omega"``, ``"xi"``.
+        """
+        nr, nc = self.n_r, self.n_c
+        Q = np.asarray(z, dtype=float).reshape(nc, nr)
+        R = np.zeros((nc, nr))
+        J = np.zeros((self.n_z, self.n_z)) if jacobian else None
+        dR = {p: np.zeros((nc, nr)) for p in wrt} if jacobian else {}
+        lin = self.lin
+        for h in self.basis.harmonics:
+            nu = h * omega
+            A, B, Bp, E = lin.blocks(nu, xi)
+            qh = self._complex(Q, h)
+            Fh = self._complex(F, h)
+            Fq = lin.Psi.T @ Fh
+            Fy = lin.Z.T @ Fh
+            y = lin.solve_E(E, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)
+            self._store(R, h, A @ qh + B @ y - Fq)
+            if not jacobian:
+                continue
+            EinvBp = lin.solve_E(E, Bp) if lin.n_y else np.zeros((0, nr), complex)
+            S = A - B @ EinvBp
+            ic, is_ = self.basis.index[h]
+            rc = ic * nr + np.arange(nr)
+            if h == 0:
+                J[np.ix_(rc, rc)] = S.real
+            else:
+                rs = is_ * nr + np.arange(nr)
+                J[np.ix_(rc, rc)] = S.real
+                J[np.ix_(rc, rs)] = S.imag
+                J[np.ix_(rs, rc)] = -S.imag
+                J[np.ix_(rs, rs)] = S.real
+            for p in wrt:
+                if h == 0 and p == "omega":
+                    continue
+                dA, dB, dBp, dE = lin.dblocks(nu, xi, p, h)
+                v = dA @ qh
+                if lin.n_y:
+                    dEy = dE * y if np.ndim(dE) == 1 else dE @ y
+                    y_p = -lin.solve_E(E, dBp @ qh + dEy)
+                    v = v + dB @ y + B @ y_p
+                self._store(dR[p], h, v)
+        aft = None
+        if self.n_e and nr:
+            U = Q[:, self.t_row] if self.friction else None
+            Gq = Q[:, self.n_row] if self.coupled else None
+            if U is None:
+                U = np.zeros((nc, self.n_e))
+            aft = self.aft.evaluate(U, Gq, jacobian)
+            if self.friction:
+                R[:, self.t_row] += aft.Ft.T
+            if self.coupled:
+                R[:, self.n_row] -= aft.Nc.T
+            if jacobian:
+                self._add_element_blocks(J, aft)
+        return Evaluation(R=R.ravel(), J=J, dR={p: v.ravel() for p, v in dR.items()}, aft=aft)
+
+    def _add_element_blocks(self, J, aft):
+        nr, nc = self.n_r, self.n_c
+        k = np.arange(nc)
+        def idx(rows):
+            return rows[:, None, None] + nr * k[None, :, None], \
+                rows[:, None, None] + nr * k[None, None, :]
+        if self.friction:
+            ri, ci = idx(self.t_row)
+            J[ri, ci] += aft.Juu
+            if self.coupled:
+                ri2, _ = idx(self.t_row)
+                _, cj = idx(self.n_row)
+                J[ri2, cj] += aft.Jug
+        if self.coupled:
+            ri, ci = idx(self.n_row)
+            J[ri, ci] -= aft.JNN
+
+    # -- reconstruction ----------------------------------------------------------
+    def reconstruct(self, z, omega: float, F, xi: float = 0.0):
+        """Full coefficients ``X`` (n_c, n_dof) [m] from the contact coordinates."""
+        nr, nc = self.n_r, self.n_c
+        Q = np.asarray(z, dtype=float).reshape(nc, nr)
+        X = np.zeros((nc, self.model.n_dof))
+        lin = self.lin
+        for h in self.basis.harmonics:
+            A, B, Bp, E = lin.blocks(h * omega, xi)
+            qh = self._complex(Q, h)
+            Fy = lin.Z.T @ self._complex(F, h)
+            y = lin.solve_E(E, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)
+            self._store(X, h, lin.Psi @ qh + lin.Z @ y)
+        return X
+
+    def contact_coordinates(self, X):
+        """``z`` from full coefficients ``X`` (n_c, n_dof)."""
+        return (np.asarray(X) @ self.T.T).ravel()
+
+    def slips(self, X):
+        """Tangential slip samples (n_e, n_t) from full coefficients."""
+        return (self.basis.Gam @ (np.asarray(X) @ self._Tt.T)).T
+
+
+# --------------------------------------------------------------------------
+# Newton at a fixed frequency
+# --------------------------------------------------------------------------
+@dataclass
+class PointSolution:
+    """A harmonic-balance solution at one frequency.
+
+    Attributes
+    ----------
+    z : ndarray, shape (n_z,)
+        Contact-coordinate coefficients [m].
+    X : ndarray, shape (n_c, n_dof)
+        Full coefficients [m].
+    omega : float
+    residual : float
+        Largest residual entry [N].
+    evaluation : Evaluation
+    convergence : jointsim.results.Convergence
+    """
+
+    z: np.ndarray
+    X: np.ndarray
+    omega: float
+    residual: float
+    evaluation: Evaluation
+    convergence: object
+
+
+def newton(fun, z0, tol: float, max_iter: int, rscale: float = 1.0):
+    """Newton's method with backtracking on the residual norm.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(z) -> (R, J, extra)``.
+    z0 : ndarray
+    tol : float
+        Convergence when ``max|R| / rscale <= tol`` after at least one step.
+    max_iter : int
+    rscale : float
+        Residual scale.
+
+    Returns
+    -------
+    z, R, extra, iterations, converged : ...
+    """
+    from ..results import NON_FINITE, NOT_CONVERGED, SUCCESS, Convergence  # noqa: F401
+    z = np.array(z0, dtype=float)
+    R, J, extra = fun(z)
+    rn = np.abs(R).max(initial=0.0) / rscale
+    for it in range(1, max_iter + 1):
+        if z.size == 0:
+            return z, R, extra, it, True
+        try:
+            dz = np.linalg.solve(J, -R)
+        except np.linalg.LinAlgError:
+            dz = np.linalg.lstsq(J, -R, rcond=None)[0]
+        lam = 1.0
+        for _ in range(6):
+            zn = z + lam * dz
+            Rn, Jn, en = fun(zn)
+            rnn = np.abs(Rn).max(initial=0.0) / rscale
+            if np.isfinite(rnn) and (rnn <= rn or rnn <= tol):
+                break
+            lam *= 0.5
+        z, R, J, extra, rn = zn, Rn, Jn, en, rnn
+        if not np.isfinite(rn):
+            return z, R, extra, it, False
+        if rn <= tol:
+            return z, R, extra, it, True
+    return z, R, extra, max_iter, False
+
+
+def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
+                max_iter: int = 30, rscale: float | None = None) -> PointSolution:
+    """Solve the harmonic balance at a fixed frequency by Newton's method.
+
+    Parameters
+    ----------
+    system : HBMSystem
+    omega : float
+        Angular frequency [rad/s].
+    F : ndarray, shape (n_c, n_dof)
+        Force coefficients [N].
+    z0 : ndarray, optional
+        Start (default: zero, whose first step is the stuck linear response).
+    tol : float
+        Tolerance on ``max|R| / rscale``.
+    rscale : float, optional
+        Residual scale (default: the largest force coefficient).
+    """
+    from ..results import NOT_CONVERGED, SUCCESS, Convergence
+    if rscale is None:
+        rscale = max(float(np.abs(F).max(initial=0.0)), 1e-300)
+    z0 = np.zeros(system.n_z) if z0 is None else np.asarray(z0, dtype=float)
+
+    def fun(z):
+        ev = system.evaluate(z, omega, F, wrt=())
+        return ev.R, ev.J, ev
+
+    z, R, ev, it, ok = newton(fun, z0, tol, max_iter, rscale)
+    rn = float(np.abs(R).max(initial=0.0))
+    conv = Convergence(ok, SUCCESS if ok else NOT_CONVERGED,
+                       f"Newton {'converged' if ok else 'did not converge'} in {it} iterations "
+                       f"(residual {rn / rscale:.1e} of the force scale)", it)
+    return PointSolution(z=z, X=system.reconstruct(z, omega, F), omega=float(omega),
+                         residual=rn, evaluation=ev, convergence=conv)
+
+
+def harmonic_amplitude(basis: HarmonicBasis, X, h: int = 1):
+    """Amplitude ``sqrt(X_hc^2 + X_hs^2)`` of harmonic ``h`` (``|X_0|`` for h = 0).
+
+    Parameters
+    ----------
+    basis : HarmonicBasis
+    X : ndarray, shape (n_c, ...)
+    h : int
+
+    Returns
+    -------
+    ndarray, shape X.shape[1:]
+    """
+    ic, is_ = basis.index[h]
+    X = np.asarray(X)
+    if h == 0:
+        return np.abs(X[ic])
+    return np.hypot(X[ic], X[is_])
+
+
+# --------------------------------------------------------------------------
+# Frequency-response curves
+# --------------------------------------------------------------------------
+def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: int = 9):
+    """Variable and residual scales of an FRC from the stuck linear response.
+
+    One Newton step from ``z = 0`` (the response with every element at its
+    rest tangent) at ``n`` frequencies of the range gives a displacement
+    scale ``q_ref = max |z|``; the residual scale is the largest condensed
+    force ``max |R(0)|``.
+
+    Returns
+    -------
+    scale : ndarray, shape (n_z + 1,)
+        ``q_ref`` for every coefficient, ``|omega_end - omega_start|`` for omega.
+    rscale : float
+    """
+    qref, rref = 0.0, 0.0
+    z0 = np.zeros(system.n_z)
+    for w in np.linspace(omega_start, omega_end, n):
+        ev = system.evaluate(z0, w, F, wrt=())
+        rref = max(rref, float(np.abs(ev.R).max(initial=0.0)))
+        if system.n_z:
+            try:
+                z = np.linalg.solve(ev.J, -ev.R)
+                qref = max(qref, float(np.abs(z).max()))
+            except np.linalg.LinAlgError:
+                pass
+    if not qref > 0.0:
+        qref = 1.0
+    if not rref > 0.0:
+        rref = 1.0
+    scale = np.full(system.n_z + 1, qref)
+    scale[-1] = max(abs(omega_end - omega_start), 1e-12 * abs(omega_start), 1e-300)
+    return scale, rref
+
+
+def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float):
+    """Refine the largest amplitude of a branch by maximising over frequency.
+
+    Only where the branch is single-valued around its largest point (the
+    frequency increases through it); at a fold the largest computed point is
+    returned unrefined.
+
+    Returns
+    -------
+    omega_peak, amplitude_peak : float
+    refined : bool
+    """
+    from scipy.optimize import minimize_scalar
+    i = int(np.argmax(amplitude))
+    n = len(omega)
+    if i == 0 or i == n - 1 or not (omega[i - 1] < omega[i] < omega[i + 1]):
+        return float(omega[i]), float(amplitude[i]), False
+    zs = {"z": Z[i]}
+
+    def neg_amp(w):
+        sol = solve_point(system, w, F, z0=zs["z"], tol=tol)
+        if not sol.convergence.success:
+            return -float(amplitude[i])
+        zs["z"] = sol.z
+        return -float(harmonic_amplitude(system.basis, sol.X[:, dof]))
+
+    lo, hi = float(omega[i - 1]), float(omega[i + 1])
+    res = minimize_scalar(neg_amp, bounds=(lo, hi), method="bounded",
+                          options={"xatol": 1e-12 * max(abs(hi), 1.0)})
+    a = -float(res.fun)
+    if a < amplitude[i]:
+        return float(omega[i]), float(amplitude[i]), False
+    return float(res.x), a, True
+
+
+def run_hbm_analysis(scene, model, writer) -> None:
+    """Runner of ``[analysis.hbm]``: one FRC branch per force scale, written point by point.
+
+    File layout (all per solution point unless said otherwise):
+
+    * ``/hbm/omega`` [rad/s], ``/hbm/X`` [n_points, n_coeff, n_dof],
+      ``/hbm/q`` (contact coordinates, used by ``--resume``), ``/hbm/branch``
+      (index into ``/hbm/force_scale``), ``/hbm/amplitude`` (fundamental
+      amplitude at the response DOF), ``/hbm/max_abs`` (``max_t |x(t)|`` there),
+      ``/hbm/iterations``, ``/hbm/residual``, ``/hbm/step``,
+      ``/hbm/aft_periods`` (largest number of periods the laws were marched),
+      ``/hbm/tangent``;
+    * once: ``/hbm/harmonics``, ``/hbm/force_scale`` [n_branches], and per
+      branch ``/hbm/peak_omega``, ``/hbm/peak_amplitude``, ``/hbm/peak_refined``;
+      group attributes ``branch<b>_status`` / ``branch<b>_message``;
+    * ``/loops/*``, ``/masing/*`` for every point (or those listed in
+      ``analysis.masing.points``, global point indices).
+    """
+    from ..io.hdf5 import unit, write_loops
+    from ..masing import check_loops
+    from .continuation import continue_branch
+
+    a = scene.analysis.hbm
+    units = model.units
+    system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods)
+    if not 0 <= a.response_dof < model.n_dof:
+        raise ValueError(f"{scene.path}: analysis.hbm.response_dof = {a.response_dof} is out "
+                         f"of range (the model has {model.n_dof} DOFs)")
+    b = system.basis
+    dof = a.response_dof
+    d_u, f_u, w_u = unit("displacement", units), unit("force", units), \
+        unit("angular_frequency", units)
+    g = writer.group("hbm", n_samples=a.n_samples, response_dof=dof,
+                     omega_start=a.omega_start, omega_end=a.omega_end,
+                     n_contact_coordinates=system.n_r, condensation="modal" if system.lin.modal
+                     else "direct", amplitude_definition="fundamental harmonic amplitude "
+                     "sqrt(X_1c^2 + X_1s^2) at the response DOF")
+    if "hbm/harmonics" not in writer.h5:
+        writer.write("hbm/harmonics", np.array(a.harmonics, dtype=np.int64), "1",
+                     "harmonics kept; coefficient order [0, 1c, 1s, 2c, 2s, ...]")
+        writer.write("hbm/force_scale", np.array(a.force_scale, dtype=float), "1",
+                     "multiplier of the excitation of each branch")
+        writer.write("hbm/coefficient_harmonic", b.hk, "1", "harmonic of each coefficient")
+    if "contacts/area" not in writer.h5 and model.contacts.n_elements:
+        writer.write("contacts/area", model.contacts.area, "m^2" if units == "SI" else "length^2",
+                     "contact area of each element")
+    masing_points = set(scene.analysis.masing.points)
+    law = model.contacts.law
+    n_br = len(a.force_scale)
+    peaks = {k: np.full(n_br, np.nan) for k in ("omega", "amplitude")}
+    refined = np.zeros(n_br, dtype=bool)
+    for name in ("omega", "amplitude"):
+        if f"hbm/peak_{name}" in writer.h5:
+            peaks[name][:] = writer.h5[f"hbm/peak_{name}"][()]
+    if "hbm/peak_refined" in writer.h5:
+        refined[:] = writer.h5["hbm/peak_refined"][()]
+    failures = []
+    for ib, fs in enumerate(a.force_scale):
+        status = g.attrs.get(f"branch{ib}_status", "")
+        if status in ("complete", "gave up"):
+            log.info("hbm branch %d (force scale %g) already %s; skipped", ib, fs, status)
+            continue
+        F = system.force_coefficients(fs)
+        scale, rscale = frc_scales(system, F, a.omega_start, a.omega_end)
+        resume_rows = np.zeros(0, dtype=np.int64)
+        if "hbm/branch" in writer.h5:
+            resume_rows = np.flatnonzero(writer.h5["hbm/branch"][()] == ib)
+        if resume_rows.size:
+            last = int(resume_rows[-1])
+            y0 = np.append(writer.h5["hbm/q"][last], writer.h5["hbm/omega"][last])
+            t0 = writer.h5["hbm/tangent"][last]
+            h0 = float(writer.h5["hbm/step"][last]) or a.step
+            solve_first, max_pts = False, a.max_points - resume_rows.size + 1
+            log.info("hbm branch %d: resuming from point %d (omega = %g)", ib, last, y0[-1])
+        else:
+            y0 = np.append(np.zeros(system.n_z), a.omega_start)
+            t0, h0, solve_first, max_pts = None, a.step, True, a.max_points
+
+        def fun(y, F=F):
+            ev = system.evaluate(y[:-1], y[-1], F)
+            J = np.hstack([ev.J, ev.dR["omega"][:, None]]) if system.n_z else \
+                np.zeros((0, 1))
+            return ev.R, J, ev
+
+        def on_point(i, y, info, F=F, ib=ib, fs=fs, skip=not solve_first):
+            if skip and i == 0:
+                return
+            w = float(y[-1])
+            X = system.reconstruct(y[:-1], w, F)
+            xs = b.samples(X[:, dof])
+            p = writer.rows("hbm/omega")
+            writer.append("hbm/omega", w, w_u, "angular frequency of the point")
+            writer.append("hbm/X", X, d_u, "harmonic coefficients [n_coeff, n_dof]")
+            writer.append("hbm/q", y[:-1], d_u, "coefficients of the contact coordinates")
+            writer.append("hbm/branch", np.int64(ib), "1", "branch (force level) of the point")
+            writer.append("hbm/amplitude", float(harmonic_amplitude(b, X[:, dof])), d_u,
+                          "fundamental amplitude at the response DOF")
+            writer.append("hbm/max_abs", float(np.abs(xs).max()), d_u,
+                          "max |x(t)| at the response DOF over the AFT samples")
+            writer.append("hbm/iterations", np.int64(info.iterations), "1",
+                          "Newton iterations of the corrector")
+            writer.append("hbm/residual", info.residual, "1",
+                          "max |R| / residual scale at the point")
+            writer.append("hbm/step", info.step, "1", "scaled arclength step to the point")
+            writer.append("hbm/tangent", info.tangent, "1", "unit tangent (scaled variables)")
+            ev = info.extra
+            aft = ev.aft if ev is not None else None
+            writer.append("hbm/aft_periods",
+                          np.int64(aft.periods.max() if aft is not None else 0), "1",
+                          "largest number of periods the laws were marched")
+            if aft is not None and (not masing_points or p in masing_points):
+                u = system.slips(X)
+                report = check_loops(u, aft.f, aft.N, law, scene.analysis.masing.tol)
+                write_loops(writer, p, u, aft.f, aft.N, report, units)
+                writer.h5["loops"].attrs["analysis"] = "hbm"
+
+        br = continue_branch(
+            fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,
+            step_max=a.step_max, max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
+            solve_first=solve_first, tangent0=t0, on_point=on_point,
+            desc=f"hbm branch {ib + 1}/{n_br} (x{fs:g})")
+        conv = br.convergence
+        g.attrs[f"branch{ib}_status"] = "complete" if conv.success else "gave up"
+        g.attrs[f"branch{ib}_message"] = conv.message
+        rows = np.flatnonzero(writer.h5["hbm/branch"][()] == ib)
+        if rows.size:
+            om = writer.h5["hbm/omega"][()][rows]
+            amp = writer.h5["hbm/amplitude"][()][rows]
+            Z = writer.h5["hbm/q"][()][rows]
+            if a.refine_peak:
+                pw, pa, ok = refine_peak(system, F, om, Z, amp, dof, min(a.tol, 1e-10))
+            else:
+                i = int(np.argmax(amp))
+                pw, pa, ok = float(om[i]), float(amp[i]), False
+            peaks["omega"][ib], peaks["amplitude"][ib], refined[ib] = pw, pa, ok
+            writer.write("hbm/peak_omega", peaks["omega"], w_u, "frequency of the largest "
+                         "amplitude of each branch")
+            writer.write("hbm/peak_amplitude", peaks["amplitude"], d_u,
+                         "largest fundamental amplitude of each branch")
+            writer.write("hbm/peak_refined", refined, "1", "peak refined by maximising "
+                         "over frequency (false: largest computed point, e.g. at a fold)")
+        log.info("hbm branch %d (force scale %g): %s; peak %.6g at omega = %.6g", ib, fs,
+                 conv.message, peaks["amplitude"][ib], peaks["omega"][ib])
+        if not conv.success:
+            failures.append(f"branch {ib} (force scale {fs:g}): {conv.message}")
+    _ = f_u
+    if failures:
+        raise RuntimeError("hbm: " + "; ".join(failures))
+
+
+def _register():
+    from ..run import ANALYSES
+    ANALYSES["hbm"] = run_hbm_analysis
+
+
+_register()

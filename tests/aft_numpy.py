@@ -1,0 +1,80 @@
+"""Plain-NumPy reference of the AFT anchor-bank evaluation (dense forward mode).
+
+Used by the tests as an independent implementation of
+:func:`jointsim.solvers._aft_kernels.anchor_aft` + the diagonal products, and
+by ``benchmarks/aft_throughput.py`` as the NumPy baseline.  Vectorised over
+elements and sliders; a Python loop over samples; the derivative of every
+anchor with respect to all 2 n_c coefficients (U, G) is carried densely.
+"""
+import numpy as np
+
+
+def anchor_aft_numpy(U, G, gap0, kn, k, g, N0, basis, coupled, unilateral=True,
+                     min_periods=2, max_periods=50, tol=1e-10):
+    """Forces and Jacobian blocks of anchored slider banks.
+
+    Parameters
+    ----------
+    U, G : ndarray, shape (n_c, n_e)
+        Slip and gap-change coefficients.
+    gap0, kn, N0 : ndarray, shape (n_e,)
+    k, g : ndarray, shape (n_e, n_s)
+    basis : jointsim.solvers.hbm.HarmonicBasis
+    coupled : bool
+
+    Returns
+    -------
+    Ft, Nc : ndarray, shape (n_e, n_c)
+    Juu, Jug, JNN : ndarray, shape (n_e, n_c, n_c)
+    """
+    Gam, P = basis.Gam, basis.P
+    nt, nc = Gam.shape
+    ne, ns = k.shape
+    u = (Gam @ U).T
+    if coupled:
+        gs = gap0[:, None] + (Gam @ G).T
+        if unilateral:
+            N = np.where(gs < 0.0, -kn[:, None] * gs, 0.0)
+            dNdg = np.where(gs < 0.0, -kn[:, None], 0.0)
+        else:
+            N, dNdg = -kn[:, None] * gs, -kn[:, None] * np.ones_like(gs)
+    else:
+        N = np.broadcast_to(N0[:, None], (ne, nt)).copy()
+        dNdg = np.zeros((ne, nt))
+    w = np.zeros((ne, ns))
+    dw = np.zeros((ne, ns, 2 * nc))          # d w / d(U, G)
+    f = np.zeros((ne, nt))
+    df = np.zeros((ne, nt, 2 * nc))
+    du = np.concatenate([Gam, np.zeros_like(Gam)], axis=1)   # d u_t / d(U, G)
+    dgv = np.concatenate([np.zeros_like(Gam), Gam], axis=1)  # d g_t / d(U, G)
+    for p in range(max_periods):
+        w_start = w.copy()
+        for t in range(nt):
+            ut = u[:, t:t + 1]
+            Nt = N[:, t:t + 1]
+            dN = dNdg[:, t, None, None] * dgv[t][None, None, :]   # (ne, 1, 2nc)
+            fs = g * Nt
+            ft = k * (ut - w)
+            sep = Nt <= 0.0
+            slip_p = (~sep) & (ft > fs)
+            slip_m = (~sep) & (ft < -fs)
+            stick = ~(sep | slip_p | slip_m)
+            fi = np.where(sep, 0.0, np.where(slip_p, fs, np.where(slip_m, -fs, ft)))
+            sgn = np.where(slip_p, 1.0, np.where(slip_m, -1.0, 0.0))
+            dfi = np.where(stick[..., None], k[..., None] * (du[t][None, None, :] - dw), 0.0) \
+                + (sgn * g)[..., None] * dN
+            w_new = np.where(sep, ut, np.where(slip_p | slip_m, ut - fi / k, w))
+            dw = np.where(stick[..., None], dw,
+                          du[t][None, None, :] - np.where(sep, 0.0, sgn * g / k)[..., None] * dN)
+            w = w_new
+            f[:, t] = fi.sum(axis=1)
+            df[:, t] = dfi.sum(axis=1)
+        scale = np.abs(u).max(axis=1) + np.abs(w).max(axis=1)
+        change = np.abs(w - w_start).max(axis=1) / np.where(scale > 0, scale, 1.0)
+        if p + 1 >= min_periods and np.all(change <= tol):
+            break
+    Ft = f @ P.T
+    Nc = N @ P.T
+    J = np.einsum("kt,etj->ekj", P, df)
+    JNN = np.einsum("kt,et,tj->ekj", P, dNdg, Gam)
+    return Ft, Nc, J[:, :, :nc], J[:, :, nc:], JNN
