@@ -190,7 +190,7 @@ class Bolt:
 @dataclass(frozen=True, kw_only=True)
 class FEModel:
     """The 2D plane-stress lap joint built from a tagged mesh with scikit-fem,
-    preloaded and reduced by Craig-Bampton (see docs/fe.md)."""
+    preloaded and reduced by Craig-Bampton (see the README)."""
 
     kind: str = spec("fe", choices=("fe",))
     mesh: str = spec(doc="tagged mesh file readable by meshio (gmsh .msh), relative to "
@@ -221,7 +221,7 @@ class FEModel:
 
 @dataclass(frozen=True, kw_only=True)
 class ROMModel:
-    """A reduced model brought from elsewhere (.npz, .mat or HDF5; see docs/fe.md)."""
+    """A reduced model brought from elsewhere (.npz, .mat or HDF5; see the README)."""
 
     kind: str = spec("rom", choices=("rom",))
     file: str = spec(doc="reduced model file (.npz, .mat, .h5)", path=True)
