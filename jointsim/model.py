@@ -13,8 +13,9 @@ Sign conventions
   left-hand side of ``M x'' + C x' + K x + f_c = f_ext``) is
   ``f_c = Tt.T @ f_t - Tn.T @ N``.
 * With ``effects.normal = "fixed"`` the normal direction is a linear spring
-  ``kn A`` that is part of ``K`` (``K += Tn.T diag(kn A) Tn``), and the slip
-  limit uses the fixed load ``N0``; no gap is evaluated during the solve.
+  that is part of ``K`` (``K += Tn.T diag(kn A) Tn`` over the elements with
+  ``N0 > 0``, see :func:`fixed_normal_stiffness`), and the slip limit uses the
+  fixed load ``N0``; no gap is evaluated during the solve.
 """
 from __future__ import annotations
 
@@ -211,12 +212,23 @@ def make_contact_set(scene, Tt, Tn, gap0, N0, area, position) -> ContactSet:
                       position=np.asarray(position, dtype=float))
 
 
+def fixed_normal_stiffness(contacts: ContactSet) -> np.ndarray:
+    """Normal springs of a fixed-normal-load model [N/m], shape (n_e,).
+
+    ``kn A`` for the elements that carry load at the preload (``N0 > 0``) and
+    0 for the open ones: the linearisation of the unilateral contact at the
+    preload state.  An element open at the preload stays open and carries no
+    force, so the fixed-N model and the coupled one share their linear limit.
+    """
+    return np.where(contacts.N0 > 0.0, contacts.kn, 0.0)
+
+
 def with_fixed_normal_springs(K, contacts: ContactSet):
     """``K`` plus the linear normal springs used when the normal load is fixed."""
     if contacts.kernels.coupled or contacts.Tn.nnz == 0:
         return sp.csr_matrix(K)
     Tn = contacts.Tn
-    return sp.csr_matrix(K + Tn.T @ sp.diags(contacts.kn) @ Tn)
+    return sp.csr_matrix(K + Tn.T @ sp.diags(fixed_normal_stiffness(contacts)) @ Tn)
 
 
 def build_lumped(scene) -> StructuralModel:

@@ -35,7 +35,7 @@ import scipy.sparse.linalg as spla
 from ._schema import SceneError
 from .fem.interface import Interface
 from .model import (BUILDERS, StructuralModel, damping_matrix, make_contact_set,
-                    with_fixed_normal_springs)
+                    fixed_normal_stiffness, with_fixed_normal_springs)
 
 log = logging.getLogger(__name__)
 
@@ -335,7 +335,8 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
                     "mu N0 in the stuck preload state", int(np.sum(slip & (N0 > 0))), ne)
     K_model = with_fixed_normal_springs(K, contacts)
     if not contacts.kernels.coupled:
-        f_static = f_static + Tn.T @ (N0 + contacts.kn * (contacts.gap0 + Tn @ x0))
+        k_fixed = fixed_normal_stiffness(contacts)
+        f_static = f_static + Tn.T @ (N0 + k_fixed * (contacts.gap0 + Tn @ x0))
     K_stuck = tangent_stiffness(K_model, contacts, x0, tangential=stuck_mode(contacts))
     M = sp.csr_matrix(rom.M)
     C = damping_matrix(M, K_stuck, scene.damping,

@@ -401,10 +401,14 @@ class TransientAnalysis:
 class QSMAAnalysis:
     """Quasi-static modal analysis (Lacayo and Allen)."""
 
-    mode: int = spec(1, doc="elastic mode index (1-based)", ge=1)
+    mode: int = spec(1, doc="elastic mode index (1-based; modes below rigid_cutoff_hz "
+                            "are skipped)", ge=1)
+    rigid_cutoff_hz: float = spec(20.0, doc="modes below this frequency are rigid-body "
+                                            "(suspension) modes", unit="Hz", ge=0)
     log10_amplitude_start: float = spec(doc="log10 of the smallest modal amplitude")
     log10_amplitude_end: float = spec(doc="log10 of the largest modal amplitude")
-    n_steps: int = spec(60, doc="load increments", ge=2)
+    n_steps: int = spec(60, doc="load increments (geometric in the load factor)", ge=2)
+    tol: float = spec(1e-10, doc="relative residual tolerance of each static solve", gt=0)
 
 
 @dataclass(frozen=True, kw_only=True)

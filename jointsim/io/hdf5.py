@@ -44,6 +44,9 @@ _UNITS = {
     "energy": ("J", "force*length"),
     "pressure": ("Pa", "force/length^2"),
     "dimensionless": ("1", "1"),
+    "modal_amplitude": ("sqrt(kg) m", "sqrt(mass) length"),
+    "modal_load": ("sqrt(kg) m/s^2", "sqrt(mass) length/time^2"),
+    "mode_shape": ("1/sqrt(kg)", "1/sqrt(mass)"),
 }
 
 
@@ -55,7 +58,9 @@ def unit(quantity: str, system: str = "SI") -> str:
     quantity : str
         A key of the table: ``displacement``, ``force``, ``angular_frequency``,
         ``frequency``, ``time``, ``stiffness``, ``energy``, ``pressure``,
-        ``dimensionless``.
+        ``dimensionless``, ``modal_amplitude`` (q = phi^T M x with phi
+        mass-normalised), ``modal_load`` (alpha, the load being alpha M phi),
+        ``mode_shape``.
     system : str
         ``"SI"`` or ``"nondimensional"`` (consistent units, named by dimension).
     """

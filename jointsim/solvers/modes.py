@@ -3,7 +3,7 @@
 The stiffness is the tangent at the preload state ``x0``
 (:func:`jointsim.solvers.static.tangent_stiffness`): the structure, the
 tangential springs ``kt A`` of the elements in contact, and the normal
-tangent springs ``kn A`` where the interface is closed (all elements when the
+tangent springs ``kn A`` where the interface is closed (the elements with N0 > 0 when the
 normal load is fixed).  That is what every solver sees at vanishing
 amplitude, so these modes are the low-amplitude limit of EPMC and of the
 frequency responses.
