@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 
 @njit(cache=True)
@@ -43,7 +43,7 @@ def _references_one(u, ref, branch):
         branch[k] = d
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def references(u):
     """Masing reference reversal of each sample, with the memory rule.
 
@@ -63,6 +63,6 @@ def references(u):
     ne, n = u.shape
     ref = np.empty((ne, n), dtype=np.int64)
     branch = np.empty((ne, n))
-    for e in prange(ne):
+    for e in range(ne):
         _references_one(u[e], ref[e], branch[e])
     return ref, branch

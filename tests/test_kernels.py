@@ -181,3 +181,20 @@ def test_iwan_discretisation_totals():
     assert k.sum() == pytest.approx(3.0, rel=1e-13)
     assert fs.sum() == pytest.approx(0.7, rel=1e-13)
     assert np.all(np.diff(fs[:-1] / k[:-1]) > 0), "slip displacements must increase"
+
+
+@pytest.mark.parametrize("kind", ["anchor", "scaled"])
+def test_threaded_and_serial_drivers_agree(kind):
+    """Large batches run on threads; the result must not depend on it."""
+    rng = np.random.default_rng(7)
+    u = random_path(rng, 64, 50)
+    N = random_N(rng, 64, 50)
+    k, g = bank(rng, 64, 3)
+    if kind == "anchor":
+        s0 = rng.normal(scale=0.1, size=(64, 3))
+        serial, threaded = K._bank_anchor_serial, K._bank_anchor_parallel
+    else:
+        s0 = TangentialLaw("bank_scaled", k, g, g.sum(axis=1)).rest_state(N[:, 0])
+        serial, threaded = K._bank_scaled_serial, K._bank_scaled_parallel
+    for a, b in zip(serial(u, N, k, g, s0), threaded(u, N, k, g, s0)):
+        np.testing.assert_array_equal(a, b)

@@ -93,14 +93,28 @@ class StaticResult:
     convergence: Convergence = field(repr=False)
 
 
+#: Models up to this many DOFs are solved with dense matrices: reduced models
+#: are small and dense algebra has no per-call sparse bookkeeping (a sparse
+#: Jacobian assembly cost ~4 ms even for one DOF).
+DENSE_MAX_DOF = 2000
+
+
 class _Problem:
     """Residual and Jacobian of the static equations (one load increment)."""
 
     def __init__(self, K, contacts, normal, tangential, state):
-        self.K = sp.csr_matrix(K)
+        self.dense = K.shape[0] <= DENSE_MAX_DOF
+        if self.dense:
+            self.K = K.toarray() if sp.issparse(K) else np.asarray(K, dtype=float)
+            self.Tt = contacts.Tt.toarray()
+            self.Tn = contacts.Tn.toarray()
+        else:
+            self.K = sp.csr_matrix(K)
+            self.Tt = sp.csr_matrix(contacts.Tt)
+            self.Tn = sp.csr_matrix(contacts.Tn)
+        self.TtT = self.Tt.T
+        self.TnT = self.Tn.T
         self.c = contacts
-        self.Tt = sp.csr_matrix(contacts.Tt)
-        self.Tn = sp.csr_matrix(contacts.Tn)
         self.normal = normal
         self.tangential = tangential
         self.state = state
@@ -140,18 +154,24 @@ class _Problem:
         else:
             ft, dfdu, dfdN, new_state = c.law.march(u[:, None], N[:, None], self.state)
             ft, dfdu, dfdN = ft[:, 0], dfdu[:, 0], dfdN[:, 0]
-        fint = self.K @ x + self.Tt.T @ ft
+        fc_t = self.TtT @ ft
+        fc_n = self.TnT @ N
+        fint = self.K @ x + fc_t
         if self.normal != "fixed":  # a fixed normal load is a linear spring in K
-            fint = fint - self.Tn.T @ N
+            fint = fint - fc_n
         R = fint - f
-        scale = max(np.linalg.norm(f), np.linalg.norm(self.Tn.T @ N),
-                    np.linalg.norm(self.Tt.T @ ft), 1e-300)
+        scale = max(np.linalg.norm(f), np.linalg.norm(fc_n), np.linalg.norm(fc_t), 1e-300)
         out = dict(R=R, scale=scale, N=N, g=g, u=u, ft=ft, state=new_state)
         if jacobian:
-            Tt, Tn = self.Tt, self.Tn
-            J = (self.K + Tt.T @ sp.diags(dfdu) @ Tt + Tt.T @ sp.diags(dfdN * dNdg) @ Tn
-                 - Tn.T @ sp.diags(dNdg) @ Tn)
-            out["J"] = sp.csr_matrix(J)
+            Tt, Tn, TtT, TnT = self.Tt, self.Tn, self.TtT, self.TnT
+            if self.dense:
+                J = (self.K + TtT @ (dfdu[:, None] * Tt + (dfdN * dNdg)[:, None] * Tn)
+                     - TnT @ (dNdg[:, None] * Tn))
+            else:
+                J = sp.csr_matrix(self.K + TtT @ sp.diags(dfdu) @ Tt
+                                  + TtT @ sp.diags(dfdN * dNdg) @ Tn
+                                  - TnT @ sp.diags(dNdg) @ Tn)
+            out["J"] = J
         return out
 
 
@@ -215,7 +235,7 @@ def tangent_stiffness(K, contacts, x, *, tangential=None, normal=None, state=Non
     normal, tangential = _default_modes(contacts, normal, tangential)
     prob = _Problem(K, contacts, normal, tangential,
                     _initial_state(contacts, tangential, state))
-    return prob.evaluate(np.asarray(x, dtype=float), np.zeros(K.shape[0]))["J"]
+    return sp.csr_matrix(prob.evaluate(np.asarray(x, dtype=float), np.zeros(K.shape[0]))["J"])
 
 
 def residual(K, f, contacts, x, *, tangential=None, normal=None, state=None):
@@ -228,10 +248,9 @@ def residual(K, f, contacts, x, *, tangential=None, normal=None, state=None):
 
 
 def _factor_solve(J, b):
-    J = sp.csc_matrix(J)
-    if J.shape[0] <= 400:
-        return np.linalg.solve(J.toarray(), b)
-    return spla.splu(J).solve(b)
+    if not sp.issparse(J):
+        return np.linalg.solve(J, b)
+    return spla.splu(sp.csc_matrix(J)).solve(b)
 
 
 def _newton(prob, x, f, tol, max_iter):
@@ -345,5 +364,5 @@ def solve_static(K, f, contacts, *, tangential=None, normal=None, state=None,
     if not success:
         log.warning("static solve: %s", message)
     return StaticResult(x=x, N=ev["N"], gap=ev["g"], u_t=ev["u"], f_t=ev["ft"], state=st,
-                        K_t=ev["J"], load_factor=lam, residual=float(res), convergence=conv)
+                        K_t=sp.csr_matrix(ev["J"]), load_factor=lam, residual=float(res), convergence=conv)
 
