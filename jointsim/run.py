@@ -95,6 +95,8 @@ def run_scene(scene, out_path, resume: bool = False) -> Path:
             from .model import build_model
             _register_solvers()
             model = build_model(scene)
+            from .solvers.modes import write_model_tables
+            write_model_tables(scene, model, writer)  # /static, /contacts, /model, /mesh
             todo = [a for a in ORDER if getattr(scene.analysis, a) is not None]
             if not todo:
                 log.warning("%s declares no analysis; only the model is built", scene.path)

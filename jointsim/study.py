@@ -1,0 +1,247 @@
+"""The lap-joint study: numbers that compare backbones and test the Masing manifold.
+
+Everything here reads a result file and returns plain arrays or small
+dataclasses; the figures (:mod:`jointsim.post.study_plots`), ``jointsim info``
+and the README table all use these functions, so every number shown comes from
+one place.
+
+* :func:`backbone_comparison` -- EPMC against QSMA (and free decay) frequency
+  and damping at chosen modal amplitudes, with relative differences;
+* :func:`loop_points` -- the loops stored by an analysis, with the amplitude
+  (or frequency) of the solution point each belongs to;
+* :func:`manifold_fractions` -- per loop set, the fraction of loaded elements
+  on their manifold and on their classical Masing curve;
+* :func:`condition_confusion` -- whether violating the seed's Eq. 4 / Eq. 6
+  predicts leaving the manifold, as a 2 x 2 table over (element, amplitude).
+
+An element is *loaded* in a loop set when its normal load is positive at some
+sample; elements that stay open carry no force and are left out of fractions
+and of the confusion table.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import h5py
+import numpy as np
+
+
+def _interp_log(x_new, x, y):
+    """Interpolate ``y(x)`` at ``x_new`` linearly in log(x); NaN outside the range."""
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    ok = (x > 0) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    if x.size < 2:
+        return np.full(np.shape(x_new), np.nan)
+    order = np.argsort(x)
+    x, y = x[order], y[order]
+    lx = np.log(np.asarray(x_new, dtype=float))
+    out = np.interp(lx, np.log(x), y, left=np.nan, right=np.nan)
+    return out
+
+
+@dataclass(frozen=True)
+class BackboneRow:
+    """EPMC and QSMA at one modal amplitude (frequencies in Hz)."""
+
+    amplitude: float
+    f_epmc: float
+    f_qsma: float
+    zeta_epmc: float
+    zeta_qsma: float
+
+    @property
+    def df_rel(self) -> float:
+        """(f_qsma - f_epmc) / f_epmc."""
+        return (self.f_qsma - self.f_epmc) / self.f_epmc
+
+    @property
+    def dzeta_rel(self) -> float:
+        """(zeta_qsma - zeta_epmc) / zeta_epmc."""
+        return (self.zeta_qsma - self.zeta_epmc) / self.zeta_epmc
+
+
+def backbone_comparison(h5: h5py.File, amplitudes) -> list[BackboneRow]:
+    """EPMC and QSMA frequency and damping at the given modal amplitudes.
+
+    Both are interpolated in log(amplitude) along their computed curves; an
+    amplitude outside a curve gives NaN for it.
+
+    Parameters
+    ----------
+    h5 : h5py.File
+        A result file with ``/epmc`` and ``/qsma``.
+    amplitudes : array_like
+        Modal amplitudes [sqrt(kg) m].
+    """
+    e, q = h5["epmc"], h5["qsma"]
+    amps = np.atleast_1d(np.asarray(amplitudes, dtype=float))
+    fe = _interp_log(amps, e["amplitude"][()], e["frequency_hz"][()])
+    ze = _interp_log(amps, e["amplitude"][()], e["damping_ratio"][()])
+    fq = _interp_log(amps, q["amplitude"][()], q["frequency_hz"][()])
+    zq = _interp_log(amps, q["amplitude"][()], q["damping_ratio"][()])
+    return [BackboneRow(float(a), float(f1), float(f2), float(z1), float(z2))
+            for a, f1, f2, z1, z2 in zip(amps, fe, fq, ze, zq)]
+
+
+@dataclass(frozen=True)
+class LoopSets:
+    """Loops an analysis stored, one set (all elements) per solution point.
+
+    Attributes
+    ----------
+    group : str
+        Where they are (e.g. ``epmc``).
+    point : ndarray of int, shape (n_sets,)
+        Solution point of each set.
+    parameter : ndarray, shape (n_sets,)
+        Modal amplitude of the point (EPMC), or angular frequency (HBM), or the
+        set index when neither applies.
+    parameter_name : str
+    u, f, N : ndarray, shape (n_sets, n_e, n_samples)
+    dev_manifold, dev_masing : ndarray, shape (n_sets, n_e)
+    on_manifold, on_masing, eq4_ok, eq6_ok : ndarray of bool, shape (n_sets, n_e)
+    loaded : ndarray of bool, shape (n_sets, n_e)
+        The element's normal load is positive at some sample.
+    """
+
+    group: str
+    point: np.ndarray
+    parameter: np.ndarray
+    parameter_name: str
+    u: np.ndarray
+    f: np.ndarray
+    N: np.ndarray
+    dev_manifold: np.ndarray
+    dev_masing: np.ndarray
+    on_manifold: np.ndarray
+    on_masing: np.ndarray
+    eq4_ok: np.ndarray
+    eq6_ok: np.ndarray
+    loaded: np.ndarray
+
+
+def loop_groups(h5: h5py.File) -> list[str]:
+    """Prefixes under which loops are stored (``""`` for the root)."""
+    found = []
+    for prefix in ("epmc", "hbm", "transient", "prescribed", ""):
+        p = f"{prefix}/" if prefix else ""
+        if f"{p}loops/u" in h5 and f"{p}masing/dev_manifold" in h5:
+            found.append(prefix)
+    return found
+
+
+def loop_points(h5: h5py.File, prefix: str = "epmc") -> LoopSets:
+    """Read the loop sets stored under ``prefix`` (``""``: the root ``/loops``)."""
+    p = f"{prefix}/" if prefix else ""
+    L, M = h5[f"{p}loops"], h5[f"{p}masing"]
+    point = L["point"][()] if "point" in L else np.arange(L["u"].shape[0])
+    name, param = "set", point.astype(float)
+    owner = prefix or str(L.attrs.get("analysis", ""))
+    if owner == "epmc" and "epmc/amplitude" in h5:
+        param, name = h5["epmc/amplitude"][()][point], "modal amplitude"
+    elif owner == "hbm" and "hbm/omega" in h5:
+        param, name = h5["hbm/omega"][()][point], "omega"
+    N = L["N"][()]
+    return LoopSets(group=prefix, point=point, parameter=np.asarray(param, dtype=float),
+                    parameter_name=name, u=L["u"][()], f=L["f"][()], N=N,
+                    dev_manifold=M["dev_manifold"][()], dev_masing=M["dev_masing"][()],
+                    on_manifold=M["on_manifold"][()], on_masing=M["on_masing"][()],
+                    eq4_ok=M["eq4_ok"][()], eq6_ok=M["eq6_ok"][()],
+                    loaded=(N > 0.0).any(axis=2))
+
+
+def manifold_fractions(sets: LoopSets):
+    """Fraction of loaded elements on their manifold and on classical Masing.
+
+    Returns
+    -------
+    on_manifold, on_masing : ndarray, shape (n_sets,)
+        NaN for a set without loaded elements.
+    n_loaded : ndarray of int, shape (n_sets,)
+    """
+    n = sets.loaded.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        man = (sets.on_manifold & sets.loaded).sum(axis=1) / n
+        mas = (sets.on_masing & sets.loaded).sum(axis=1) / n
+    return np.where(n > 0, man, np.nan), np.where(n > 0, mas, np.nan), n
+
+
+@dataclass(frozen=True)
+class Confusion:
+    """Do the seed's conditions predict leaving the manifold?
+
+    Counts over (element, loop set) pairs of loaded elements:
+    ``predicted`` = Eq. 4 or Eq. 6 violated; ``off`` = not on the manifold.
+    """
+
+    violated_off: int
+    violated_on: int
+    holds_off: int
+    holds_on: int
+
+    @property
+    def total(self) -> int:
+        return self.violated_off + self.violated_on + self.holds_off + self.holds_on
+
+    @property
+    def precision(self) -> float:
+        """Of the pairs that violate a condition, the share that is off the manifold."""
+        v = self.violated_off + self.violated_on
+        return self.violated_off / v if v else float("nan")
+
+    @property
+    def recall(self) -> float:
+        """Of the pairs off the manifold, the share that violates a condition."""
+        o = self.violated_off + self.holds_off
+        return self.violated_off / o if o else float("nan")
+
+    def table(self) -> str:
+        return "\n".join([
+            f"{'':22} {'off manifold':>13} {'on manifold':>12}",
+            f"{'Eq. 4 or 6 violated':22} {self.violated_off:>13d} {self.violated_on:>12d}",
+            f"{'both conditions hold':22} {self.holds_off:>13d} {self.holds_on:>12d}",
+            f"precision {self.precision:.3f}, recall {self.recall:.3f} "
+            f"({self.total} element-amplitude pairs)"])
+
+
+def condition_confusion(sets: LoopSets) -> Confusion:
+    """Cross the condition checks with the on-manifold flags (loaded elements only)."""
+    m = sets.loaded
+    violated = ~(sets.eq4_ok & sets.eq6_ok)
+    off = ~sets.on_manifold
+    return Confusion(violated_off=int((m & violated & off).sum()),
+                     violated_on=int((m & violated & ~off).sum()),
+                     holds_off=int((m & ~violated & off).sum()),
+                     holds_on=int((m & ~violated & ~off).sum()))
+
+
+def study_text(h5: h5py.File) -> str:
+    """The headline numbers of a study run, for ``jointsim info``."""
+    lines = []
+    groups = loop_groups(h5)
+    prefix = "epmc" if "epmc" in groups else (groups[0] if groups else None)
+    sets = loop_points(h5, prefix) if prefix is not None else None
+    if "epmc" in h5 and "qsma" in h5:
+        amps = sets.parameter if sets is not None and prefix == "epmc" else \
+            np.logspace(*np.log10(np.percentile(h5["epmc/amplitude"][()], [10, 90])), 3)
+        lines.append("  EPMC against QSMA (frequencies in Hz):")
+        lines.append(f"    {'amplitude':>11} {'f_EPMC':>10} {'f_QSMA':>10} {'df':>8} "
+                     f"{'zeta_EPMC':>10} {'zeta_QSMA':>10} {'dzeta':>8}")
+        for r in backbone_comparison(h5, amps):
+            lines.append(f"    {r.amplitude:>11.3e} {r.f_epmc:>10.4f} {r.f_qsma:>10.4f} "
+                         f"{100 * r.df_rel:>7.2f}% {r.zeta_epmc:>10.3e} {r.zeta_qsma:>10.3e} "
+                         f"{100 * r.dzeta_rel:>7.1f}%")
+    if sets is not None and sets.u.shape[0]:
+        man, mas, n = manifold_fractions(sets)
+        lines.append(f"  Masing manifold ({prefix or 'root'} loops; loaded elements):")
+        lines.append(f"    {sets.parameter_name:>15} {'loaded':>7} {'on manifold':>12} "
+                     f"{'on Masing':>10} {'max dev_man':>12}")
+        for i in range(sets.u.shape[0]):
+            dm = sets.dev_manifold[i][sets.loaded[i]]
+            lines.append(f"    {sets.parameter[i]:>15.4g} {n[i]:>7d} {man[i]:>12.2f} "
+                         f"{mas[i]:>10.2f} {dm.max() if dm.size else 0.0:>12.3g}")
+        lines.append("  Do Eq. 4 / Eq. 6 violations predict leaving the manifold?")
+        lines.extend("    " + s for s in condition_confusion(sets).table().splitlines())
+    return "\n".join(lines)
