@@ -496,7 +496,7 @@ def march_period(ga: GeneralizedAlpha, s, t, index: int = 0):
 
 
 def march_steady(model, settings, *, scene=None, on_period=None, progress: bool = True,
-                 frictionless_preload: bool | None = None) -> SteadyResult:
+                 frictionless_preload: bool | None = None, initial=None) -> SteadyResult:
     """March a forced response until it is periodic.
 
     The structure starts at rest at its static equilibrium under the
@@ -522,6 +522,10 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
         Show a progress bar (on a terminal).
     frictionless_preload : bool, optional
         Overrides the scene's ``model.preload_tangential``.
+    initial : tuple, optional
+        ``(x0, v0, state0)``: start from this displacement [m], velocity
+        [m/s] and law state instead of the static equilibrium at rest (for
+        instance from another solution, or with a different slider history).
 
     Returns
     -------
@@ -542,7 +546,11 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
     n = settings.steps_per_period
     period = 2.0 * np.pi / omega
     h = period / n
-    s = ga.start(0.0, static.x, np.zeros(model.n_dof), static.contact.state)
+    if initial is None:
+        s = ga.start(0.0, static.x, np.zeros(model.n_dof), static.contact.state)
+    else:
+        x0, v0, state0 = initial
+        s = ga.start(0.0, x0, v0, state0)
 
     changes: list[float] = []
     last: PeriodData | None = None
