@@ -279,7 +279,7 @@ def test_step_failure_is_reported_and_keeps_results(monkeypatch):
         return real(*args, **kw)
 
     monkeypatch.setattr(_march, "condensed_newton", flaky)
-    res = march_steady(model, sc.analysis.transient, progress=False)
+    res = march_steady(model, sc.analysis.transient, progress=False, fused=False)
     assert not res.convergence.success
     assert res.convergence.status == STEP_TOO_SMALL
     assert "injected" in res.convergence.message

@@ -405,7 +405,7 @@ class GeneralizedAlpha:
     """
 
     def __init__(self, model, force, rho_inf: float = 0.9, newton_tol: float = 1e-10,
-                 max_iter: int = 25, max_cuts: int = 8):
+                 max_iter: int = 25, max_cuts: int = 8, fused: bool = True):
         self.model = model
         self.force = force
         self.rho_inf = float(rho_inf)
@@ -424,6 +424,13 @@ class GeneralizedAlpha:
         self._mass_solver = None
         self.stats = StepStats()
         self.scale = 0.0  # displacement scale for the Newton tolerance, raised as we go
+        kinds = model.contacts.kernels
+        #: March blocks of steps with the fused numba kernel (dense models, anchored or
+        #: linear tangential laws, harmonic loads); otherwise step by step in Python.
+        self.fused = bool(fused and self.dense and isinstance(force, LoadFunction)
+                          and not force.sampled
+                          and model.contacts.law.kind in ("bank_anchor", "linear", "none")
+                          and kinds.normal in ("given", "unilateral", "bilateral"))
 
     # -- linear algebra per step size ---------------------------------------
     def snap(self, h: float) -> float:
@@ -598,6 +605,97 @@ class GeneralizedAlpha:
         for t1 in times:
             s = self.step(s, t1)
             yield s
+
+    def march_block(self, s: MarchState, times):
+        """March from ``s`` (at ``times[0]``) through ``times[1:]``, returning arrays.
+
+        Equal steps are marched by the fused kernel
+        :func:`~jointsim.solvers._transient_kernels.march_dense` when
+        :attr:`fused`; a step whose Newton solve fails there is redone by
+        :meth:`step` (which cuts it) and the kernel resumes after it.
+
+        Parameters
+        ----------
+        s : MarchState
+        times : ndarray, shape (n + 1,)
+
+        Returns
+        -------
+        s : MarchState
+            At ``times[-1]``.
+        x, v : ndarray, shape (n + 1, n_dof)
+        u, f, N : ndarray, shape (n_e, n + 1)
+        """
+        times = np.asarray(times, dtype=float)
+        n1 = times.size
+        ne = self.cmap.n_e
+        x = np.empty((n1, self.model.n_dof))
+        v = np.empty_like(x)
+        u, f, N = (np.zeros((ne, n1)) for _ in range(3))
+
+        def put(j, st):
+            x[j], v[j] = st.x, st.v
+            if ne:
+                u[:, j], f[:, j], N[:, j] = st.contact.u, st.contact.f, st.contact.N
+
+        put(0, s)
+        j = 0
+        while j < n1 - 1:
+            if self.fused:
+                s, done = self._fused(s, times[j:], x[j:], v[j:], u[:, j:], f[:, j:],
+                                      N[:, j:])
+                j += done
+                if j == n1 - 1:
+                    break
+            s = self.step(s, times[j + 1])
+            j += 1
+            put(j, s)
+        return s, x, v, u, f, N
+
+    def _fused(self, s, times, x, v, u, f, N):
+        """Run the fused kernel from ``s`` over ``times``; fill the arrays; return
+        the state reached and the number of steps done."""
+        from . import _transient_kernels as TK
+        h = self.snap(times[1] - times[0])
+        fac = self._factor(h)
+        c = self.model.contacts
+        law = c.law
+        tkind = {"bank_anchor": TK.T_ANCHOR, "linear": TK.T_LINEAR}.get(law.kind, TK.T_NONE)
+        nkind = {"given": TK.N_GIVEN, "unilateral": TK.N_UNILATERAL,
+                 "bilateral": TK.N_BILATERAL}[c.kernels.normal]
+        if not hasattr(fac, "Sinv"):
+            fac.Sinv = np.ascontiguousarray(fac.solver.inv)
+        state = np.ascontiguousarray(s.contact.state, dtype=float)
+        if state.ndim != 2 or state.shape[0] != law.n_elements:
+            state = np.zeros((law.n_elements, 0))
+        B = np.ascontiguousarray(self.cmap.B, dtype=float)
+        done, its, X, V, A, PHI, U, F, NN, st = TK.march_dense(
+            times, h, s.x, s.v, s.a, np.ascontiguousarray(s.contact.phi, dtype=float), state,
+            self.M, self.C, self.K, fac.Sinv, B, np.ascontiguousarray(self.cmap.Bt),
+            np.ascontiguousarray(fac.Z), np.ascontiguousarray(fac.G),
+            self.am, self.af, self.gamma, self.beta, float(self.force.omega),
+            self.force.harmonic_rows, np.ascontiguousarray(self.force.coefficients),
+            tkind, nkind, np.ascontiguousarray(law.k), np.ascontiguousarray(law.g),
+            np.ascontiguousarray(c.gap0, dtype=float), np.ascontiguousarray(c.kn, dtype=float),
+            np.ascontiguousarray(self.cmap.N0, dtype=float), self.newton_tol, self.max_iter,
+            self.scale)
+        self.stats.steps += done
+        self.stats.substeps += done
+        self.stats.newton_iterations += its
+        if done == 0:
+            return s, 0
+        x[1:done + 1], v[1:done + 1] = X[1:done + 1], V[1:done + 1]
+        if self.cmap.n_e:
+            u[:, 1:done + 1] = U[:, 1:done + 1]
+            f[:, 1:done + 1] = F[:, 1:done + 1]
+            N[:, 1:done + 1] = NN[:, 1:done + 1]
+            self.scale = max(self.scale, float(np.max(np.abs(U[:, :done + 1]))))
+        e = np.zeros(self.cmap.n_e)
+        ev = ContactEval(PHI[done].copy(), e, e, e, st.copy() if law.kind != "none"
+                         else s.contact.state, U[:, done].copy(), F[:, done].copy(),
+                         NN[:, done].copy())
+        return MarchState(float(times[done]), X[done].copy(), V[done].copy(),
+                          A[done].copy(), ev), done
 
 
 # --------------------------------------------------------------------------
@@ -790,6 +888,21 @@ class LoadFunction:
         object.__setattr__(self, "_coef", coef)
         object.__setattr__(self, "_h", ch)
         object.__setattr__(self, "_sampled", tuple(sampled))
+
+    @property
+    def harmonic_rows(self) -> np.ndarray:
+        """Harmonic number of each row of :attr:`coefficients`, shape (n_coeff,)."""
+        return self._h
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        """Force coefficients ``[0, 1c, 1s, ...]`` [N], shape (n_coeff, n_dof)."""
+        return self._coef
+
+    @property
+    def sampled(self) -> bool:
+        """True when some load is a file or clipped signal (sampled, not harmonic)."""
+        return bool(self._sampled)
 
     def static(self) -> np.ndarray:
         """The constant part ``f_static + load constants`` [N], shape (n_dof,)."""

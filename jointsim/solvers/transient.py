@@ -446,10 +446,10 @@ def _frictionless_preload(scene) -> bool:
     return getattr(m, "preload_tangential", "stuck") == "frictionless"
 
 
-def _stepper(model, settings, force) -> GeneralizedAlpha:
+def _stepper(model, settings, force, fused=True) -> GeneralizedAlpha:
     return GeneralizedAlpha(model, force, rho_inf=settings.rho_inf,
                             newton_tol=settings.newton_tol, max_iter=settings.max_iter,
-                            max_cuts=settings.max_cuts)
+                            max_cuts=settings.max_cuts, fused=fused)
 
 
 def _progress(total, desc, enabled):
@@ -480,23 +480,16 @@ def march_period(ga: GeneralizedAlpha, s, t, index: int = 0):
     """
     cmap = ga.cmap
     ne = cmap.n_e
-    n1 = t.size
-    x = np.empty((n1, ga.model.n_dof))
-    v = np.empty_like(x)
-    u, f, N, g = (np.zeros((ne, n1)) for _ in range(4))
-    for j in range(n1):
-        if j:
-            s = ga.step(s, t[j])
-        x[j], v[j] = s.x, s.v
-        if ne:
-            u[:, j], f[:, j], N[:, j] = s.contact.u, s.contact.f, s.contact.N
+    s, x, v, u, f, N = ga.march_block(s, t)
+    g = np.zeros((ne, t.size))
     if ne and cmap.coupled:
         g[:] = (cmap.B @ x.T)[ne:]
     return s, PeriodData(index, t, x, v, u, f, N, g)
 
 
 def march_steady(model, settings, *, scene=None, on_period=None, progress: bool = True,
-                 frictionless_preload: bool | None = None, initial=None) -> SteadyResult:
+                 frictionless_preload: bool | None = None, initial=None,
+                 fused: bool = True) -> SteadyResult:
     """March a forced response until it is periodic.
 
     The structure starts at rest at its static equilibrium under the
@@ -526,6 +519,9 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
         ``(x0, v0, state0)``: start from this displacement [m], velocity
         [m/s] and law state instead of the static equilibrium at rest (for
         instance from another solution, or with a different slider history).
+    fused : bool
+        Allow the fused numba march (False: step by step in Python; same
+        scheme and results, for tests and comparisons).
 
     Returns
     -------
@@ -542,7 +538,7 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
     if frictionless_preload is None:
         frictionless_preload = _frictionless_preload(scene)
     static = _start_state(model, settings, force, frictionless_preload)
-    ga = _stepper(model, settings, force)
+    ga = _stepper(model, settings, force, fused)
     n = settings.steps_per_period
     period = 2.0 * np.pi / omega
     h = period / n
@@ -660,7 +656,7 @@ def loaded_state(cmap: ContactMap, y0, y1, state, n: int = PATH_SAMPLES):
 
 def free_decay(model, settings, *, scene=None, on_block=None, on_estimate=None,
                progress: bool = True, frictionless_preload: bool | None = None,
-               stop_ratio: float = 1e-8) -> FreeDecayResult:
+               stop_ratio: float = 1e-8, fused: bool = True) -> FreeDecayResult:
     """Ring-down from a deflection along a linear mode of the stuck joint.
 
     The structure is brought quasi-statically from its static equilibrium
@@ -688,6 +684,8 @@ def free_decay(model, settings, *, scene=None, on_block=None, on_estimate=None,
     progress : bool
     frictionless_preload : bool, optional
     stop_ratio : float
+    fused : bool
+        Allow the fused numba march.
 
     Returns
     -------
@@ -702,7 +700,7 @@ def free_decay(model, settings, *, scene=None, on_block=None, on_estimate=None,
     if w_lin <= 0.0:
         raise ValueError(f"mode {settings.mode} has zero frequency; set "
                          "analysis.transient.rigid_cutoff_hz to skip rigid-body modes")
-    ga = _stepper(model, settings, force)
+    ga = _stepper(model, settings, force, fused)
     q0 = float(settings.amplitude)
     x0 = static.x + q0 * phi
     cmap = ga.cmap
@@ -725,14 +723,12 @@ def free_decay(model, settings, *, scene=None, on_block=None, on_estimate=None,
     try:
         with single_threaded():
             for k in range(settings.max_periods):
-                t = (k * n + np.arange(1, n + 1)) * h
-                xb = np.empty((n, model.n_dof))
-                qb = np.empty(n)
-                for j in range(n):
-                    s = ga.step(s, t[j])
-                    xb[j] = s.x
-                    qb[j] = Mphi @ (s.x - static.x)
-                    tracker.add(t[j], qb[j], float(Mphi @ s.v))
+                t = (k * n + np.arange(n + 1)) * h
+                s, xb, vb, *_ = ga.march_block(s, t)
+                t, xb = t[1:], xb[1:]
+                qb = (xb - static.x) @ Mphi
+                for tj, qj, dj in zip(t, qb, vb[1:] @ Mphi):
+                    tracker.add(tj, qj, dj)
                 if not np.all(np.isfinite(xb)):
                     status, message = NON_FINITE, f"non-finite displacement in period {k}"
                     break
