@@ -12,18 +12,14 @@ from jointsim.solvers.crosscheck import (cross_check, cross_check_file, explain_
                                          hbm_solution_at, memory_elements)
 from jointsim.solvers.transient import march_steady
 
-from test_transient import lumped, two_dof_jenkins
+from ._transient_scenes import lumped, two_dof_jenkins
 
 
-def _two_dof(F, C=0.05, **tr):
+def _two_dof(F, C=0.05):
     """The issue-4 2-DOF Jenkins scene with more damping (faster to steady state)."""
-    sc = two_dof_jenkins(1.0, F=F, transient={"steady_tol": 1e-8, "steps_per_period": 64,
-                                              "max_periods": 3000, **tr})
-    data_C = [[C, 0.0], [0.0, C]]
-    m = build_model(sc)
-    import scipy.sparse as sp
-    import dataclasses
-    return sc, dataclasses.replace(m, C=sp.csr_matrix(np.array(data_C)))
+    sc = two_dof_jenkins(1.0, F=F, C=C, transient={"steady_tol": 1e-8, "steps_per_period": 64,
+                                                   "max_periods": 3000})
+    return sc, build_model(sc)
 
 
 def test_dc_offset_from_slider_history_is_flagged_as_legitimate():

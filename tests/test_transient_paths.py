@@ -13,7 +13,7 @@ from jointsim.solvers import _march
 from jointsim.solvers import _transient_kernels as TK
 from jointsim.solvers._march import GeneralizedAlpha, LoadFunction, static_equilibrium
 
-from test_transient import lumped, separating, sdof_jenkins, two_dof_jenkins
+from ._transient_scenes import lumped, separating, sdof_jenkins, two_dof_jenkins
 
 
 def _iwan():
