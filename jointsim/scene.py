@@ -364,7 +364,8 @@ class TransientAnalysis:
     max_iter: int = spec(25, doc="Newton iterations per step before the step is cut", ge=1)
     max_cuts: int = spec(8, doc="times a failed step may be halved", ge=0, le=30)
     output_dofs: tuple[int, ...] = spec((), doc="DOFs whose time history is stored "
-                                                "(default: the loaded DOFs)", ge=0)
+                                                "(default: the loaded DOFs and the model's "
+                                                "named points)", ge=0)
     output_points: tuple[str, ...] = spec((), doc="named model points whose time history "
                                                   "is stored (FE models)")
     decimate: int = spec(1, doc="store every n-th step of the time history", ge=1)
