@@ -410,3 +410,30 @@ def test_static_preload_with_coupled_normal_load(frictionless, u_expected, f_exp
     assert st.contact.f[0] == pytest.approx(f_expected, rel=1e-10, abs=1e-14)
     if frictionless:  # the slider rests, unloaded, at the preloaded slip
         assert st.contact.state[0, 0] == pytest.approx(1.0, rel=1e-10)
+
+
+def test_static_state_resolves_an_initial_interference():
+    """gap0 = -0.1 and no load: the penalty force N = 10 (0.1 - x1) balances 0.5 x1."""
+    sc = lumped([[1.0, 0.0], [0.0, 1.0]], [[1.0, 0.0], [0.0, 0.5]],
+                contacts=[{"t_dof": 0, "n_dof": 1, "gap0": -0.1}],
+                joint={"law": "jenkins", "kt": 2.0, "mu": 0.5, "kn": 10.0},
+                effects={"normal": "coupled"})
+    model = build_model(sc)
+    st = static_equilibrium(model, np.zeros(2))
+    # 0.5 x1 - N = 0 with N = 10 (0.1 - x1)  ->  x1 = 1 / 10.5
+    assert st.x[1] == pytest.approx(1.0 / 10.5, rel=1e-12)
+    assert st.contact.N[0] == pytest.approx(0.5 / 10.5, rel=1e-12)
+    assert st.x[0] == 0.0
+
+
+def test_static_state_from_a_given_start():
+    """Starting from a converged state, the force ramps from the one that balances it."""
+    sc = separating({"omega": 0.8})
+    model = build_model(sc)
+    f = LoadFunction(model, 0.8).static()
+    a = static_equilibrium(model, f)
+    b = static_equilibrium(model, f, start=(a.x, a.contact.state))
+    assert np.allclose(b.x, a.x, rtol=1e-12, atol=1e-15) and b.iterations <= 1
+    # a larger push from there, as from rest (no friction involved in the normal DOF)
+    c = static_equilibrium(model, 2 * f, start=(a.x, a.contact.state))
+    assert c.x[1] == pytest.approx(-2.0 / 10.5, rel=1e-10)

@@ -721,12 +721,14 @@ class StaticState:
 
 
 def static_equilibrium(model, f, n_increments: int = 10, frictionless: bool = False,
-                       tol: float = 1e-10, max_iter: int = 50) -> StaticState:
+                       tol: float = 1e-10, max_iter: int = 50, start=None) -> StaticState:
     """Load the structure quasi-statically from rest to the constant force ``f``.
 
     The force is applied in ``n_increments`` equal increments; the contact
     laws are marched along the path (history matters), with Newton condensed
-    on the contact coordinates at each increment.
+    on the contact coordinates at each increment.  With ``start``, the path
+    starts from a known state instead of rest: the force ramps from the one
+    that balances that state (``K x0 + f_c(x0)``) to ``f``.
 
     Parameters
     ----------
@@ -739,6 +741,10 @@ def static_equilibrium(model, f, n_increments: int = 10, frictionless: bool = Fa
         "frictionless"``); the sliders are then set at rest at the final slip.
     tol, max_iter : float, int
         Newton settings.
+    start : tuple, optional
+        ``(x0, state0)``: displacement [m] and law state to start from (for
+        instance the preload state of an FE model, ``model.extra["x0"]``);
+        ``frictionless`` is then ignored.
 
     Returns
     -------
@@ -752,28 +758,38 @@ def static_equilibrium(model, f, n_increments: int = 10, frictionless: bool = Fa
     f = np.asarray(f, dtype=float)
     n = model.n_dof
     dense = n <= DENSE_MAX_DOF
+    if start is not None:
+        frictionless = False
     cmap = ContactMap(model.contacts, friction=not frictionless, dense=dense)
     K = np.asarray(sp.csr_matrix(model.K).toarray()) if dense else sp.csr_matrix(model.K)
     fac = _Condensed(K, cmap, dense)
-    N_start = cmap.normal(np.zeros(cmap.n_c))[0] if cmap.active else np.zeros(0)
-    state = model.contacts.law.rest_state(N_start)
-    y = np.zeros(cmap.n_c)
-    total = 0
-    if not np.any(f):
-        ev = cmap.evaluate(y, state) if cmap.active else None
-        x = np.zeros(n)
+    if start is None:
+        N_start = cmap.normal(np.zeros(cmap.n_c))[0] if cmap.active else np.zeros(0)
+        state = model.contacts.law.rest_state(N_start)
+        y = np.zeros(cmap.n_c)
+        f0 = np.zeros(n)
     else:
-        for i in range(1, n_increments + 1):
-            x_lin = np.asarray(fac.solver.solve(f * (i / n_increments)))
-            if cmap.active:
-                y_p = cmap.B @ x_lin
-                y, ev, its = condensed_newton(cmap, fac.G, 1.0, y_p, y, state, tol,
-                                              max_iter)
-                total += its
-                state = ev.state
-                x = x_lin - fac.Z @ ev.phi
-            else:
-                x, ev = x_lin, None
+        x0, state = np.asarray(start[0], dtype=float), start[1]
+        y = cmap.B @ x0
+        f0 = np.asarray(K @ x0).ravel()
+        if cmap.active:
+            ev0 = cmap.evaluate(y, state)
+            state = ev0.state
+            f0 = f0 + cmap.Bt @ ev0.phi
+    total = 0
+    # without a change of force one increment suffices (an initial interference,
+    # gap0 < 0, is still resolved by the Newton solve)
+    n_inc = n_increments if np.any(f - f0) else 1
+    for i in range(1, n_inc + 1):
+        x_lin = np.asarray(fac.solver.solve(f0 + (f - f0) * (i / n_inc)))
+        if cmap.active:
+            y_p = cmap.B @ x_lin
+            y, ev, its = condensed_newton(cmap, fac.G, 1.0, y_p, y, state, tol, max_iter)
+            total += its
+            state = ev.state
+            x = x_lin - fac.Z @ ev.phi
+        else:
+            x, ev = x_lin, None
     if not cmap.active:
         return StaticState(x, empty_eval(state), total)
     if frictionless:

@@ -432,10 +432,27 @@ def decay_estimates(t_ext, q_ext):
 # Drivers
 # --------------------------------------------------------------------------
 def _start_state(model, settings, force, frictionless):
-    """Static equilibrium under the constant forces, as a starting point."""
+    """Static equilibrium under the constant forces, as a starting point.
+
+    A model that carries its preload state (``model.extra["x0"]``, the FE
+    builder's) starts from it, with the sliders at rest (stuck preload: anchors
+    at zero slip) or unloaded at the preloaded slip (frictionless preload);
+    otherwise the structure is loaded from rest.
+    """
+    x0 = model.extra.get("x0") if isinstance(model.extra, dict) else None
+    start = None
+    if x0 is not None:
+        x0 = np.asarray(x0, dtype=float)
+        cmap = ContactMap(model.contacts)
+        N0 = cmap.normal(cmap.B @ x0)[0] if cmap.active else np.zeros(0)
+        if frictionless:
+            state0 = cmap.state_at(np.asarray(model.contacts.Tt @ x0).ravel(), N0)
+        else:
+            state0 = model.contacts.law.rest_state(N0)
+        start = (x0, state0)
     try:
         return static_equilibrium(model, force.static(), frictionless=frictionless,
-                                  tol=settings.newton_tol)
+                                  tol=settings.newton_tol, start=start)
     except NewtonFailure as exc:
         raise RuntimeError(f"the static (preload) equilibrium did not converge: {exc}") \
             from None
