@@ -165,6 +165,9 @@ class ContactMap:
         else:
             self.B = sp.csr_matrix(contacts.Tt)
         self.n_c = self.B.shape[0]
+        #: the gap can open and close: the averaged normal force needs the
+        #: energy-consistent correction (see ``_transient_kernels.gap_correction``)
+        self.unilateral = self.coupled and contacts.kernels.normal == "unilateral"
         if dense:  # small models: dense products are faster than sparse ones
             self.B = self.B.toarray()
             self.Bt = np.ascontiguousarray(self.B.T)
@@ -209,6 +212,35 @@ class ContactMap:
             phi = np.concatenate([f, -N])
             return ContactEval(phi, dfdu, dfdN * dNdg, -dNdg, new, u, f, N)
         return ContactEval(f, dfdu, self._zeros, self._zeros, new, u, f, N)
+
+    def correction(self, y0, ev0: ContactEval, y1, ev1: ContactEval):
+        """Energy-consistent correction of the averaged normal force over a step.
+
+        Parameters
+        ----------
+        y0, ev0 : ndarray, ContactEval
+            Contact coordinates and forces at the start of the step.
+        y1, ev1 : ndarray, ContactEval
+            The same at the (trial) end of the step.
+
+        Returns
+        -------
+        c, dc : ndarray, shape (n_c,)
+            Force term added to the averaged contact forces [N] (non-zero only
+            for the gap coordinates of elements that open or close within the
+            step) and its derivative by ``y1`` (diagonal) [N/m].
+        """
+        from ._transient_kernels import gap_correction
+        c = np.zeros(self.n_c)
+        dc = np.zeros(self.n_c)
+        if self.unilateral:
+            ne = self.n_e
+            ce, dce = np.empty(ne), np.empty(ne)
+            gap0 = self.contacts.gap0
+            gap_correction(gap0 + y0[ne:], ev0.N, gap0 + y1[ne:], ev1.N, self.contacts.kn,
+                           ce, dce)
+            c[ne:], dc[ne:] = -ce, -dce
+        return c, dc
 
     def times_D(self, G, ev: ContactEval):
         """``G @ D`` for a dense ``G`` of shape (m, n_c), using the block structure of D."""
@@ -282,8 +314,12 @@ class NewtonFailure(RuntimeError):
     """A Newton solve did not converge (the caller cuts the step)."""
 
 
-def condensed_newton(cmap: ContactMap, G, coef, y_p, y0, state, tol, max_iter, scale=0.0):
-    """Solve ``y - y_p + coef G phi(y; state) = 0`` by Newton.
+def condensed_newton(cmap: ContactMap, G, coef, y_p, y0, state, tol, max_iter, scale=0.0,
+                     prev=None):
+    """Solve ``y - y_p + G (coef phi(y; state) + c(y)) = 0`` by Newton.
+
+    ``c`` is the energy-consistent normal-force correction of
+    :meth:`ContactMap.correction` (with ``prev``), else zero.
 
     Parameters
     ----------
@@ -303,6 +339,9 @@ def condensed_newton(cmap: ContactMap, G, coef, y_p, y0, state, tol, max_iter, s
     max_iter : int
     scale : float
         Displacement scale added to the relative tolerance [m].
+    prev : tuple, optional
+        ``(y0, ev0)`` at the start of a dynamic step, for the normal-force
+        correction of unilateral contacts.
 
     Returns
     -------
@@ -311,6 +350,8 @@ def condensed_newton(cmap: ContactMap, G, coef, y_p, y0, state, tol, max_iter, s
         Forces, tangent and new state at ``y``.
     iterations : int
         Linear solves taken.
+    c : ndarray, shape (n_c,)
+        The correction at ``y`` (zeros without ``prev``).
 
     Raises
     ------
@@ -319,18 +360,26 @@ def condensed_newton(cmap: ContactMap, G, coef, y_p, y0, state, tol, max_iter, s
     y = np.array(y0, dtype=float)
     n = y.size
     ref_p = np.abs(y_p).max() if n else 0.0
+    use_c = prev is not None and cmap.unilateral
+    c = np.zeros(n)
     for it in range(max_iter + 1):
         ev = cmap.evaluate(y, state)
-        r = y - y_p + coef * (G @ ev.phi)
+        if use_c:
+            c, dc = cmap.correction(prev[0], prev[1], y, ev)
+            r = y - y_p + G @ (coef * ev.phi + c)
+        else:
+            r = y - y_p + coef * (G @ ev.phi)
         err = np.abs(r).max() if n else 0.0
         if not np.isfinite(err):
             raise NewtonFailure(f"non-finite residual after {it} iterations")
         ref = max(np.abs(y).max() if n else 0.0, ref_p, scale)
         if err <= tol * ref or err == 0.0:
-            return y, ev, it
+            return y, ev, it, c
         if it == max_iter:
             break
         J = np.eye(n) + coef * cmap.times_D(G, ev)
+        if use_c:
+            J += G * dc
         try:
             dy = np.linalg.solve(J, -r)
         except np.linalg.LinAlgError:
@@ -521,26 +570,32 @@ class GeneralizedAlpha:
         am, af, g, b = self.am, self.af, self.gamma, self.beta
         a1 = (x1 - s.x - h * s.v) / (b * h * h) - (0.5 / b - 1.0) * s.a
         v1 = s.v + h * ((1.0 - g) * s.a + g * a1)
-        ev = self.cmap.evaluate(self.cmap.B @ x1, s.contact.state)
+        y1 = self.cmap.B @ x1
+        ev = self.cmap.evaluate(y1, s.contact.state)
+        c, _dc = self.cmap.correction(self.cmap.B @ s.x, s.contact, y1, ev)
         return (self.M @ ((1.0 - am) * a1 + am * s.a)
                 + (1.0 - af) * (self._internal(x1, v1, ev) - self.force(s.t + h))
-                + af * (self._internal(s.x, s.v, s.contact) - self.force(s.t)))
+                + af * (self._internal(s.x, s.v, s.contact) - self.force(s.t))
+                + (self.cmap.Bt @ c if self.cmap.active else 0.0))
 
     def tangent(self, s: MarchState, h: float, x1) -> np.ndarray:
         """Consistent tangent ``dR/dx1`` of the step at ``x1``, dense (for tests)."""
         fac = self._factor(h)
         S = fac.S.toarray() if sp.issparse(fac.S) else np.array(fac.S)
-        ev = self.cmap.evaluate(self.cmap.B @ x1, s.contact.state)
+        y1 = self.cmap.B @ x1
+        ev = self.cmap.evaluate(y1, s.contact.state)
+        _c, dc = self.cmap.correction(self.cmap.B @ s.x, s.contact, y1, ev)
         B = self.cmap.B.toarray() if sp.issparse(self.cmap.B) else self.cmap.B
-        return S + (1.0 - self.af) * B.T @ self.cmap.D_matrix(ev) @ B
+        return S + B.T @ ((1.0 - self.af) * self.cmap.D_matrix(ev) + np.diag(dc)) @ B
 
     def condensed_residual(self, s: MarchState, h: float, y):
         """The condensed step equation ``r(y)`` and its tangent ``dr/dy`` (for tests)."""
         x_p, fac = self.predictor(s, h)
         coef = 1.0 - self.af
         ev = self.cmap.evaluate(y, s.contact.state)
-        r = y - self.cmap.B @ x_p + coef * (fac.G @ ev.phi)
-        J = np.eye(self.cmap.n_c) + coef * self.cmap.times_D(fac.G, ev)
+        c, dc = self.cmap.correction(self.cmap.B @ s.x, s.contact, y, ev)
+        r = y - self.cmap.B @ x_p + fac.G @ (coef * ev.phi + c)
+        J = np.eye(self.cmap.n_c) + coef * self.cmap.times_D(fac.G, ev) + fac.G * dc
         return r, J
 
     def _attempt(self, s: MarchState, h: float) -> MarchState:
@@ -550,11 +605,12 @@ class GeneralizedAlpha:
             coef = 1.0 - af
             x_guess = s.x + h * s.v + 0.5 * h * h * s.a
             B = self.cmap.B
-            y, ev, its = condensed_newton(self.cmap, fac.G, coef, B @ x_p, B @ x_guess,
-                                          s.contact.state, self.newton_tol, self.max_iter,
-                                          self.scale)
+            y, ev, its, c = condensed_newton(
+                self.cmap, fac.G, coef, B @ x_p, B @ x_guess, s.contact.state,
+                self.newton_tol, self.max_iter, self.scale,
+                prev=(B @ s.x, s.contact) if self.cmap.unilateral else None)
             self.stats.newton_iterations += its
-            x1 = x_p - coef * (fac.Z @ ev.phi)
+            x1 = x_p - fac.Z @ (coef * ev.phi + c)
         else:
             x1 = x_p
             ev = s.contact
@@ -784,7 +840,7 @@ def static_equilibrium(model, f, n_increments: int = 10, frictionless: bool = Fa
         x_lin = np.asarray(fac.solver.solve(f0 + (f - f0) * (i / n_inc)))
         if cmap.active:
             y_p = cmap.B @ x_lin
-            y, ev, its = condensed_newton(cmap, fac.G, 1.0, y_p, y, state, tol, max_iter)
+            y, ev, its, _c = condensed_newton(cmap, fac.G, 1.0, y_p, y, state, tol, max_iter)
             total += its
             state = ev.state
             x = x_lin - fac.Z @ ev.phi

@@ -267,7 +267,7 @@ def period_change(x_new, x_old) -> float:
     return diff / amp
 
 
-def energy_balance(p: PeriodData, force, M, C, K) -> EnergyBalance:
+def energy_balance(p: PeriodData, force, M, C, K, unilateral=None) -> EnergyBalance:
     """Energy balance of one marched period (see :class:`EnergyBalance`).
 
     Parameters
@@ -276,6 +276,11 @@ def energy_balance(p: PeriodData, force, M, C, K) -> EnergyBalance:
     force : callable
         ``force(t) -> ndarray (n_dof,)`` [N].
     M, C, K : matrix, shape (n_dof, n_dof)
+    unilateral : tuple, optional
+        ``(gap0, kn)`` of unilateral penalty contacts: the normal work then uses
+        the same energy-consistent average as the scheme
+        (:func:`~jointsim.solvers._transient_kernels.gap_correction`), i.e. the
+        change of the penalty energy.
     """
     F = np.array([force(t) for t in p.t])
     dx = np.diff(p.x, axis=0)
@@ -284,7 +289,16 @@ def energy_balance(p: PeriodData, force, M, C, K) -> EnergyBalance:
     vbar = 0.5 * (p.v[1:] + p.v[:-1])
     w_c = float(np.sum(h * np.einsum("ij,ij->i", vbar, (C @ vbar.T).T)))
     w_f = float(np.sum(0.5 * (p.f[:, 1:] + p.f[:, :-1]) * np.diff(p.u, axis=1)))
-    w_n = float(np.sum(-0.5 * (p.N[:, 1:] + p.N[:, :-1]) * np.diff(p.g, axis=1)))
+    Nbar = 0.5 * (p.N[:, 1:] + p.N[:, :-1])
+    if unilateral is not None and p.N.shape[0]:
+        from ._transient_kernels import gap_correction
+        gap0, kn = unilateral
+        gaps = gap0[:, None] + p.g
+        c, dc = np.empty(gap0.size), np.empty(gap0.size)
+        for j in range(p.t.size - 1):
+            gap_correction(gaps[:, j], p.N[:, j], gaps[:, j + 1], p.N[:, j + 1], kn, c, dc)
+            Nbar[:, j] += c
+    w_n = float(np.sum(-Nbar * np.diff(p.g, axis=1)))
 
     def stored(x, v):
         return 0.5 * float(v @ (M @ v)) + 0.5 * float(x @ (K @ x))
@@ -606,7 +620,9 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
     if last is not None:
         E = dft_matrix(settings.harmonics, n, omega, last.t[0])
         X = E @ last.x[:n]
-        energy = energy_balance(last, force, ga.M, ga.C, ga.K)
+        c = model.contacts
+        energy = energy_balance(last, force, ga.M, ga.C, ga.K,
+                                (c.gap0, c.kn) if ga.cmap.unilateral else None)
     else:
         X = np.full((coefficient_harmonics(settings.harmonics).size, model.n_dof), np.nan)
         energy = None
