@@ -356,6 +356,11 @@ class TransientAnalysis:
     min_periods: int = spec(3, doc="periods marched at least (steady runs)", ge=2)
     steady_tol: float = spec(1e-6, doc="period-to-period change, relative to the vibration "
                                        "amplitude, that counts as steady", gt=0)
+    start: str = spec("rest", choices=("rest", "linear"),
+                      doc="steady runs: start at rest at the static equilibrium, or on the "
+                          "steady response of the structure linearised with the joint stuck "
+                          "(far less transient to wait for, e.g. in lightly damped or "
+                          "free-free structures)")
     harmonics: tuple[int, ...] = spec((0, 1, 2, 3, 4, 5, 6, 7),
                                       doc="harmonics extracted from the last period "
                                           "(same order as /hbm/X)", ge=0)

@@ -473,3 +473,33 @@ def test_plain_force_averaging_pumps_energy_into_stiff_impacts():
     """The reason for the correction: without it the same bounces gain energy."""
     E = _bouncing(1.0, fused=False, correct=False, n=1000)
     assert E.max() > 1.5 * E[0]
+
+
+def test_linear_start_skips_the_transient():
+    """Starting on the discrete linear steady response, a linear structure is periodic
+    from the first period, where a start from rest waits for the decay."""
+    tr = {"omega": 1.3, "steady_tol": 1e-6, "steps_per_period": 256, "max_periods": 3000}
+    loads = [{"dof": 0, "force": {"constant": 0.5, "harmonics": [{"h": 1, "cos": 1.0},
+                                                                 {"h": 2, "sin": 0.3}]}}]
+    M, K, C = [[1.0, 0.0], [0.0, 2.0]], [[3.0, -1.0], [-1.0, 2.0]], [[0.01, 0.0], [0.0, 0.01]]
+    rest = march_steady(build_model(lumped(M, K, C, loads=loads, transient=tr)),
+                        lumped(M, K, C, loads=loads, transient=tr).analysis.transient,
+                        progress=False)
+    sc = lumped(M, K, C, loads=loads, transient={**tr, "start": "linear"})
+    lin = march_steady(build_model(sc), sc.analysis.transient, progress=False)
+    assert rest.convergence.success and lin.convergence.success
+    assert lin.convergence.iterations == 3                 # min_periods
+    assert lin.period_change[-1] < 1e-12                   # periodic to round-off
+    assert np.allclose(lin.X, rest.X, rtol=0, atol=1e-5 * np.abs(rest.X).max())
+
+
+def test_linear_start_with_a_stuck_joint():
+    """Below the slip limit a Jenkins joint is linear (stuck): the linear start is
+    its steady state, and the march stays there without slipping."""
+    sc = sdof_jenkins({"omega": 0.9, "start": "linear", "steady_tol": 1e-7,
+                       "steps_per_period": 128}, C=0.1, F=0.02)
+    res = march_steady(build_model(sc), sc.analysis.transient, progress=False)
+    assert res.convergence.success and res.convergence.iterations <= 6
+    Z = 1.25 - 0.81 + 0.09j                  # stuck: k + kt - w^2 m + i w c
+    assert abs(res.X[1, 0] - 1j * res.X[2, 0] - 0.02 / Z) < 2e-3 * abs(0.02 / Z)
+    assert np.abs(res.last.f).max() < 0.2    # never at the slip force

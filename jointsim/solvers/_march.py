@@ -511,9 +511,9 @@ class GeneralizedAlpha:
         return out
 
     # -- start ----------------------------------------------------------------
-    def start(self, t0: float, x0, v0, state0) -> MarchState:
+    def start(self, t0: float, x0, v0, state0, a0=None) -> MarchState:
         """Initial state: contacts evaluated at ``x0`` from ``state0``, and a consistent
-        acceleration ``a0 = M^-1 (f(t0) - C v0 - K x0 - f_c)``.
+        acceleration ``a0 = M^-1 (f(t0) - C v0 - K x0 - f_c)`` unless given.
 
         Parameters
         ----------
@@ -522,6 +522,8 @@ class GeneralizedAlpha:
         state0 : ndarray
             Law state of the contacts at ``x0`` (e.g. after a quasi-static
             load path to ``x0``).
+        a0 : ndarray, shape (n_dof,), optional
+            Initial acceleration (e.g. of a discrete periodic solution).
         """
         x0 = np.array(x0, dtype=float)
         v0 = np.array(v0, dtype=float)
@@ -533,7 +535,10 @@ class GeneralizedAlpha:
             except (RuntimeError, ValueError, sla.LinAlgError) as exc:
                 raise ValueError(f"the mass matrix cannot be factorised ({exc}); time "
                                  "marching needs a non-singular mass matrix") from None
-        a0 = np.asarray(self._mass_solver.solve(self.force(t0) - self._internal(x0, v0, ev)))
+        if a0 is None:
+            a0 = np.asarray(self._mass_solver.solve(self.force(t0)
+                                                    - self._internal(x0, v0, ev)))
+        a0 = np.array(a0, dtype=float)
         if not np.all(np.isfinite(a0)):
             raise ValueError("the initial acceleration is not finite: is the mass matrix "
                              "singular?")

@@ -547,9 +547,10 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
     frictionless_preload : bool, optional
         Overrides the scene's ``model.preload_tangential``.
     initial : tuple, optional
-        ``(x0, v0, state0)``: start from this displacement [m], velocity
-        [m/s] and law state instead of the static equilibrium at rest (for
-        instance from another solution, or with a different slider history).
+        ``(x0, v0, state0)`` or ``(x0, v0, state0, a0)``: start from this
+        displacement [m], velocity [m/s], law state (and acceleration [m/s^2])
+        instead of the static equilibrium at rest (for instance from another
+        solution, or with a different slider history).
     fused : bool
         Allow the fused numba march (False: step by step in Python; same
         scheme and results, for tests and comparisons).
@@ -573,11 +574,12 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
     n = settings.steps_per_period
     period = 2.0 * np.pi / omega
     h = period / n
+    if initial is None and getattr(settings, "start", "rest") == "linear":
+        initial = linear_start(ga, force, static, h)
     if initial is None:
         s = ga.start(0.0, static.x, np.zeros(model.n_dof), static.contact.state)
     else:
-        x0, v0, state0 = initial
-        s = ga.start(0.0, x0, v0, state0)
+        s = ga.start(0.0, *initial)
 
     changes: list[float] = []
     last: PeriodData | None = None
@@ -635,6 +637,71 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
         error_estimate=geometric_error(changes), static_x=static.x, stats=stats,
         wall_time=time.perf_counter() - t_start,
         convergence=Convergence(status == SUCCESS, status, message, n_periods))
+
+
+def linear_start(ga: GeneralizedAlpha, force: LoadFunction, static, h: float):
+    """Initial state on the discrete steady response of the linearised structure.
+
+    The contacts are linearised at the static state (tangent ``D`` of the laws
+    there: stuck sliders).  For every harmonic of the force the periodic
+    solution of the *discrete* scheme is solved exactly: with
+    ``x_n = X z^n``, ``v_n = V z^n``, ``a_n = A z^n``, ``z = exp(i h w dt)``,
+    the Newmark updates give ``V = dt ((1 - gamma) + gamma z) A / (z - 1)`` and
+    ``X = (dt V + dt^2 ((1/2 - beta) + beta z) A) / (z - 1)``, and the balance
+
+        [M ((1 - am) z + am) + (K_t X/A + C V/A) ((1 - af) z + af)] A
+            = F ((1 - af) z + af)
+
+    gives ``A``.  A linear structure started there is periodic from the first
+    step (to round-off); a nonlinear one only has to shed the difference
+    between its response and the linearised one.  The contact laws are
+    marched along the straight path from the static state to ``x(0)``.
+
+    Parameters
+    ----------
+    ga : GeneralizedAlpha
+        The stepper (its matrices and parameters).
+    force : LoadFunction
+    static : StaticState
+    h : float
+        Time step [s].
+
+    Returns
+    -------
+    tuple
+        ``(x0, v0, state0, a0)`` for :func:`march_steady`'s ``initial``.
+    """
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+    cmap = ContactMap(ga.model.contacts)
+    K = sp.csr_matrix(ga.model.K)
+    if cmap.active:
+        K = K + cmap.Bt @ sp.csr_matrix(cmap.D_matrix(static.contact)) @ cmap.B
+    M, C = sp.csr_matrix(ga.model.M), sp.csr_matrix(ga.model.C)
+    n = ga.model.n_dof
+    am, af, g, b = ga.am, ga.af, ga.gamma, ga.beta
+    rows, coef, w = force.harmonic_rows, force.coefficients, force.omega
+    x0 = np.array(static.x, dtype=float)
+    v0, a0 = np.zeros(n), np.zeros(n)
+    for r in range(1, rows.size, 2):
+        F = coef[r] - 1j * coef[r + 1]          # f(t) = Re(F e^{i hh w t})
+        if not np.any(F):
+            continue
+        z = np.exp(1j * rows[r] * w * h)
+        q = h * ((1.0 - g) + g * z) / (z - 1.0)                      # V = q A
+        p = (h * q + h * h * ((0.5 - b) + b * z)) / (z - 1.0)        # X = p A
+        wf = (1.0 - af) * z + af
+        Z = ((1.0 - am) * z + am) * M + wf * (p * K + q * C)
+        rhs = wf * F
+        A = np.linalg.solve(Z.toarray(), rhs) if n <= 1500 else \
+            spla.spsolve(sp.csc_matrix(Z), rhs)
+        x0 += (p * A).real
+        v0 += (q * A).real
+        a0 += A.real
+    state = static.contact.state
+    if cmap.active:
+        state = loaded_state(cmap, cmap.B @ static.x, cmap.B @ x0, state).state
+    return x0, v0, state, a0
 
 
 def elastic_mode(model, contact, mode: int, rigid_cutoff_hz: float = 0.0):
