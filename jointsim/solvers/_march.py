@@ -67,6 +67,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..contact import _kernels as CK
+from ._transient_kernels import single_threaded
 
 log = logging.getLogger(__name__)
 
@@ -655,7 +656,8 @@ class GeneralizedAlpha:
         """
         if not t1 > s.t:
             raise ValueError(f"t1 = {t1} must be after t = {s.t}")
-        out = self._step(s, float(t1), 0)
+        with single_threaded():  # one-sample kernel calls: no thread-pool launches
+            out = self._step(s, float(t1), 0)
         self.stats.steps += 1
         if self.cmap.active:
             self.scale = max(self.scale, float(np.max(np.abs(out.contact.u))))
@@ -700,6 +702,13 @@ class GeneralizedAlpha:
                 u[:, j], f[:, j], N[:, j] = st.contact.u, st.contact.f, st.contact.N
 
         put(0, s)
+        with single_threaded():
+            s = self._block(s, times, put, x, v, u, f, N)
+        return s, x, v, u, f, N
+
+    def _block(self, s, times, put, x, v, u, f, N):
+        """The loop of :meth:`march_block`: fused kernel, Python steps where it stops."""
+        n1 = times.size
         j = 0
         while j < n1 - 1:
             if self.fused:
@@ -711,7 +720,7 @@ class GeneralizedAlpha:
             s = self.step(s, times[j + 1])
             j += 1
             put(j, s)
-        return s, x, v, u, f, N
+        return s
 
     def _fused(self, s, times, x, v, u, f, N):
         """Run the fused kernel from ``s`` over ``times``; fill the arrays; return
