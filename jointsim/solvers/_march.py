@@ -39,6 +39,15 @@ systems this is the original method.  The scheme is second-order accurate
 for any ``rho_inf``; ``rho_inf = 1`` is the trapezoidal rule (no numerical
 dissipation).
 
+A unilateral normal contact that opens or closes within a step breaks the
+energy identity of the averaged force: with a stiff penalty and steps longer
+than the contact lasts, plain averaging pumps energy into the structure
+(clapping lap ends blow up).  For those elements the averaged normal load is
+replaced by the discrete gradient of the penalty energy plus the
+``(1/2 - af)`` dissipative part (``_transient_kernels.gap_correction``): the
+normal force then does exactly the work stored in the penalty spring, and
+elements that stay closed or open are unaffected.
+
 Newton, condensed on the contact coordinates
 --------------------------------------------
 The balance is linear in ``x1`` except for ``phi``.  With
