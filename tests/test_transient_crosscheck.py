@@ -109,3 +109,25 @@ def test_cross_check_file_reads_the_hbm_contract(tmp_path):
         assert pt.interpolated and pt.points == (0, 1)
         assert np.allclose(pt.X, 0.5 * (X[0] + X[1]))
         assert hbm_solution_at(h5, 2.0) is None
+
+
+def test_hbm_branches_and_force_scales(tmp_path):
+    """/hbm/branch indexes /hbm/force_scale (one per branch): only the branch of the
+    requested force scale is used, and brackets never span two branches."""
+    sc = lumped([[1.0]], [[1.0]], transient={"amplitude": 1.0})
+    omegas = np.array([0.8, 0.9, 1.1, 0.8, 0.95, 1.2])
+    branch = np.array([0, 0, 0, 1, 1, 1])
+    X = np.zeros((6, 3, 1))
+    X[:, 1, 0] = np.arange(6.0)          # cos coefficient = point index
+    with ResultWriter(tmp_path / "b.h5", sc) as wr:
+        wr.write("hbm/omega", omegas, "rad/s")
+        wr.write("hbm/X", X, "m")
+        wr.write("hbm/harmonics", np.array([0, 1]), "1")
+        wr.write("hbm/branch", branch, "1")
+        wr.write("hbm/force_scale", np.array([1.0, 2.0]), "1")
+        a = hbm_solution_at(wr.h5, 1.0, force_scale=1.0)
+        b = hbm_solution_at(wr.h5, 1.0, force_scale=2.0)
+        assert a.points == (1, 2) and a.X[1, 0] == pytest.approx(1.5)
+        assert b.points == (4, 5) and b.X[1, 0] == pytest.approx(4.0 + 0.05 / 0.25)
+        # the jump from point 2 (branch 0, w = 1.1) to 3 (branch 1, w = 0.8) is no bracket
+        assert hbm_solution_at(wr.h5, 1.15, force_scale=1.0) is None

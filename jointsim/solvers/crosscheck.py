@@ -276,11 +276,11 @@ def hbm_solution_at(h5, omega: float, force_scale: float | None = None, X_near=N
     """The HBM solution at ``omega`` from ``/hbm`` (DESIGN §4 paths).
 
     Uses ``/hbm/omega`` [n_points], ``/hbm/X`` [n_points, n_coeff, n_dof] and
-    ``/hbm/harmonics``; with a dataset ``/hbm/force_scale`` [n_points] only
-    points of the same force scale are used, and with ``/hbm/branch``
-    [n_points] brackets never span two branches.  Where the branch passes
-    ``omega`` several times (turning points), the solution nearest ``X_near``
-    is taken.
+    ``/hbm/harmonics``; with ``/hbm/branch`` [n_points] (the branch of each
+    point) brackets never span two branches, and with ``/hbm/force_scale``
+    (one entry per branch, indexed by ``/hbm/branch``) only branches of the
+    requested force scale are used.  Where a branch passes ``omega`` several
+    times (turning points), the solution nearest ``X_near`` is taken.
 
     Returns
     -------
@@ -294,9 +294,10 @@ def hbm_solution_at(h5, omega: float, force_scale: float | None = None, X_near=N
     hs = tuple(int(h) for h in h5["hbm/harmonics"][()])
     n = w.size
     ok = np.ones(n, dtype=bool)
-    if force_scale is not None and "hbm/force_scale" in h5:
-        ok &= np.isclose(h5["hbm/force_scale"][()], force_scale, rtol=1e-12)
     branch = h5["hbm/branch"][()] if "hbm/branch" in h5 else np.zeros(n, dtype=int)
+    if force_scale is not None and "hbm/force_scale" in h5:
+        scales = np.atleast_1d(h5["hbm/force_scale"][()])
+        ok &= np.isclose(scales[branch], force_scale, rtol=1e-12)
     cands = []
     for i in np.flatnonzero(ok & np.isclose(w, omega, rtol=rtol, atol=0.0)):
         cands.append(HBMPoint(X[i], hs, float(w[i]), (int(i),), False))
