@@ -614,7 +614,7 @@ class GeneralizedAlpha:
         return r, J
 
     def _attempt(self, s: MarchState, h: float) -> MarchState:
-        am, af, g, b = self.am, self.af, self.gamma, self.beta
+        af, g, b = self.af, self.gamma, self.beta
         x_p, fac = self.predictor(s, h)
         if self.cmap.active:
             coef = 1.0 - af

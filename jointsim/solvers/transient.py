@@ -29,10 +29,9 @@ import numpy as np
 from ..results import (INTERRUPTED, NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS,
                        Convergence)
 from ..signals import coefficient_harmonics
-from ._transient_kernels import single_threaded
-from ._transient_kernels import single_threaded
 from ._march import (ContactMap, GeneralizedAlpha, LoadFunction, NewtonFailure, StepFailure,
                      static_equilibrium, stuck_modes)
+from ._transient_kernels import single_threaded
 
 log = logging.getLogger(__name__)
 
@@ -525,8 +524,10 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
 
     The structure starts at rest at its static equilibrium under the
     constant forces (preload and the loads' constant parts), with the
-    contact laws marched along the static load path; the harmonic loads are
-    switched on at ``t = 0``.  Each period of ``steps_per_period`` steps is
+    contact laws marched along the static load path, and the harmonic loads
+    are switched on at ``t = 0``; or, with ``settings.start = "linear"``, on
+    the discrete steady response of the linearised structure
+    (:func:`linear_start`).  Each period of ``steps_per_period`` steps is
     compared with the one before; the march stops when the change relative
     to the vibration amplitude falls below ``steady_tol`` (after at least
     ``min_periods``), or after ``max_periods``.
