@@ -369,6 +369,13 @@ def test_run_scene_writes_steady_results(tmp_path):
         assert h5["loops/u"].shape == (1, 1, 64)
         assert h5["masing/dev_masing"][0, 0] < 1e-9
         assert g.attrs["energy_relative"] < 1e-3
+    from jointsim.post import make_figures
+    from jointsim.post.tables import info_text
+    figs = sorted(p.name for p in make_figures(out, tmp_path / "figs"))
+    assert figs == ["transient_convergence.png", "transient_history.png",
+                    "transient_loops.png"]
+    text = info_text(out)
+    assert "Time marching (steady)" in text and "first-harmonic amplitude" in text
 
 
 def test_run_scene_writes_free_decay(tmp_path):
@@ -386,6 +393,11 @@ def test_run_scene_writes_free_decay(tmp_path):
         for name, ds in _all_datasets(h5):
             assert "unit" in ds.attrs, name
         assert h5["transient"].attrs["kind"] == "free_decay"
+    from jointsim.post import make_figures
+    from jointsim.post.tables import info_text
+    figs = sorted(p.name for p in make_figures(out, tmp_path / "figs"))
+    assert figs == ["transient_backbone.png", "transient_history.png"]
+    assert "Time marching (free_decay)" in info_text(out)
 
 
 @pytest.mark.parametrize("frictionless,u_expected,f_expected", [
