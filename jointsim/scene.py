@@ -387,14 +387,69 @@ class EPMCAnalysis:
 
 @dataclass(frozen=True, kw_only=True)
 class TransientAnalysis:
-    """Implicit time marching (generalized-alpha)."""
+    """Implicit time marching (generalized-alpha, Chung-Hulbert).
 
-    rho_inf: float = spec(0.9, doc="spectral radius at infinite frequency", ge=0, le=1)
+    Two runs exist.  With ``omega > 0`` the structure is forced by the scene's
+    loads at ``omega`` until the period-to-period change falls below
+    ``steady_tol`` (a *steady* run: harmonics, loops, energy balance).  With
+    ``omega = 0`` it is released from a deflection of amplitude ``amplitude``
+    along a linear mode and rings down (a *free-decay* run: amplitude-dependent
+    frequency and damping).
+    """
+
+    rho_inf: float = spec(0.9, doc="spectral radius at infinite frequency (1: no numerical "
+                                   "damping, 0: asymptotic annihilation)", ge=0, le=1)
     omega: float = spec(0.0, doc="forcing frequency (0: free decay)", unit="rad/s", ge=0)
-    steps_per_period: int = spec(256, doc="time steps per forcing period", ge=8)
+    force_scale: float = spec(1.0, doc="multiplier of the harmonic loads (as "
+                                       "analysis.hbm.force_scale)")
+    steps_per_period: int = spec(256, doc="time steps per forcing period (free decay: per "
+                                          "period of the linear mode)", ge=8)
     max_periods: int = spec(2000, doc="periods marched at most", ge=1)
-    steady_tol: float = spec(1e-6, doc="period-to-period relative change for steady state",
-                             gt=0)
+    min_periods: int = spec(3, doc="periods marched at least (steady runs)", ge=2)
+    steady_tol: float = spec(1e-6, doc="period-to-period change, relative to the vibration "
+                                       "amplitude, that counts as steady", gt=0)
+    start: str = spec("rest", choices=("rest", "linear"),
+                      doc="steady runs: start at rest at the static equilibrium, or on the "
+                          "steady response of the structure linearised with the joint stuck "
+                          "(far less transient to wait for, e.g. in lightly damped or "
+                          "free-free structures)")
+    harmonics: tuple[int, ...] = spec((0, 1, 2, 3, 4, 5, 6, 7),
+                                      doc="harmonics extracted from the last period "
+                                          "(same order as /hbm/X)", ge=0)
+    newton_tol: float = spec(1e-10, doc="Newton tolerance on the contact displacements, "
+                                        "relative to their scale", gt=0)
+    max_iter: int = spec(25, doc="Newton iterations per step before the step is cut", ge=1)
+    max_cuts: int = spec(8, doc="times a failed step may be halved", ge=0, le=30)
+    output_dofs: tuple[int, ...] = spec((), doc="DOFs whose time history is stored "
+                                                "(default: the loaded DOFs and the model's "
+                                                "named points)", ge=0)
+    output_points: tuple[str, ...] = spec((), doc="named model points whose time history "
+                                                  "is stored (FE models)")
+    decimate: int = spec(1, doc="store every n-th step of the time history", ge=1)
+    history_periods: int = spec(0, doc="store the time history of the last n periods "
+                                       "only (0: all)", ge=0)
+    mode: int = spec(1, doc="free decay: linear mode of the stuck joint to deflect along "
+                            "(1-based, counted above rigid_cutoff_hz)", ge=1)
+    amplitude: float = spec(0.0, doc="free decay: initial modal amplitude q0 = phi^T M x0 "
+                                     "(phi mass-normalised)", unit="m kg^0.5", ge=0)
+    rigid_cutoff_hz: float = spec(0.0, doc="free decay: modes below this frequency are "
+                                           "rigid-body (suspension) modes and not counted",
+                                  unit="Hz", ge=0)
+
+    def check(self):
+        if 1 not in self.harmonics:
+            return [("harmonics", "must include harmonic 1")]
+        if len(set(self.harmonics)) != len(self.harmonics):
+            return [("harmonics", "must not repeat a harmonic")]
+        hmax = max(self.harmonics)
+        if self.steps_per_period < 2 * hmax + 1:
+            return [("steps_per_period", f"must be >= 2*max(harmonics)+1 = {2 * hmax + 1}, "
+                                         f"got {self.steps_per_period}")]
+        if self.min_periods > self.max_periods:
+            return [("min_periods", "must not exceed max_periods")]
+        if self.omega == 0.0 and self.amplitude <= 0.0:
+            return [("amplitude", "must be > 0 for a free decay (omega = 0)")]
+        return []
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -614,6 +669,25 @@ def _check_cross(scene: Scene, ctx: Context) -> None:
     if a.epmc is not None and a.epmc.log10_amplitude_end == a.epmc.log10_amplitude_start:
         raise ctx.error("analysis.epmc.log10_amplitude_end",
                         "must differ from log10_amplitude_start")
+    tr = a.transient
+    if tr is not None:
+        if isinstance(m, PrescribedModel):
+            log.info("%s: a prescribed-motion model is marched by the prescribed march, which "
+                     "is exact at the samples (model.n_samples, model.n_periods); the keys of "
+                     "analysis.transient do not apply", ctx.file)
+        elif tr.omega > 0.0 and not scene.excitation.loads:
+            raise ctx.error("analysis.transient.omega",
+                            "> 0 asks for a forced steady state, but excitation.loads is "
+                            "empty (omega = 0 runs a free decay)")
+        if isinstance(m, LumpedModel):
+            for i, d in enumerate(tr.output_dofs):
+                if d >= m.n_dof:
+                    raise ctx.error(f"analysis.transient.output_dofs[{i}]",
+                                    f"must be < {m.n_dof} (the model has {m.n_dof} DOFs)")
+            if tr.output_points:
+                raise ctx.error("analysis.transient.output_points",
+                                "names mesh points, which a lumped model does not have; "
+                                "use output_dofs")
 
 
 def load_scene(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> Scene:

@@ -194,7 +194,8 @@ class ResultWriter:
         return self.h5[name].shape[0] if name in self.h5 else 0
 
 
-def write_loops(writer: ResultWriter, point: int, u, f, N, report, units: str) -> None:
+def write_loops(writer: ResultWriter, point: int, u, f, N, report, units: str,
+                prefix: str = "") -> None:
     """Append one solution point's element loops and their Masing check.
 
     Parameters
@@ -207,29 +208,34 @@ def write_loops(writer: ResultWriter, point: int, u, f, N, report, units: str) -
     report : jointsim.masing.MasingReport
     units : str
         Unit system of the model.
+    prefix : str
+        Group the ``loops`` and ``masing`` groups go under (default: the root).
+        An analysis whose loops must not mix with another's in ``/loops``
+        (time marching beside harmonic balance) writes them under its own group.
     """
     d, F = unit("displacement", units), unit("force", units)
-    writer.append("loops/point", np.int64(point), "1", "solution point of each loop set")
-    writer.append("loops/u", u, d, "tangential displacement over one steady period")
-    writer.append("loops/f", f, F, "tangential force over one steady period")
-    writer.append("loops/N", N, F, "normal load over one steady period")
+    p = prefix.strip("/") + "/" if prefix.strip("/") else ""
+    writer.append(f"{p}loops/point", np.int64(point), "1", "solution point of each loop set")
+    writer.append(f"{p}loops/u", u, d, "tangential displacement over one steady period")
+    writer.append(f"{p}loops/f", f, F, "tangential force over one steady period")
+    writer.append(f"{p}loops/N", N, F, "normal load over one steady period")
     one = "1"
-    writer.append("masing/dev_manifold", report.dev_manifold, one,
+    writer.append(f"{p}masing/dev_manifold", report.dev_manifold, one,
                   "max |f - f_manifold| / max(mu N)")
-    writer.append("masing/dev_masing", report.dev_masing, one,
+    writer.append(f"{p}masing/dev_masing", report.dev_masing, one,
                   "max |f - f_masing| / max(mu N), classical Masing at the mean N")
-    writer.append("masing/on_manifold", report.on_manifold, one, "dev_manifold <= tol")
-    writer.append("masing/on_masing", report.on_masing, one, "dev_masing <= tol")
-    writer.append("masing/eq4_ok", report.eq4_ok, one, "seed Eq. 4: d(mu N)/ds >= -kt "
+    writer.append(f"{p}masing/on_manifold", report.on_manifold, one, "dev_manifold <= tol")
+    writer.append(f"{p}masing/on_masing", report.on_masing, one, "dev_masing <= tol")
+    writer.append(f"{p}masing/eq4_ok", report.eq4_ok, one, "seed Eq. 4: d(mu N)/ds >= -kt "
                   "while the force opposes the motion after a reversal")
-    writer.append("masing/eq6_ok", report.eq6_ok, one, "seed Eq. 6: d(mu N)/ds <= kt "
+    writer.append(f"{p}masing/eq6_ok", report.eq6_ok, one, "seed Eq. 6: d(mu N)/ds <= kt "
                   "while slipping")
-    writer.append("masing/eq4_margin", report.eq4_margin, one, "min(1 + d(mu N)/ds / kt)")
-    writer.append("masing/eq6_margin", report.eq6_margin, one, "min(1 - d(mu N)/ds / kt)")
-    writer.append("masing/n_reversals", report.n_reversals, one, "reversals of u per period")
-    writer.append("masing/f_manifold", report.f_manifold, F, "manifold prediction")
-    writer.append("masing/f_masing", report.f_masing, F, "classical Masing prediction")
-    writer.h5["masing"].attrs["tol"] = report.tol
+    writer.append(f"{p}masing/eq4_margin", report.eq4_margin, one, "min(1 + d(mu N)/ds / kt)")
+    writer.append(f"{p}masing/eq6_margin", report.eq6_margin, one, "min(1 - d(mu N)/ds / kt)")
+    writer.append(f"{p}masing/n_reversals", report.n_reversals, one, "reversals of u per period")
+    writer.append(f"{p}masing/f_manifold", report.f_manifold, F, "manifold prediction")
+    writer.append(f"{p}masing/f_masing", report.f_masing, F, "classical Masing prediction")
+    writer.h5[f"{p}masing"].attrs["tol"] = report.tol
 
 
 def read_attrs(path) -> dict:

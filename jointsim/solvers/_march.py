@@ -1,0 +1,1019 @@
+"""Generalized-alpha stepping of a structure with friction contact.
+
+This module holds the integrator itself: the contact map in condensed
+coordinates, the stepper (a Newton solve per step, condensed onto the contact
+coordinates, with step cutting), the quasi-static solve of the preload, and
+the linear modes of the stuck joint.  The drivers that march to a steady
+state or ring down a free decay, and the runner that writes the result file,
+are in :mod:`jointsim.solvers.transient`.
+
+Equation of motion
+------------------
+With the sign conventions of :mod:`jointsim.model`,
+
+    M x'' + C x' + K x + B^T phi(B x, history) = f(t),
+
+where ``y = B x`` are the *contact coordinates*: the tangential slips
+``u_t = Tt x`` and, when the normal load is coupled, the gap changes
+``Tn x`` (gap ``g = gap0 + Tn x``).  ``phi`` stacks the tangential forces
+``f_t(u_t, N)`` and, for coupled normal load, ``-N(g)``; so that
+``f_c = Tt^T f_t - Tn^T N = B^T phi``.  With a fixed normal load ``y = u_t``
+and ``N = N0``.
+
+Scheme
+------
+Generalized-alpha (Chung & Hulbert, J. Appl. Mech. 60, 1993) with the
+spectral radius ``rho_inf`` at infinite frequency:
+``am = (2 rho - 1)/(rho + 1)``, ``af = rho/(rho + 1)``,
+``gamma = 1/2 - am + af``, ``beta = (1 - am + af)^2 / 4``, Newmark updates
+for ``x`` and ``v``, and the balance
+
+    M [(1-am) a1 + am a0] + (1-af) [C v1 + K x1 + B^T phi1 - f(t1)]
+                          +    af [C v0 + K x0 + B^T phi0 - f(t0)] = 0.
+
+The internal forces are averaged between the ends of the step (the
+"generalized trapezoidal" form of Erlicher, Bonaventura & Bursi, Comput.
+Mech. 28, 2002), so the contact laws are only evaluated at the step ends,
+with the state committed at the end of each converged step; for linear
+systems this is the original method.  The scheme is second-order accurate
+for any ``rho_inf``; ``rho_inf = 1`` is the trapezoidal rule (no numerical
+dissipation).
+
+A unilateral normal contact that opens or closes within a step breaks the
+energy identity of the averaged force: with a stiff penalty and steps longer
+than the contact lasts, plain averaging pumps energy into the structure
+(clapping lap ends blow up).  For those elements the averaged normal load is
+replaced by the discrete gradient of the penalty energy plus the
+``(1/2 - af)`` dissipative part (``_transient_kernels.gap_correction``): the
+normal force then does exactly the work stored in the penalty spring, and
+elements that stay closed or open are unaffected.
+
+Newton, condensed on the contact coordinates
+--------------------------------------------
+The balance is linear in ``x1`` except for ``phi``.  With
+``S = (1-am)/(beta h^2) M + (1-af)(gamma/(beta h) C + K)`` (factorised once
+per step size), the linear part gives ``x1 = x_p - (1-af) Z phi(y1)`` with
+``Z = S^-1 B^T``, and the step reduces to ``n_c`` equations in the contact
+coordinates only::
+
+    r(y) = y - B x_p + (1-af) G phi(y) = 0,      G = B Z  (n_c x n_c),
+
+solved by Newton with the consistent tangent ``I + (1-af) G D``, where
+``D = dphi/dy`` comes from the same march kernels as harmonic balance
+(called with one sample and the committed state: the tangent of the step at
+fixed history).  ``x1`` is recovered with one product by ``Z``.  A step whose
+Newton iteration fails (iteration limit or non-finite values) is cut in half
+and retried, recursively, up to ``max_cuts`` times.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..contact import _kernels as CK
+from ._transient_kernels import single_threaded
+
+log = logging.getLogger(__name__)
+
+#: Models up to this many DOFs are handled with dense matrices (reduced models
+#: from Craig-Bampton are dense anyway); larger ones stay sparse.
+DENSE_MAX_DOF = 1500
+
+
+def alpha_parameters(rho_inf: float):
+    """Generalized-alpha parameters of Chung & Hulbert.
+
+    Parameters
+    ----------
+    rho_inf : float
+        Spectral radius at infinite frequency, in [0, 1].
+
+    Returns
+    -------
+    am, af, gamma, beta : float
+    """
+    if not 0.0 <= rho_inf <= 1.0:
+        raise ValueError(f"rho_inf must lie in [0, 1], got {rho_inf}")
+    am = (2.0 * rho_inf - 1.0) / (rho_inf + 1.0)
+    af = rho_inf / (rho_inf + 1.0)
+    gamma = 0.5 - am + af
+    beta = 0.25 * (1.0 - am + af) ** 2
+    return am, af, gamma, beta
+
+
+# --------------------------------------------------------------------------
+# Contact map
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ContactEval:
+    """The contact forces at given contact coordinates, with a fixed history.
+
+    Attributes
+    ----------
+    phi : ndarray, shape (n_c,)
+        Forces conjugate to the contact coordinates: ``[f_t]`` or
+        ``[f_t, -N]`` [N].
+    duu, dug, dgg : ndarray, shape (n_e,)
+        Non-zero blocks of ``D = dphi/dy``: ``df_t/du_t`` [N/m],
+        ``df_t/dg`` [N/m] and ``d(-N)/dg`` [N/m] (the last two are zero and
+        unused with a fixed normal load).
+    state : ndarray, shape (n_e, state_size)
+        The law's state after this evaluation (committed only at the end of
+        a converged step).
+    u, f, N : ndarray, shape (n_e,)
+        Tangential slip [m], tangential force [N] and normal load [N].
+    """
+
+    phi: np.ndarray
+    duu: np.ndarray
+    dug: np.ndarray
+    dgg: np.ndarray
+    state: np.ndarray
+    u: np.ndarray
+    f: np.ndarray
+    N: np.ndarray
+
+
+def empty_eval(state) -> ContactEval:
+    """The contact evaluation of a structure without contact elements."""
+    e = np.zeros(0)
+    return ContactEval(e, e, e, e, state, e, e, e)
+
+
+class ContactMap:
+    """Contact elements seen from the structure, in condensed coordinates.
+
+    Parameters
+    ----------
+    contacts : jointsim.model.ContactSet
+    friction : bool
+        Evaluate the tangential law (False: tangential forces are zero, as
+        in a frictionless preload).
+
+    Attributes
+    ----------
+    B : scipy.sparse.csr_matrix, shape (n_c, n_dof)
+        ``Tt`` (fixed normal load) or ``[Tt; Tn]`` (coupled).
+    n_e, n_c : int
+        Elements and contact coordinates (``n_e`` or ``2 n_e``).
+    coupled : bool
+    """
+
+    def __init__(self, contacts, friction: bool = True, dense: bool = False):
+        self.contacts = contacts
+        self.law = contacts.law
+        self.coupled = bool(contacts.kernels.coupled)
+        self.friction = bool(friction) and self.law.kind != "none"
+        self.n_e = contacts.n_elements
+        if self.coupled:
+            self.B = sp.csr_matrix(sp.vstack([contacts.Tt, contacts.Tn]))
+        else:
+            self.B = sp.csr_matrix(contacts.Tt)
+        self.n_c = self.B.shape[0]
+        #: the gap can open and close: the averaged normal force needs the
+        #: energy-consistent correction (see ``_transient_kernels.gap_correction``)
+        self.unilateral = self.coupled and contacts.kernels.normal == "unilateral"
+        if dense:  # small models: dense products are faster than sparse ones
+            self.B = self.B.toarray()
+            self.Bt = np.ascontiguousarray(self.B.T)
+        else:
+            self.Bt = sp.csr_matrix(self.B.T)
+        self._zeros = np.zeros(self.n_e)
+        self.N0 = np.asarray(contacts.N0, dtype=float)
+
+    @property
+    def active(self) -> bool:
+        """False when there is nothing to evaluate (no elements)."""
+        return self.n_c > 0
+
+    def normal(self, y):
+        """Normal load and ``dN/dg`` at contact coordinates ``y``, shape (n_e,) each."""
+        if not self.coupled:
+            return self.N0, self._zeros
+        g = self.contacts.gap0 + y[self.n_e:]
+        N, dNdg = self.contacts.normal_load(g[:, None])
+        return N[:, 0], dNdg[:, 0]
+
+    def evaluate(self, y, state) -> ContactEval:
+        """Contact forces and tangent at ``y`` from the committed ``state``.
+
+        Parameters
+        ----------
+        y : ndarray, shape (n_c,)
+            Contact coordinates [m].
+        state : ndarray, shape (n_e, state_size)
+            Law state at the start of the step (not modified).
+        """
+        ne = self.n_e
+        u = y[:ne]
+        N, dNdg = self.normal(y)
+        if self.friction:
+            f, dfdu, dfdN, new = self.law.march(u[:, None], N[:, None], state)
+            f, dfdu, dfdN = f[:, 0], dfdu[:, 0], dfdN[:, 0]
+        else:
+            f = dfdu = dfdN = self._zeros
+            new = state
+        if self.coupled:
+            phi = np.concatenate([f, -N])
+            return ContactEval(phi, dfdu, dfdN * dNdg, -dNdg, new, u, f, N)
+        return ContactEval(f, dfdu, self._zeros, self._zeros, new, u, f, N)
+
+    def correction(self, y0, ev0: ContactEval, y1, ev1: ContactEval):
+        """Energy-consistent correction of the averaged normal force over a step.
+
+        Parameters
+        ----------
+        y0, ev0 : ndarray, ContactEval
+            Contact coordinates and forces at the start of the step.
+        y1, ev1 : ndarray, ContactEval
+            The same at the (trial) end of the step.
+
+        Returns
+        -------
+        c, dc : ndarray, shape (n_c,)
+            Force term added to the averaged contact forces [N] (non-zero only
+            for the gap coordinates of elements that open or close within the
+            step) and its derivative by ``y1`` (diagonal) [N/m].
+        """
+        from ._transient_kernels import gap_correction
+        c = np.zeros(self.n_c)
+        dc = np.zeros(self.n_c)
+        if self.unilateral:
+            ne = self.n_e
+            ce, dce = np.empty(ne), np.empty(ne)
+            gap0 = self.contacts.gap0
+            gap_correction(gap0 + y0[ne:], ev0.N, gap0 + y1[ne:], ev1.N, self.contacts.kn,
+                           ce, dce)
+            c[ne:], dc[ne:] = -ce, -dce
+        return c, dc
+
+    def times_D(self, G, ev: ContactEval):
+        """``G @ D`` for a dense ``G`` of shape (m, n_c), using the block structure of D."""
+        ne = self.n_e
+        GD = np.empty_like(G)
+        GD[:, :ne] = G[:, :ne] * ev.duu
+        if self.coupled:
+            GD[:, ne:] = G[:, :ne] * ev.dug + G[:, ne:] * ev.dgg
+        return GD
+
+    def D_matrix(self, ev: ContactEval) -> np.ndarray:
+        """Dense ``D = dphi/dy``, shape (n_c, n_c) (for tests and modes)."""
+        return self.times_D(np.eye(self.n_c), ev)
+
+    def state_at(self, u0, N0) -> np.ndarray:
+        """Law state of unloaded elements resting at slip ``u0`` under load ``N0``.
+
+        Parameters
+        ----------
+        u0, N0 : ndarray, shape (n_e,)
+        """
+        law = self.law
+        s = law.rest_state(N0)
+        if law.kind == "bank_anchor":
+            s[:] = np.asarray(u0, dtype=float)[:, None]
+        elif law.kind == "bank_scaled":
+            s[:, CK.SC_U_PREV] = u0
+            s[:, CK.SC_U_R] = u0
+        return s
+
+
+# --------------------------------------------------------------------------
+# Linear algebra of the linear part
+# --------------------------------------------------------------------------
+class _LinearSolver:
+    """Solver of a non-singular matrix: a dense inverse for small dense
+    matrices (one product per solve), a sparse LU otherwise."""
+
+    def __init__(self, A):
+        self.dense = not sp.issparse(A)
+        if self.dense:
+            lu = sla.lu_factor(A, check_finite=True)
+            if np.any(np.diag(lu[0]) == 0.0):
+                raise sla.LinAlgError("singular matrix")
+            self.inv = sla.lu_solve(lu, np.eye(A.shape[0]))
+        else:
+            self.lu = spla.splu(sp.csc_matrix(A))
+
+    def solve(self, b):
+        if self.dense:
+            return self.inv @ b
+        return self.lu.solve(np.asarray(b, dtype=float))
+
+
+class _Condensed:
+    """``S``, its factorisation, ``Z = S^-1 B^T`` and ``G = B Z`` for one step size."""
+
+    def __init__(self, S, cmap: ContactMap, dense: bool):
+        self.S = S
+        self.solver = _LinearSolver(S)
+        if cmap.active:
+            Bt = cmap.Bt if dense else cmap.Bt.toarray()
+            self.Z = np.asarray(self.solver.solve(Bt)).reshape(S.shape[0], cmap.n_c)
+            self.G = np.asarray(cmap.B @ self.Z)
+        else:
+            self.Z = np.zeros((S.shape[0], 0))
+            self.G = np.zeros((0, 0))
+
+
+class NewtonFailure(RuntimeError):
+    """A Newton solve did not converge (the caller cuts the step)."""
+
+
+def condensed_newton(cmap: ContactMap, G, coef, y_p, y0, state, tol, max_iter, scale=0.0,
+                     prev=None):
+    """Solve ``y - y_p + G (coef phi(y; state) + c(y)) = 0`` by Newton.
+
+    ``c`` is the energy-consistent normal-force correction of
+    :meth:`ContactMap.correction` (with ``prev``), else zero.
+
+    Parameters
+    ----------
+    cmap : ContactMap
+    G : ndarray, shape (n_c, n_c)
+        Condensed compliance ``B S^-1 B^T`` [m/N].
+    coef : float
+        Weight of the contact forces (``1 - af`` in a dynamic step, 1 in statics).
+    y_p : ndarray, shape (n_c,)
+        Contact coordinates of the linear prediction (zero contact force) [m].
+    y0 : ndarray, shape (n_c,)
+        Starting iterate [m].
+    state : ndarray
+        Committed law state.
+    tol : float
+        Tolerance on ``max |r|`` relative to ``max(|y|, |y_p|, scale)``.
+    max_iter : int
+    scale : float
+        Displacement scale added to the relative tolerance [m].
+    prev : tuple, optional
+        ``(y0, ev0)`` at the start of a dynamic step, for the normal-force
+        correction of unilateral contacts.
+
+    Returns
+    -------
+    y : ndarray, shape (n_c,)
+    ev : ContactEval
+        Forces, tangent and new state at ``y``.
+    iterations : int
+        Linear solves taken.
+    c : ndarray, shape (n_c,)
+        The correction at ``y`` (zeros without ``prev``).
+
+    Raises
+    ------
+    NewtonFailure
+    """
+    y = np.array(y0, dtype=float)
+    n = y.size
+    ref_p = np.abs(y_p).max() if n else 0.0
+    use_c = prev is not None and cmap.unilateral
+    c = np.zeros(n)
+    for it in range(max_iter + 1):
+        ev = cmap.evaluate(y, state)
+        if use_c:
+            c, dc = cmap.correction(prev[0], prev[1], y, ev)
+            r = y - y_p + G @ (coef * ev.phi + c)
+        else:
+            r = y - y_p + coef * (G @ ev.phi)
+        err = np.abs(r).max() if n else 0.0
+        if not np.isfinite(err):
+            raise NewtonFailure(f"non-finite residual after {it} iterations")
+        ref = max(np.abs(y).max() if n else 0.0, ref_p, scale)
+        if err <= tol * ref or err == 0.0:
+            return y, ev, it, c
+        if it == max_iter:
+            break
+        J = np.eye(n) + coef * cmap.times_D(G, ev)
+        if use_c:
+            J += G * dc
+        try:
+            dy = np.linalg.solve(J, -r)
+        except np.linalg.LinAlgError:
+            raise NewtonFailure(f"singular step tangent after {it} iterations") from None
+        y = y + dy
+    raise NewtonFailure(f"no convergence in {max_iter} iterations (residual {err:.2e}, "
+                        f"scale {ref:.2e})")
+
+
+# --------------------------------------------------------------------------
+# States and the stepper
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class MarchState:
+    """The structure and its contacts at one instant.
+
+    Attributes
+    ----------
+    t : float
+        Time [s].
+    x, v, a : ndarray, shape (n_dof,)
+        Displacement [m], velocity [m/s] and acceleration [m/s^2].
+    contact : ContactEval
+        Contact forces at ``x``; ``contact.state`` is the committed law state.
+    """
+
+    t: float
+    x: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    contact: ContactEval
+
+
+class StepFailure(RuntimeError):
+    """A step failed even at the smallest allowed step size."""
+
+
+@dataclass
+class StepStats:
+    """Counters of a march."""
+
+    steps: int = 0
+    substeps: int = 0
+    newton_iterations: int = 0
+    cuts: int = 0
+    deepest_cut: int = 0
+    factorizations: int = 0
+
+    def as_attrs(self) -> dict:
+        return {"steps": self.steps, "substeps": self.substeps,
+                "newton_iterations": self.newton_iterations, "step_cuts": self.cuts,
+                "deepest_cut": self.deepest_cut, "factorizations": self.factorizations}
+
+
+class GeneralizedAlpha:
+    """Implicit stepper for ``M x'' + C x' + K x + f_c = f(t)`` with contact.
+
+    Parameters
+    ----------
+    model : jointsim.model.StructuralModel
+    force : callable
+        ``force(t) -> ndarray (n_dof,)``, the total external force [N]
+        (loads and ``f_static``).
+    rho_inf : float
+        Spectral radius at infinite frequency.
+    newton_tol : float
+        Relative Newton tolerance on the contact coordinates.
+    max_iter : int
+        Newton iterations before a step is cut.
+    max_cuts : int
+        Halvings allowed for a failing step.
+    """
+
+    def __init__(self, model, force, rho_inf: float = 0.9, newton_tol: float = 1e-10,
+                 max_iter: int = 25, max_cuts: int = 8, fused: bool = True):
+        self.model = model
+        self.force = force
+        self.rho_inf = float(rho_inf)
+        self.am, self.af, self.gamma, self.beta = alpha_parameters(rho_inf)
+        self.newton_tol = float(newton_tol)
+        self.max_iter = int(max_iter)
+        self.max_cuts = int(max_cuts)
+        n = model.n_dof
+        self.dense = n <= DENSE_MAX_DOF
+        self.cmap = ContactMap(model.contacts, dense=self.dense)
+        conv = (lambda A: np.asarray(sp.csr_matrix(A).toarray())) if self.dense else \
+            (lambda A: sp.csr_matrix(A))
+        self.M, self.C, self.K = conv(model.M), conv(model.C), conv(model.K)
+        self.has_damping = (np.any(self.C) if self.dense else self.C.nnz > 0)
+        self._factors: dict[float, _Condensed] = {}
+        self._mass_solver = None
+        self.stats = StepStats()
+        self.scale = 0.0  # displacement scale for the Newton tolerance, raised as we go
+        kinds = model.contacts.kernels
+        #: March blocks of steps with the fused numba kernel (dense models, anchored or
+        #: linear tangential laws, harmonic loads); otherwise step by step in Python.
+        self.fused = bool(fused and self.dense and isinstance(force, LoadFunction)
+                          and not force.sampled
+                          and model.contacts.law.kind in ("bank_anchor", "linear", "none")
+                          and kinds.normal in ("given", "unilateral", "bilateral"))
+
+    # -- linear algebra per step size ---------------------------------------
+    def snap(self, h: float) -> float:
+        """A cached step size within round-off (1e-9 relative) of ``h``, or ``h``."""
+        for key in self._factors:
+            if abs(h - key) <= 1e-9 * key:
+                return key
+        return float(h)
+
+    def _factor(self, h: float) -> _Condensed:
+        key = float(h)
+        fac = self._factors.get(key)
+        if fac is None:
+            c0 = 1.0 / (self.beta * h * h)
+            S = (1.0 - self.am) * c0 * self.M + (1.0 - self.af) * (
+                (self.gamma / (self.beta * h)) * self.C + self.K)
+            fac = _Condensed(S, self.cmap, self.dense)
+            self.stats.factorizations += 1
+            if len(self._factors) > 64:  # many different sizes: keep the cache bounded
+                self._factors.clear()
+            self._factors[key] = fac
+        return fac
+
+    def _internal(self, x, v, ev: ContactEval):
+        """``C v + K x + B^T phi``."""
+        out = self.K @ x + (self.C @ v if self.has_damping else 0.0)
+        if self.cmap.active:
+            out = out + self.cmap.Bt @ ev.phi
+        return out
+
+    # -- start ----------------------------------------------------------------
+    def start(self, t0: float, x0, v0, state0, a0=None) -> MarchState:
+        """Initial state: contacts evaluated at ``x0`` from ``state0``, and a consistent
+        acceleration ``a0 = M^-1 (f(t0) - C v0 - K x0 - f_c)`` unless given.
+
+        Parameters
+        ----------
+        t0 : float
+        x0, v0 : ndarray, shape (n_dof,)
+        state0 : ndarray
+            Law state of the contacts at ``x0`` (e.g. after a quasi-static
+            load path to ``x0``).
+        a0 : ndarray, shape (n_dof,), optional
+            Initial acceleration (e.g. of a discrete periodic solution).
+        """
+        x0 = np.array(x0, dtype=float)
+        v0 = np.array(v0, dtype=float)
+        ev = self.cmap.evaluate(self.cmap.B @ x0, state0) if self.cmap.active else \
+            empty_eval(state0)
+        if self._mass_solver is None:
+            try:
+                self._mass_solver = _LinearSolver(self.M)
+            except (RuntimeError, ValueError, sla.LinAlgError) as exc:
+                raise ValueError(f"the mass matrix cannot be factorised ({exc}); time "
+                                 "marching needs a non-singular mass matrix") from None
+        if a0 is None:
+            a0 = np.asarray(self._mass_solver.solve(self.force(t0)
+                                                    - self._internal(x0, v0, ev)))
+        a0 = np.array(a0, dtype=float)
+        if not np.all(np.isfinite(a0)):
+            raise ValueError("the initial acceleration is not finite: is the mass matrix "
+                             "singular?")
+        self.scale = max(self.scale, float(np.max(np.abs(self.cmap.B @ x0), initial=0.0)))
+        return MarchState(float(t0), x0, v0, a0, ev)
+
+    # -- one step ---------------------------------------------------------------
+    def predictor(self, s: MarchState, h: float):
+        """Linear prediction ``x_p`` (zero contact force at the new time) of a step.
+
+        Returns
+        -------
+        x_p : ndarray, shape (n_dof,)
+        fac : _Condensed
+        """
+        am, af, g, b = self.am, self.af, self.gamma, self.beta
+        fac = self._factor(h)
+        a_at = -s.v / (b * h) - (0.5 / b - 1.0) * s.a           # a1 at x1 = x0
+        v_at = s.v + h * ((1.0 - g) * s.a + g * a_at)           # v1 at x1 = x0
+        R = self.M @ ((1.0 - am) * a_at + am * s.a) + self.K @ s.x
+        if self.has_damping:
+            R = R + self.C @ ((1.0 - af) * v_at + af * s.v)
+        if self.cmap.active:
+            R = R + af * (self.cmap.Bt @ s.contact.phi)
+        R = R - (1.0 - af) * self.force(s.t + h) - af * self.force(s.t)
+        x_p = s.x - np.asarray(fac.solver.solve(R))
+        return x_p, fac
+
+    def residual(self, s: MarchState, h: float, x1) -> np.ndarray:
+        """Full residual of the step balance at a trial ``x1`` (for tests) [N].
+
+        The contact forces at ``x1`` are evaluated from ``s``'s committed state.
+        """
+        am, af, g, b = self.am, self.af, self.gamma, self.beta
+        a1 = (x1 - s.x - h * s.v) / (b * h * h) - (0.5 / b - 1.0) * s.a
+        v1 = s.v + h * ((1.0 - g) * s.a + g * a1)
+        y1 = self.cmap.B @ x1
+        ev = self.cmap.evaluate(y1, s.contact.state)
+        c, _dc = self.cmap.correction(self.cmap.B @ s.x, s.contact, y1, ev)
+        return (self.M @ ((1.0 - am) * a1 + am * s.a)
+                + (1.0 - af) * (self._internal(x1, v1, ev) - self.force(s.t + h))
+                + af * (self._internal(s.x, s.v, s.contact) - self.force(s.t))
+                + (self.cmap.Bt @ c if self.cmap.active else 0.0))
+
+    def tangent(self, s: MarchState, h: float, x1) -> np.ndarray:
+        """Consistent tangent ``dR/dx1`` of the step at ``x1``, dense (for tests)."""
+        fac = self._factor(h)
+        S = fac.S.toarray() if sp.issparse(fac.S) else np.array(fac.S)
+        y1 = self.cmap.B @ x1
+        ev = self.cmap.evaluate(y1, s.contact.state)
+        _c, dc = self.cmap.correction(self.cmap.B @ s.x, s.contact, y1, ev)
+        B = self.cmap.B.toarray() if sp.issparse(self.cmap.B) else self.cmap.B
+        return S + B.T @ ((1.0 - self.af) * self.cmap.D_matrix(ev) + np.diag(dc)) @ B
+
+    def condensed_residual(self, s: MarchState, h: float, y):
+        """The condensed step equation ``r(y)`` and its tangent ``dr/dy`` (for tests)."""
+        x_p, fac = self.predictor(s, h)
+        coef = 1.0 - self.af
+        ev = self.cmap.evaluate(y, s.contact.state)
+        c, dc = self.cmap.correction(self.cmap.B @ s.x, s.contact, y, ev)
+        r = y - self.cmap.B @ x_p + fac.G @ (coef * ev.phi + c)
+        J = np.eye(self.cmap.n_c) + coef * self.cmap.times_D(fac.G, ev) + fac.G * dc
+        return r, J
+
+    def _attempt(self, s: MarchState, h: float) -> MarchState:
+        af, g, b = self.af, self.gamma, self.beta
+        x_p, fac = self.predictor(s, h)
+        if self.cmap.active:
+            coef = 1.0 - af
+            x_guess = s.x + h * s.v + 0.5 * h * h * s.a
+            B = self.cmap.B
+            y, ev, its, c = condensed_newton(
+                self.cmap, fac.G, coef, B @ x_p, B @ x_guess, s.contact.state,
+                self.newton_tol, self.max_iter, self.scale,
+                prev=(B @ s.x, s.contact) if self.cmap.unilateral else None)
+            self.stats.newton_iterations += its
+            x1 = x_p - fac.Z @ (coef * ev.phi + c)
+        else:
+            x1 = x_p
+            ev = s.contact
+        if not np.all(np.isfinite(x1)):
+            raise NewtonFailure("non-finite displacement")
+        a1 = (x1 - s.x - h * s.v) / (b * h * h) - (0.5 / b - 1.0) * s.a
+        v1 = s.v + h * ((1.0 - g) * s.a + g * a1)
+        return MarchState(s.t + h, x1, v1, a1, ev)
+
+    def _step(self, s: MarchState, t1: float, depth: int) -> MarchState:
+        # steps on a grid differ by round-off only: reuse the factorisation
+        h = self.snap(t1 - s.t)
+        try:
+            out = self._attempt(s, h)
+            self.stats.substeps += 1
+            return MarchState(t1, out.x, out.v, out.a, out.contact)
+        except NewtonFailure as exc:
+            if depth >= self.max_cuts:
+                raise StepFailure(f"step at t = {s.t:.6g} failed after {depth} halvings "
+                                  f"(step {h:.3g}): {exc}") from None
+            self.stats.cuts += 1
+            self.stats.deepest_cut = max(self.stats.deepest_cut, depth + 1)
+            log.debug("t = %.6g: %s; halving the step (level %d)", s.t, exc, depth + 1)
+            mid = self._step(s, s.t + 0.5 * h, depth + 1)
+            return self._step(mid, t1, depth + 1)
+
+    def step(self, s: MarchState, t1: float) -> MarchState:
+        """Advance from ``s`` to time ``t1``, cutting the step if Newton fails.
+
+        The law state is committed (carried in the returned state) only at the
+        end of each converged (sub)step.
+
+        Raises
+        ------
+        StepFailure
+            When the step fails at the smallest allowed size; ``s`` is intact.
+        """
+        if not t1 > s.t:
+            raise ValueError(f"t1 = {t1} must be after t = {s.t}")
+        with single_threaded():  # one-sample kernel calls: no thread-pool launches
+            out = self._step(s, float(t1), 0)
+        self.stats.steps += 1
+        if self.cmap.active:
+            self.scale = max(self.scale, float(np.max(np.abs(out.contact.u))))
+        return out
+
+    def march(self, s: MarchState, times):
+        """Yield the state at each of ``times`` (increasing, after ``s.t``)."""
+        for t1 in times:
+            s = self.step(s, t1)
+            yield s
+
+    def march_block(self, s: MarchState, times):
+        """March from ``s`` (at ``times[0]``) through ``times[1:]``, returning arrays.
+
+        Equal steps are marched by the fused kernel
+        :func:`~jointsim.solvers._transient_kernels.march_dense` when
+        :attr:`fused`; a step whose Newton solve fails there is redone by
+        :meth:`step` (which cuts it) and the kernel resumes after it.
+
+        Parameters
+        ----------
+        s : MarchState
+        times : ndarray, shape (n + 1,)
+
+        Returns
+        -------
+        s : MarchState
+            At ``times[-1]``.
+        x, v : ndarray, shape (n + 1, n_dof)
+        u, f, N : ndarray, shape (n_e, n + 1)
+        """
+        times = np.asarray(times, dtype=float)
+        n1 = times.size
+        ne = self.cmap.n_e
+        x = np.empty((n1, self.model.n_dof))
+        v = np.empty_like(x)
+        u, f, N = (np.zeros((ne, n1)) for _ in range(3))
+
+        def put(j, st):
+            x[j], v[j] = st.x, st.v
+            if ne:
+                u[:, j], f[:, j], N[:, j] = st.contact.u, st.contact.f, st.contact.N
+
+        put(0, s)
+        with single_threaded():
+            s = self._block(s, times, put, x, v, u, f, N)
+        return s, x, v, u, f, N
+
+    def _block(self, s, times, put, x, v, u, f, N):
+        """The loop of :meth:`march_block`: fused kernel, Python steps where it stops."""
+        n1 = times.size
+        j = 0
+        while j < n1 - 1:
+            if self.fused:
+                s, done = self._fused(s, times[j:], x[j:], v[j:], u[:, j:], f[:, j:],
+                                      N[:, j:])
+                j += done
+                if j == n1 - 1:
+                    break
+            s = self.step(s, times[j + 1])
+            j += 1
+            put(j, s)
+        return s
+
+    def _fused(self, s, times, x, v, u, f, N):
+        """Run the fused kernel from ``s`` over ``times``; fill the arrays; return
+        the state reached and the number of steps done."""
+        from . import _transient_kernels as TK
+        h = self.snap(times[1] - times[0])
+        fac = self._factor(h)
+        c = self.model.contacts
+        law = c.law
+        tkind = {"bank_anchor": TK.T_ANCHOR, "linear": TK.T_LINEAR}.get(law.kind, TK.T_NONE)
+        nkind = {"given": TK.N_GIVEN, "unilateral": TK.N_UNILATERAL,
+                 "bilateral": TK.N_BILATERAL}[c.kernels.normal]
+        if not hasattr(fac, "Sinv"):
+            fac.Sinv = np.ascontiguousarray(fac.solver.inv)
+        state = np.ascontiguousarray(s.contact.state, dtype=float)
+        if state.ndim != 2 or state.shape[0] != law.n_elements:
+            state = np.zeros((law.n_elements, 0))
+        B = np.ascontiguousarray(self.cmap.B, dtype=float)
+        done, its, X, V, A, PHI, U, F, NN, st = TK.march_dense(
+            times, h, s.x, s.v, s.a, np.ascontiguousarray(s.contact.phi, dtype=float), state,
+            self.M, self.C, self.K, fac.Sinv, B, np.ascontiguousarray(self.cmap.Bt),
+            np.ascontiguousarray(fac.Z), np.ascontiguousarray(fac.G),
+            self.am, self.af, self.gamma, self.beta, float(self.force.omega),
+            self.force.harmonic_rows, np.ascontiguousarray(self.force.coefficients),
+            tkind, nkind, np.ascontiguousarray(law.k), np.ascontiguousarray(law.g),
+            np.ascontiguousarray(c.gap0, dtype=float), np.ascontiguousarray(c.kn, dtype=float),
+            np.ascontiguousarray(self.cmap.N0, dtype=float), self.newton_tol, self.max_iter,
+            self.scale)
+        self.stats.steps += done
+        self.stats.substeps += done
+        self.stats.newton_iterations += its
+        if done == 0:
+            return s, 0
+        x[1:done + 1], v[1:done + 1] = X[1:done + 1], V[1:done + 1]
+        if self.cmap.n_e:
+            u[:, 1:done + 1] = U[:, 1:done + 1]
+            f[:, 1:done + 1] = F[:, 1:done + 1]
+            N[:, 1:done + 1] = NN[:, 1:done + 1]
+            self.scale = max(self.scale, float(np.max(np.abs(U[:, :done + 1]))))
+        e = np.zeros(self.cmap.n_e)
+        ev = ContactEval(PHI[done].copy(), e, e, e, st.copy() if law.kind != "none"
+                         else s.contact.state, U[:, done].copy(), F[:, done].copy(),
+                         NN[:, done].copy())
+        return MarchState(float(times[done]), X[done].copy(), V[done].copy(),
+                          A[done].copy(), ev), done
+
+
+# --------------------------------------------------------------------------
+# Statics and modes
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class StaticState:
+    """A quasi-static equilibrium ``K x + f_c(x) = f``.
+
+    Attributes
+    ----------
+    x : ndarray, shape (n_dof,)
+        Displacement [m].
+    contact : ContactEval
+        Contact forces; ``contact.state`` is the law state to start from.
+    iterations : int
+        Newton iterations over all increments.
+    """
+
+    x: np.ndarray
+    contact: ContactEval
+    iterations: int
+
+
+def static_equilibrium(model, f, n_increments: int = 10, frictionless: bool = False,
+                       tol: float = 1e-10, max_iter: int = 50, start=None) -> StaticState:
+    """Load the structure quasi-statically from rest to the constant force ``f``.
+
+    The force is applied in ``n_increments`` equal increments; the contact
+    laws are marched along the path (history matters), with Newton condensed
+    on the contact coordinates at each increment.  With ``start``, the path
+    starts from a known state instead of rest: the force ramps from the one
+    that balances that state (``K x0 + f_c(x0)``) to ``f``.
+
+    Parameters
+    ----------
+    model : jointsim.model.StructuralModel
+    f : ndarray, shape (n_dof,)
+        Constant external force (preload, static parts of the loads) [N].
+    n_increments : int
+    frictionless : bool
+        No tangential force during the load path (``preload_tangential =
+        "frictionless"``); the sliders are then set at rest at the final slip.
+    tol, max_iter : float, int
+        Newton settings.
+    start : tuple, optional
+        ``(x0, state0)``: displacement [m] and law state to start from (for
+        instance the preload state of an FE model, ``model.extra["x0"]``);
+        ``frictionless`` is then ignored.
+
+    Returns
+    -------
+    StaticState
+
+    Raises
+    ------
+    NewtonFailure
+        If an increment does not converge.
+    """
+    f = np.asarray(f, dtype=float)
+    n = model.n_dof
+    dense = n <= DENSE_MAX_DOF
+    if start is not None:
+        frictionless = False
+    cmap = ContactMap(model.contacts, friction=not frictionless, dense=dense)
+    K = np.asarray(sp.csr_matrix(model.K).toarray()) if dense else sp.csr_matrix(model.K)
+    fac = _Condensed(K, cmap, dense)
+    if start is None:
+        N_start = cmap.normal(np.zeros(cmap.n_c))[0] if cmap.active else np.zeros(0)
+        state = model.contacts.law.rest_state(N_start)
+        y = np.zeros(cmap.n_c)
+        f0 = np.zeros(n)
+    else:
+        x0, state = np.asarray(start[0], dtype=float), start[1]
+        y = cmap.B @ x0
+        f0 = np.asarray(K @ x0).ravel()
+        if cmap.active:
+            ev0 = cmap.evaluate(y, state)
+            state = ev0.state
+            f0 = f0 + cmap.Bt @ ev0.phi
+    total = 0
+    # without a change of force one increment suffices (an initial interference,
+    # gap0 < 0, is still resolved by the Newton solve)
+    n_inc = n_increments if np.any(f - f0) else 1
+    for i in range(1, n_inc + 1):
+        x_lin = np.asarray(fac.solver.solve(f0 + (f - f0) * (i / n_inc)))
+        if cmap.active:
+            y_p = cmap.B @ x_lin
+            y, ev, its, _c = condensed_newton(cmap, fac.G, 1.0, y_p, y, state, tol, max_iter)
+            total += its
+            state = ev.state
+            x = x_lin - fac.Z @ ev.phi
+        else:
+            x, ev = x_lin, None
+    if not cmap.active:
+        return StaticState(x, empty_eval(state), total)
+    if frictionless:
+        # sliders rest, unloaded, at the preloaded slip
+        full = ContactMap(model.contacts)
+        state = full.state_at(ev.u, ev.N)
+        ev = full.evaluate(cmap.B @ x, state)
+    return StaticState(x, ev, total)
+
+
+def stuck_modes(model, contact: ContactEval, n_modes: int):
+    """Linear modes of the structure with its contacts linearised (stuck).
+
+    The contact tangent ``D`` at ``contact`` is added to ``K``; with coupled
+    normal load ``D`` may be non-symmetric (for the scaled law), and its
+    symmetric part is used.
+
+    Parameters
+    ----------
+    model : jointsim.model.StructuralModel
+    contact : ContactEval
+        Contact state at the static equilibrium.
+    n_modes : int
+        Number of lowest modes wanted.
+
+    Returns
+    -------
+    omega : ndarray, shape (n_modes,)
+        Angular frequencies [rad/s].
+    phi : ndarray, shape (n_dof, n_modes)
+        Mass-normalised mode shapes (largest entry positive).
+    """
+    cmap = ContactMap(model.contacts)
+    K = sp.csr_matrix(model.K)
+    if cmap.active:
+        D = cmap.D_matrix(contact)
+        D = 0.5 * (D + D.T)
+        K = K + cmap.Bt @ sp.csr_matrix(D) @ cmap.B
+    M = sp.csr_matrix(model.M)
+    n = model.n_dof
+    n_modes = min(n_modes, n)
+    if n <= 2000:
+        w2, phi = sla.eigh(K.toarray(), M.toarray(), subset_by_index=(0, n_modes - 1))
+    else:
+        w2, phi = spla.eigsh(sp.csc_matrix(K), k=n_modes, M=sp.csc_matrix(M), sigma=0.0,
+                             which="LM")
+        order = np.argsort(w2)
+        w2, phi = w2[order], phi[:, order]
+    phi = phi / np.sqrt(np.einsum("ij,ij->j", phi, M @ phi))
+    big = np.argmax(np.abs(phi), axis=0)
+    phi = phi * np.sign(phi[big, np.arange(phi.shape[1])])
+    return np.sqrt(np.maximum(w2, 0.0)), phi
+
+
+# --------------------------------------------------------------------------
+# External force
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class LoadFunction:
+    """External force ``f(t) = f_static + sum_loads`` as a callable.
+
+    Harmonic load signals are kept as coefficients and evaluated as
+    ``F0 + sum_h (Fc_h cos h w t + Fs_h sin h w t)``; file and clipped signals
+    are sampled (and may not be scaled).
+
+    Parameters
+    ----------
+    model : jointsim.model.StructuralModel
+    omega : float
+        Base angular frequency [rad/s]; 0 keeps only the static parts.
+    scale : float
+        Multiplier of the harmonic parts of the loads.
+    base_dir : Path, optional
+        Folder of file signals.
+    """
+
+    model: object
+    omega: float
+    scale: float = 1.0
+    base_dir: object = None
+    _coef: np.ndarray = field(init=False, repr=False)
+    _h: np.ndarray = field(init=False, repr=False)
+    _sampled: tuple = field(init=False, repr=False)
+
+    def __post_init__(self):
+        from ..signals import coefficient_harmonics
+        m = self.model
+        harmonic, sampled = [], []
+        for dof, sig in zip(m.load_dofs, m.load_signals):
+            (sampled if (sig.file is not None or sig.clip_at_zero) else harmonic).append(
+                (int(dof), sig))
+        hmax = max((s.max_harmonic for _d, s in harmonic), default=0)
+        hs = tuple(range(hmax + 1))
+        ch = coefficient_harmonics(hs)
+        coef = np.zeros((ch.size, m.n_dof))
+        coef[0] = m.f_static
+        for dof, sig in harmonic:
+            coef[0, dof] += sig.constant
+            for hh in sig.harmonics:
+                i = 2 * hh.h - 1
+                coef[i, dof] += self.scale * hh.cos
+                coef[i + 1, dof] += self.scale * hh.sin
+        if self.omega == 0.0:
+            coef = coef[:1]
+            ch = ch[:1]
+        if sampled and self.scale != 1.0 and self.omega > 0.0:
+            raise NotImplementedError("force_scale != 1 with a file or clipped load signal: "
+                                      "scale the signal itself in the scene")
+        if sampled and self.omega == 0.0:
+            raise NotImplementedError("free decay with a file or clipped load signal: only "
+                                      "constant loads can be held during a free decay")
+        object.__setattr__(self, "_coef", coef)
+        object.__setattr__(self, "_h", ch)
+        object.__setattr__(self, "_sampled", tuple(sampled))
+
+    @property
+    def harmonic_rows(self) -> np.ndarray:
+        """Harmonic number of each row of :attr:`coefficients`, shape (n_coeff,)."""
+        return self._h
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        """Force coefficients ``[0, 1c, 1s, ...]`` [N], shape (n_coeff, n_dof)."""
+        return self._coef
+
+    @property
+    def sampled(self) -> bool:
+        """True when some load is a file or clipped signal (sampled, not harmonic)."""
+        return bool(self._sampled)
+
+    def static(self) -> np.ndarray:
+        """The constant part ``f_static + load constants`` [N], shape (n_dof,)."""
+        return self._coef[0].copy()
+
+    def __call__(self, t: float) -> np.ndarray:
+        wt = self.omega * t
+        basis = np.empty(self._h.size)
+        basis[0] = 1.0
+        if self._h.size > 1:
+            hw = self._h[1::2] * wt
+            basis[1::2] = np.cos(hw)
+            basis[2::2] = np.sin(hw)
+        out = basis @ self._coef
+        if self._sampled:
+            from ..signals import sample
+            for dof, sig in self._sampled:
+                out[dof] += float(sample(sig, np.array([t]), self.omega, self.base_dir)[0])
+        return out
