@@ -49,8 +49,8 @@ def run_prescribed_scene(scene, writer: ResultWriter) -> None:
                  "initial loading curve f_bb(x; mean N)")
     u, f, N = res.last_period()
     report = check_loops(u, f, N, law, scene.analysis.masing.tol)
-    write_loops(writer, 0, u, f, N, report, units)
-    writer.h5["loops"].attrs["omega"] = m.omega
+    write_loops(writer, 0, u, f, N, report, units, prefix="prescribed")
+    writer.h5["prescribed/loops"].attrs["omega"] = m.omega
     log.info("prescribed: dev_manifold = %.3e, dev_masing = %.3e (%s)",
              report.dev_manifold.max(), report.dev_masing.max(), res.convergence.message)
     if not res.convergence.success:

@@ -124,11 +124,10 @@ class LoopSets:
 
 def loop_groups(h5: h5py.File) -> list[str]:
     """Prefixes under which loops are stored (``""`` for the root)."""
-    found = []
-    for prefix in ("epmc", "hbm", "transient", "prescribed", ""):
-        p = f"{prefix}/" if prefix else ""
-        if f"{p}loops/u" in h5 and f"{p}masing/dev_manifold" in h5:
-            found.append(prefix)
+    found = [prefix for prefix in ("epmc", "hbm", "transient", "prescribed")
+             if f"{prefix}/loops/u" in h5 and f"{prefix}/masing/dev_manifold" in h5]
+    if not found and "loops/u" in h5 and "masing/dev_manifold" in h5:
+        found.append("")  # files written before loops had their own groups
     return found
 
 

@@ -195,8 +195,13 @@ class ResultWriter:
 
 
 def write_loops(writer: ResultWriter, point: int, u, f, N, report, units: str,
-                prefix: str = "") -> None:
+                prefix: str) -> None:
     """Append one solution point's element loops and their Masing check.
+
+    Every analysis keeps its loops under its own group (``/<prefix>/loops``,
+    ``/<prefix>/masing``).  The root ``/loops`` and ``/masing`` of the public
+    contract are soft links to the first analysis that wrote loops in the
+    file, so a file with one loop-producing analysis reads as before.
 
     Parameters
     ----------
@@ -209,9 +214,7 @@ def write_loops(writer: ResultWriter, point: int, u, f, N, report, units: str,
     units : str
         Unit system of the model.
     prefix : str
-        Group the ``loops`` and ``masing`` groups go under (default: the root).
-        An analysis whose loops must not mix with another's in ``/loops``
-        (time marching beside harmonic balance) writes them under its own group.
+        The analysis group (``prescribed``, ``hbm``, ``epmc``, ``transient``).
     """
     d, F = unit("displacement", units), unit("force", units)
     p = prefix.strip("/") + "/" if prefix.strip("/") else ""
@@ -236,6 +239,10 @@ def write_loops(writer: ResultWriter, point: int, u, f, N, report, units: str,
     writer.append(f"{p}masing/f_manifold", report.f_manifold, F, "manifold prediction")
     writer.append(f"{p}masing/f_masing", report.f_masing, F, "classical Masing prediction")
     writer.h5[f"{p}masing"].attrs["tol"] = report.tol
+    if p and "loops" not in writer.h5:
+        writer.h5["loops"] = h5py.SoftLink(f"/{p}loops")
+        writer.h5["masing"] = h5py.SoftLink(f"/{p}masing")
+        writer.h5.attrs["loops_of"] = prefix.strip("/")
 
 
 def read_attrs(path) -> dict:

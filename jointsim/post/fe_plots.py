@@ -14,8 +14,9 @@ log = logging.getLogger(__name__)
 
 
 def pressure_plot(h5, outdir) -> list[Path]:
-    """Interface pressure of the preload state along the interface."""
-    if "static/pressure" not in h5 or "contacts/position" not in h5:
+    """Interface pressure of the preload state along the interface (FE and ROM models)."""
+    if "static/pressure" not in h5 or "contacts/position" not in h5 or \
+            h5.attrs.get("model_kind") not in ("fe", "rom"):
         return []
     plt = pyplot()
     pos = h5["contacts/position"][()]

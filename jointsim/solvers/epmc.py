@@ -263,8 +263,8 @@ def run_epmc_analysis(scene, model, writer) -> None:
                 (not masing.points or p in masing.points):
             u = system.slips(X)
             report = check_loops(u, ev.aft.f, ev.aft.N, law, masing.tol)
-            write_loops(writer, p, u, ev.aft.f, ev.aft.N, report, units)
-            writer.h5["loops"].attrs["analysis"] = "epmc"
+            write_loops(writer, p, u, ev.aft.f, ev.aft.N, report, units, prefix="epmc")
+            writer.h5["epmc/loops"].attrs["analysis"] = "epmc"
 
     br = continue_branch(ep.fun, y0, lam1, scale=scale, rscale=rscale, step=h0,
                          step_min=a.step_min, step_max=a.step_max, max_points=max_pts,

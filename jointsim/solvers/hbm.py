@@ -912,8 +912,8 @@ def run_hbm_analysis(scene, model, writer) -> None:
             if aft is not None and (not masing_points or p in masing_points):
                 u = system.slips(X)
                 report = check_loops(u, aft.f, aft.N, law, scene.analysis.masing.tol)
-                write_loops(writer, p, u, aft.f, aft.N, report, units)
-                writer.h5["loops"].attrs["analysis"] = "hbm"
+                write_loops(writer, p, u, aft.f, aft.N, report, units, prefix="hbm")
+                writer.h5["hbm/loops"].attrs["analysis"] = "hbm"
 
         br = continue_branch(
             fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,

@@ -969,11 +969,6 @@ class _History:
         self.blocks.clear()
 
 
-def _loop_prefix(writer) -> str:
-    """Where the loops go: ``/loops`` unless another analysis has written there."""
-    return "transient" if "loops" in writer.h5 else ""
-
-
 def run_transient(scene, model, writer) -> None:
     """The ``transient`` analysis of a scene: march, extract, write ``/transient``.
 
@@ -1064,12 +1059,11 @@ def _run_steady(scene, model, writer, tr, history) -> Convergence:
         last = res.last
         u, f, N = last.u[:, :n], last.f[:, :n], last.N[:, :n]
         report = check_loops(u, f, N, model.contacts.law, scene.analysis.masing.tol)
-        prefix = _loop_prefix(writer)
-        write_loops(writer, 0, u, f, N, report, units, prefix=prefix)
-        loops = writer.h5[f"{prefix}/loops" if prefix else "loops"]
+        write_loops(writer, 0, u, f, N, report, units, prefix="transient")
+        loops = writer.h5["transient/loops"]
         loops.attrs["omega"] = res.omega
         loops.attrs["source"] = "transient"
-        g.attrs["loops_group"] = f"/{prefix}/loops" if prefix else "/loops"
+        g.attrs["loops_group"] = "/transient/loops"
         log.info("transient: dev_manifold max %.3e, dev_masing max %.3e",
                  report.dev_manifold.max(), report.dev_masing.max())
     if "hbm" in writer.h5:
