@@ -299,8 +299,9 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
     -------
     StructuralModel
         ``extra`` gains ``x0`` (preload displacement, m), ``preload``
-        (:class:`~jointsim.solvers.static.StaticResult`), ``K_stuck``
-        (tangent of the preloaded stuck joint, dense), ``rom`` and timings.
+        (:class:`~jointsim.solvers.static.StaticResult`), ``rom`` and timings.
+        The tangent of the preloaded stuck joint is
+        :func:`jointsim.solvers.static.stuck_linearisation` of the model.
     """
     from .solvers.static import solve_static, stuck_mode, tangent_stiffness
     t0 = time.perf_counter()
@@ -356,7 +357,7 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
                                  f"must be < {n} (the reduced model has {n} DOFs)")
             load_dofs.append(ld.dof)
     info = dict(extra or {})
-    info.update(x0=x0, preload=pre, K_stuck=K_stuck.toarray(), rom=rom,
+    info.update(x0=x0, preload=pre, rom=rom,
                 f_clamp=f_clamp, K_bolt=K_bolt, preload_time_s=t_pre)
     log.info("preload: sum N0 = %.6g N over %d/%d elements in contact (%s)",
              N0.sum(), int(np.sum(N0 > 0)), ne, pre.convergence.message)

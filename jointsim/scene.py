@@ -324,9 +324,10 @@ class ModesAnalysis:
     """Linear modes of the preloaded joint with a stuck interface."""
 
     n_modes: int = spec(10, doc="linear modes of the preloaded, stuck joint", ge=1)
-    suspension_hz: float = spec(20.0, doc="modes below this frequency are rigid-body "
-                                          "(suspension) modes, not elastic ones", unit="Hz",
-                                ge=0)
+    suspension_hz: Optional[float] = spec(
+        None, doc="modes below this frequency are rigid-body (suspension) modes, not elastic "
+                  "ones; default: detected (FE: rigid-body share of the modal mass; ROM: "
+                  "spectral gap; lumped: none)", unit="Hz", ge=0)
     full_model: bool = spec(False, doc="also solve the unreduced FE model and compare "
                                        "(FE models)")
     monolithic: bool = spec(False, doc="also solve the monolithic beam: the same mesh with "
@@ -368,9 +369,11 @@ class EPMCAnalysis:
     the structure with every contact at its rest tangent (stuck).
     """
 
-    mode: int = spec(1, doc="linear mode index followed (1-based, elastic modes)", ge=1)
-    rigid_cutoff_hz: float = spec(0.0, doc="modes below this frequency count as rigid-body "
-                                           "modes and are skipped by `mode`", unit="Hz", ge=0)
+    mode: int = spec(1, doc="elastic mode followed (1-based; rigid-body/suspension modes "
+                            "are not counted)", ge=1)
+    rigid_cutoff_hz: Optional[float] = spec(
+        None, doc="modes below this frequency count as rigid-body modes; default: detected "
+                  "like analysis.modes.suspension_hz", unit="Hz", ge=0)
     harmonics: tuple[int, ...] = spec((0, 1, 2, 3, 4, 5, 6, 7), doc="harmonics kept", ge=0)
     n_samples: int = spec(128, doc="AFT time samples per period", ge=4)
     log10_amplitude_start: float = spec(doc="log10 of the starting modal amplitude")

@@ -13,95 +13,43 @@ amplitude and the phase:
 
 * **amplitude** -- the modal amplitude of the fundamental harmonic,
   ``a = phi^T M (X_1c - i X_1s)``, with ``phi`` the mass-normalised linear mode
-  of the structure with every contact at its rest tangent (the stuck joint);
-  the phase is fixed by making it real: ``Re = a``, ``Im = 0``.  For a single
-  DOF with ``m = 1`` this is the amplitude of the cosine of ``x``.
-* **scaling** -- the unknowns are the contact coefficients divided by ``a``
-  (the shape), so that a branch over several decades of amplitude stays well
-  scaled; the residual is divided by ``a`` too.  The continuation parameter
-  is ``log10(a)``.
+  of the structure linearised at its static state ``x0`` with the joint stuck
+  (:func:`jointsim.solvers.static.stuck_linearisation`; for the lap joint:
+  the preloaded joint, the modes of ``[analysis.modes]``); the phase is fixed
+  by making it real: ``Re = a``, ``Im = 0``.  For a single DOF with ``m = 1``
+  this is the amplitude of the cosine of ``x``.  ``mode`` counts elastic
+  modes only (:func:`jointsim.solvers.modes.elastic_mode`).
+* **scaling** -- the unknowns are the contact coefficients measured from the
+  static state and divided by ``a``, ``z = z0 + a zh`` with ``z0`` the
+  contact coordinates of ``x0`` (harmonic 0), so that a branch over several
+  decades of amplitude stays well scaled and starts at the static state; the
+  residual is divided by ``a`` too.  The continuation parameter is
+  ``log10(a)``.
 
 At small amplitude the mode starts from the linear one (``omega`` = its
-frequency, ``xi = phi^T C phi``).
+frequency, ``xi = phi^T C phi``, ``zh`` = the contact coordinates of
+``phi`` in the cosine of harmonic 1).
 """
 from __future__ import annotations
 
 import logging
 
 import numpy as np
-import scipy.linalg as sla
 
 from .hbm import HBMSystem, _dense
+from .modes import elastic_mode
 
 log = logging.getLogger(__name__)
 
 LN10 = np.log(10.0)
 
 
-def stuck_stiffness(model) -> np.ndarray:
-    """Stiffness of the structure with every contact at its rest tangent.
-
-    ``K + Tt^T diag(kt) Tt`` (friction and stuck laws), plus
-    ``Tn^T diag(kn A) Tn`` for coupled elements closed at rest (``gap0 < 0``,
-    or every element when the normal spring is bilateral).
-
-    Returns
-    -------
-    ndarray, shape (n_dof, n_dof) [N/m]
-    """
-    c = model.contacts
-    K = _dense(model.K).copy()
-    if c.n_elements == 0:
-        return K
-    if c.law.kind != "none":
-        Tt = _dense(c.Tt)
-        K += Tt.T @ (c.law.kt[:, None] * Tt)
-    if c.kernels.coupled:
-        Tn = _dense(c.Tn)
-        closed = (c.gap0 < 0.0) | (c.kernels.normal == "bilateral")
-        K += Tn.T @ ((c.kn * closed)[:, None] * Tn)
-    return K
-
-
-def linear_mode(model, mode: int, rigid_cutoff_hz: float = 0.0):
-    """Mass-normalised mode of the stuck structure.
-
-    Parameters
-    ----------
-    model : StructuralModel
-    mode : int
-        1-based index among the modes at or above ``rigid_cutoff_hz``.
-    rigid_cutoff_hz : float
-        Modes below this frequency are skipped (rigid-body modes).
-
-    Returns
-    -------
-    phi : ndarray, shape (n_dof,)
-    omega : float
-        Its angular frequency [rad/s].
-    """
-    K = stuck_stiffness(model)
-    M = _dense(model.M)
-    lam, Phi = sla.eigh(0.5 * (K + K.T), 0.5 * (M + M.T))
-    w = np.sqrt(np.maximum(lam, 0.0))
-    keep = np.flatnonzero(w / (2 * np.pi) >= rigid_cutoff_hz)
-    if mode > keep.size:
-        raise ValueError(f"analysis.epmc.mode = {mode}, but only {keep.size} modes lie above "
-                         f"rigid_cutoff_hz = {rigid_cutoff_hz:g}")
-    i = keep[mode - 1]
-    phi = Phi[:, i]
-    j = int(np.argmax(np.abs(phi)))
-    if phi[j] < 0:
-        phi = -phi
-    return phi, float(w[i])
-
-
 class EPMCSystem:
     """EPMC equations in amplitude-normalised unknowns.
 
-    Unknowns ``y = (zh, omega, xi, lam)`` with ``z = 10^lam zh`` the contact
-    coefficients; equations ``R(z, omega, xi) / a`` and the amplitude and phase
-    conditions.
+    Unknowns ``y = (zh, omega, xi, lam)`` with ``z = z0 + 10^lam zh`` the
+    contact coefficients (``z0``: the static state, harmonic 0); equations
+    ``R(z, omega, xi) / a`` and the amplitude and phase conditions.
 
     Parameters
     ----------
@@ -116,6 +64,7 @@ class EPMCSystem:
         if 1 not in system.basis.harmonics:
             raise ValueError("EPMC needs harmonic 1")
         self.s = system
+        self.z0 = system.static_coordinates()
         self.phi = np.asarray(phi, dtype=float)
         self.F = F
         lin = system.lin
@@ -151,7 +100,7 @@ class EPMCSystem:
         nz = s.n_z
         zh, omega, xi, lam = y[:nz], y[nz], y[nz + 1], y[nz + 2]
         a = 10.0 ** lam
-        ev = s.evaluate(a * zh, omega, self.F, xi=xi, wrt=("omega", "xi"))
+        ev = s.evaluate(self.z0 + a * zh, omega, self.F, xi=xi, wrt=("omega", "xi"))
         Rt = ev.R / a
         Q = zh.reshape(s.n_c, s.n_r)
         q1, ell, d = self._modal(Q, omega, xi, True)
@@ -196,7 +145,8 @@ def run_epmc_analysis(scene, model, writer) -> None:
     a = scene.analysis.epmc
     units = model.units
     system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods)
-    phi, w0 = linear_mode(model, a.mode, a.rigid_cutoff_hz)
+    em = elastic_mode(model, a.mode, a.rigid_cutoff_hz)
+    phi, w0 = em.phi, em.omega
     F = system.force_coefficients(0.0)
     ep = EPMCSystem(system, phi, F)
     C = _dense(model.C)
@@ -205,12 +155,15 @@ def run_epmc_analysis(scene, model, writer) -> None:
     amp_unit = "m kg^0.5" if units == "SI" else "length mass^0.5"
     g = writer.group("epmc", mode=a.mode, linear_frequency_hz=w0 / (2 * np.pi),
                      linear_damping_ratio=xi0 / (2 * w0), n_samples=a.n_samples,
+                     mode_index=em.index, n_rigid_below=em.n_rigid,
                      amplitude_definition="modal amplitude of the fundamental harmonic, "
-                     "|phi^T M (X_1c - i X_1s)|, phi the mass-normalised stuck mode")
+                     "|phi^T M (X_1c - i X_1s)|, phi the mass-normalised mode of the "
+                     "structure linearised at its static state with the joint stuck")
     if "epmc/harmonics" not in writer.h5:
         writer.write("epmc/harmonics", np.array(a.harmonics, dtype=np.int64), "1",
                      "harmonics kept; coefficient order [0, 1c, 1s, ...]")
-        writer.write("epmc/mode_shape", phi, "1", "mass-normalised stuck mode (phi^T M phi = 1)")
+        writer.write("epmc/mode_shape", phi, "1/sqrt(kg)" if units == "SI" else "1",
+                     "mass-normalised stuck mode at the static state (phi^T M phi = 1)")
     if "contacts/area" not in writer.h5 and model.contacts.n_elements:
         writer.write("contacts/area", model.contacts.area, "m^2" if units == "SI" else "length^2",
                      "contact area of each element")
@@ -243,7 +196,7 @@ def run_epmc_analysis(scene, model, writer) -> None:
             return
         omega, xi, lam = float(y[nz]), float(y[nz + 1]), float(y[nz + 2])
         amp = 10.0 ** lam
-        X = system.reconstruct(amp * y[:nz], omega, F, xi=xi)
+        X = system.reconstruct(ep.z0 + amp * y[:nz], omega, F, xi=xi)
         p = writer.rows("epmc/omega")
         writer.append("epmc/amplitude", amp, amp_unit, "modal amplitude of the fundamental")
         writer.append("epmc/omega", omega, unit("angular_frequency", units), "angular frequency")

@@ -463,6 +463,26 @@ class HBMSystem:
                   "coefficients (%s condensation)", model.n_dof, nr, self.n_c,
                   "modal" if self.lin.modal else "direct")
 
+    # -- static state ----------------------------------------------------------
+    def static_coordinates(self):
+        """``z`` of the static state ``x0``: ``T x0`` in harmonic 0, zero elsewhere.
+
+        ``x0`` is :func:`jointsim.solvers.static.stuck_linearisation`'s (for
+        the lap joint the bolt preload).  It solves the harmonic-0 balance at
+        vanishing amplitude, so it is where every branch starts; without
+        harmonic 0 the result is zero.
+
+        Returns
+        -------
+        ndarray, shape (n_z,) [m]
+        """
+        z = np.zeros((self.n_c, self.n_r))
+        if 0 in self.basis.harmonics and self.n_r:
+            from .static import stuck_linearisation
+            x0 = stuck_linearisation(self.model).x0
+            z[self.basis.index[0][0]] = self.T @ x0
+        return z.ravel()
+
     # -- forcing -------------------------------------------------------------
     def force_coefficients(self, scale: float = 1.0):
         """External force coefficients, shape (n_c, n_dof) [N] (see StructuralModel)."""
@@ -683,7 +703,8 @@ def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
     F : ndarray, shape (n_c, n_dof)
         Force coefficients [N].
     z0 : ndarray, optional
-        Start (default: zero, whose first step is the stuck linear response).
+        Start (default: the static state, :meth:`HBMSystem.static_coordinates`,
+        whose first step is the stuck linear response).
     tol : float
         Tolerance on ``max|R| / rscale``.
     rscale : float, optional
@@ -692,7 +713,7 @@ def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
     from ..results import NOT_CONVERGED, SUCCESS, Convergence
     if rscale is None:
         rscale = max(float(np.abs(F).max(initial=0.0)), 1e-300)
-    z0 = np.zeros(system.n_z) if z0 is None else np.asarray(z0, dtype=float)
+    z0 = system.static_coordinates() if z0 is None else np.asarray(z0, dtype=float)
 
     def fun(z):
         ev = system.evaluate(z, omega, F, wrt=())
@@ -733,10 +754,10 @@ def harmonic_amplitude(basis: HarmonicBasis, X, h: int = 1):
 def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: int = 9):
     """Variable and residual scales of an FRC from the stuck linear response.
 
-    One Newton step from ``z = 0`` (the response with every element at its
-    rest tangent) at ``n`` frequencies of the range gives a displacement
-    scale ``q_ref = max |z|``; the residual scale is the largest condensed
-    force ``max |R(0)|``.
+    One Newton step from the static state ``z0`` (the response of the joint
+    stuck at its static state) at ``n`` frequencies of the range gives a
+    displacement scale ``q_ref = max |z|``; the residual scale is the largest
+    condensed force ``max |R(z0)|``.
 
     Returns
     -------
@@ -745,13 +766,13 @@ def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: in
     rscale : float
     """
     qref, rref = 0.0, 0.0
-    z0 = np.zeros(system.n_z)
+    z0 = system.static_coordinates()
     for w in np.linspace(omega_start, omega_end, n):
         ev = system.evaluate(z0, w, F, wrt=())
         rref = max(rref, float(np.abs(ev.R).max(initial=0.0)))
         if system.n_z:
             try:
-                z = np.linalg.solve(ev.J, -ev.R)
+                z = z0 + np.linalg.solve(ev.J, -ev.R)
                 qref = max(qref, float(np.abs(z).max()))
             except np.linalg.LinAlgError:
                 pass
@@ -874,7 +895,7 @@ def run_hbm_analysis(scene, model, writer) -> None:
             solve_first, max_pts = False, a.max_points - resume_rows.size + 1
             log.info("hbm branch %d: resuming from point %d (omega = %g)", ib, last, y0[-1])
         else:
-            y0 = np.append(np.zeros(system.n_z), a.omega_start)
+            y0 = np.append(system.static_coordinates(), a.omega_start)
             t0, h0, solve_first, max_pts = None, a.step, True, a.max_points
 
         def fun(y, F=F):
