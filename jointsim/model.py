@@ -211,12 +211,24 @@ def make_contact_set(scene, Tt, Tn, gap0, N0, area, position) -> ContactSet:
                       position=np.asarray(position, dtype=float))
 
 
-def with_fixed_normal_springs(K, contacts: ContactSet):
-    """``K`` plus the linear normal springs used when the normal load is fixed."""
+def with_fixed_normal_springs(K, contacts: ContactSet, mask=None):
+    """``K`` plus the linear normal springs used when the normal load is fixed.
+
+    Parameters
+    ----------
+    K : sparse matrix, shape (n_dof, n_dof)
+    contacts : ContactSet
+    mask : ndarray of bool, shape (n_e,), optional
+        Elements that get a spring (default: all).  Models built from a
+        preload pass ``N0 > 0``: an element open at the preload keeps
+        ``N = 0`` and has no normal stiffness, so the fixed-load joint is
+        the coupled joint linearised at the preload.
+    """
     if contacts.kernels.coupled or contacts.Tn.nnz == 0:
         return sp.csr_matrix(K)
     Tn = contacts.Tn
-    return sp.csr_matrix(K + Tn.T @ sp.diags(contacts.kn) @ Tn)
+    kn = contacts.kn if mask is None else np.where(mask, contacts.kn, 0.0)
+    return sp.csr_matrix(K + Tn.T @ sp.diags(kn) @ Tn)
 
 
 def build_lumped(scene) -> StructuralModel:

@@ -279,9 +279,10 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
     ``N = kn A max(0, -(gap0 + Tn x0))``), and
     ``f_static = f_ext + f_clamp + K_bolt x0`` so that ``x0`` is the
     equilibrium of ``K x + f_c(x) = f_static``.  With a fixed normal load the
-    linear normal springs go into ``K`` and ``f_static`` absorbs their force
-    at ``x0`` (``Tn^T (N0 + kn A (gap0 + Tn x0))``), so ``x0`` stays the
-    equilibrium.  Damping comes from ``[damping]`` on the preloaded, stuck
+    linear normal springs of the elements closed at the preload (``N0 > 0``)
+    go into ``K`` and ``f_static`` absorbs their force at ``x0``
+    (``Tn^T (N0 + kn A (gap0 + Tn x0))``), so ``x0`` stays the equilibrium
+    and the linearised joint is the same as with a coupled normal load.  Damping comes from ``[damping]`` on the preloaded, stuck
     tangent stiffness (plus ``rom.C``).
 
     Parameters
@@ -334,9 +335,14 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
     if preload_tangential == "stuck" and np.any(slip & (N0 > 0)):
         log.warning("preload: %d of %d contact elements carry a tangential force above "
                     "mu N0 in the stuck preload state", int(np.sum(slip & (N0 > 0))), ne)
-    K_model = with_fixed_normal_springs(K, contacts)
+    # with a fixed normal load, springs only where the preload closed the
+    # interface: the open lap ends keep N = 0 and no normal stiffness, so the
+    # fixed-load joint is the coupled joint linearised at the preload
+    closed = N0 > 0.0
+    K_model = with_fixed_normal_springs(K, contacts, closed)
     if not contacts.kernels.coupled:
-        f_static = f_static + Tn.T @ (N0 + contacts.kn * (contacts.gap0 + Tn @ x0))
+        kn_closed = np.where(closed, contacts.kn, 0.0)
+        f_static = f_static + Tn.T @ (N0 + kn_closed * (contacts.gap0 + Tn @ x0))
     K_stuck = tangent_stiffness(K_model, contacts, x0, tangential=stuck_mode(contacts))
     M = sp.csr_matrix(rom.M)
     C = damping_matrix(M, K_stuck, scene.damping,

@@ -347,6 +347,8 @@ class HBMAnalysis:
     force_scale: tuple[float, ...] = spec((1.0,), doc="multipliers of the excitation; "
                                                       "one branch each")
     response_dof: int = spec(0, doc="DOF whose amplitude the FRC plots", ge=0)
+    response_point: str = spec("", doc="named model point whose amplitude the FRC plots "
+                                       "(FE/ROM, e.g. 'response'; overrides response_dof)")
     step: float = spec(0.01, doc="initial arclength step (scaled units)", gt=0)
     step_min: float = spec(1e-6, doc="smallest arclength step before giving up", gt=0)
     step_max: float = spec(0.1, doc="largest arclength step", gt=0)
@@ -607,6 +609,15 @@ def _check_cross(scene: Scene, ctx: Context) -> None:
         if sec.min_periods > sec.max_periods:
             raise ctx.error(f"analysis.{name}.min_periods",
                             f"must not exceed analysis.{name}.max_periods")
+    if a.hbm is not None and a.hbm.response_point:
+        if isinstance(m, LumpedModel):
+            raise ctx.error("analysis.hbm.response_point",
+                            "names a model point, which lumped models do not have; use "
+                            "analysis.hbm.response_dof")
+        if isinstance(m, FEModel) and a.hbm.response_point.split(".")[0] not in m.retain_points:
+            raise ctx.error("analysis.hbm.response_point",
+                            f"{a.hbm.response_point!r} is not one of model.retain_points "
+                            f"({', '.join(m.retain_points)}), optionally with '.x' or '.y'")
     if a.hbm is not None and isinstance(m, LumpedModel) and a.hbm.response_dof >= m.n_dof:
         raise ctx.error("analysis.hbm.response_dof",
                         f"must be < {m.n_dof} (the model has {m.n_dof} DOFs)")

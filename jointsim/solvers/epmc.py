@@ -36,7 +36,7 @@ import logging
 
 import numpy as np
 
-from .hbm import HBMSystem, _dense
+from .hbm import HBMSystem, _dense, single_threaded_blas
 from .modes import elastic_mode
 
 log = logging.getLogger(__name__)
@@ -78,18 +78,20 @@ class EPMCSystem:
         s, lin = self.s, self.s.lin
         qh = s._complex(Q, 1)
         A, B, Bp, E = lin.blocks(omega, xi)
+        Ef = lin.factor_E(E) if lin.n_y else E
         Fy = lin.Z.T @ s._complex(self.F, 1)
-        y = lin.solve_E(E, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)
+        y = lin.solve_E(Ef, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)
         q1 = self.m_q @ qh + self.m_y @ y
         if not derivs:
             return q1, None, None
-        ell = self.m_q - (lin.solve_E(E, Bp).T @ self.m_y if lin.n_y else 0.0)
+        ell = self.m_q - (Bp.T @ lin.solve_E(Ef, self.m_y.astype(complex), trans=True)
+                          if lin.n_y else 0.0)
         d = {}
         for p in ("omega", "xi"):
             if lin.n_y:
                 _dA, _dB, dBp, dE = lin.dblocks(omega, xi, p, 1)
                 dEy = dE * y if np.ndim(dE) == 1 else dE @ y
-                d[p] = self.m_y @ (-lin.solve_E(E, dBp @ qh + dEy))
+                d[p] = self.m_y @ (-lin.solve_E(Ef, dBp @ qh + dEy))
             else:
                 d[p] = 0.0 + 0.0j
         return q1, ell, d
@@ -126,6 +128,7 @@ class EPMCSystem:
         return R, J, ev
 
 
+@single_threaded_blas
 def run_epmc_analysis(scene, model, writer) -> None:
     """Runner of ``[analysis.epmc]``: the backbone of one mode, written point by point.
 

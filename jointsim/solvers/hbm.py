@@ -64,6 +64,37 @@ log = logging.getLogger(__name__)
 MAX_DENSE_DOF = 6000
 
 
+def blas_threads(n: int = 1):
+    """Context that limits the BLAS thread pool to ``n`` threads.
+
+    The harmonic balance does many small dense products (tens to hundreds of
+    rows).  A multithreaded BLAS spins up its threads for each, and on a
+    loaded machine that costs far more than the work: on the shared 2-core
+    test machine, one FE residual took 0.25 s with OpenBLAS' 2 threads and
+    0.02 s with 1.  The runners of ``[analysis.hbm]`` and ``[analysis.epmc]``
+    therefore run single-threaded BLAS (the AFT kernels have their own numba
+    threads).
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        import contextlib
+        log.debug("threadpoolctl is not installed; BLAS threads are not limited")
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=n, user_api="blas")
+
+
+def single_threaded_blas(fun):
+    """Decorator: run ``fun`` inside :func:`blas_threads` (1 thread)."""
+    import functools
+
+    @functools.wraps(fun)
+    def wrapper(*args, **kwargs):
+        with blas_threads(1):
+            return fun(*args, **kwargs)
+    return wrapper
+
+
 # --------------------------------------------------------------------------
 # Harmonic bases
 # --------------------------------------------------------------------------
@@ -374,8 +405,13 @@ class ReducedLinear:
             dE = -1j * nu * self.myy if self.modal else d("yy")
         return d("qq"), d("qy"), d("yq"), dE
 
-    def solve_E(self, E, rhs):
-        """``E^-1 rhs`` for diagonal (1-D) or full ``E``."""
+    def solve_E(self, E, rhs, trans: bool = False):
+        """``E^-1 rhs`` (``E^-T rhs`` with ``trans``) for diagonal (1-D), full or
+        factorised (:meth:`factor_E`) ``E``."""
+        if isinstance(E, tuple):
+            return sla.lu_solve(E, rhs, trans=1 if trans else 0, check_finite=False)
+        if trans and E.ndim == 2:
+            E = E.T
         if E.ndim == 1:
             if np.any(E == 0):
                 raise np.linalg.LinAlgError("the structure with welded contacts is singular "
@@ -383,6 +419,12 @@ class ReducedLinear:
                                             "unrestrained rigid-body motion)")
             return rhs / (E[:, None] if rhs.ndim == 2 else E)
         return np.linalg.solve(E, rhs)
+
+    def factor_E(self, E):
+        """``E`` prepared for several :meth:`solve_E` calls (LU of a full ``E``)."""
+        if E.ndim == 1 or E.shape[0] == 0:
+            return E
+        return sla.lu_factor(E, check_finite=False)
 
 
 def _blocks(r, y):
@@ -532,15 +574,21 @@ class HBMSystem:
         for h in self.basis.harmonics:
             nu = h * omega
             A, B, Bp, E = lin.blocks(nu, xi)
+            Ef = lin.factor_E(E) if lin.n_y else E
             qh = self._complex(Q, h)
             Fh = self._complex(F, h)
             Fq = lin.Psi.T @ Fh
             Fy = lin.Z.T @ Fh
-            y = lin.solve_E(E, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)
+            if lin.n_y and jacobian:
+                both = lin.solve_E(Ef, np.column_stack([Fy - Bp @ qh, Bp]))
+                y, EinvBp = both[:, 0], both[:, 1:]
+            elif lin.n_y:
+                y = lin.solve_E(Ef, Fy - Bp @ qh)
+            else:
+                y, EinvBp = np.zeros(0, complex), np.zeros((0, nr), complex)
             self._store(R, h, A @ qh + B @ y - Fq)
             if not jacobian:
                 continue
-            EinvBp = lin.solve_E(E, Bp) if lin.n_y else np.zeros((0, nr), complex)
             S = A - B @ EinvBp
             ic, is_ = self.basis.index[h]
             rc = ic * nr + np.arange(nr)
@@ -559,7 +607,7 @@ class HBMSystem:
                 v = dA @ qh
                 if lin.n_y:
                     dEy = dE * y if np.ndim(dE) == 1 else dE @ y
-                    y_p = -lin.solve_E(E, dBp @ qh + dEy)
+                    y_p = -lin.solve_E(Ef, dBp @ qh + dEy)
                     v = v + dB @ y + B @ y_p
                 self._store(dR[p], h, v)
         aft = None
@@ -820,6 +868,7 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float)
     return float(res.x), a, True
 
 
+@single_threaded_blas
 def run_hbm_analysis(scene, model, writer) -> None:
     """Runner of ``[analysis.hbm]``: one FRC branch per force scale, written point by point.
 
@@ -845,14 +894,24 @@ def run_hbm_analysis(scene, model, writer) -> None:
     a = scene.analysis.hbm
     units = model.units
     system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods)
-    if not 0 <= a.response_dof < model.n_dof:
-        raise ValueError(f"{scene.path}: analysis.hbm.response_dof = {a.response_dof} is out "
-                         f"of range (the model has {model.n_dof} DOFs)")
+    from .._schema import SceneError
+    if a.response_point:
+        if a.response_point not in model.points:
+            raise SceneError(str(scene.path), "analysis.hbm.response_point",
+                             f"{a.response_point!r} is not a named point of the model "
+                             f"(named: {sorted(model.points)})")
+        dof = int(model.points[a.response_point])
+    elif not 0 <= a.response_dof < model.n_dof:
+        raise SceneError(str(scene.path), "analysis.hbm.response_dof",
+                         f"= {a.response_dof} is out of range (the model has {model.n_dof} "
+                         f"DOFs)")
+    else:
+        dof = a.response_dof
     b = system.basis
-    dof = a.response_dof
     d_u, f_u, w_u = unit("displacement", units), unit("force", units), \
         unit("angular_frequency", units)
     g = writer.group("hbm", n_samples=a.n_samples, response_dof=dof,
+                     response_label=str(model.dof_labels[dof]) if model.dof_labels else "",
                      omega_start=a.omega_start, omega_end=a.omega_end,
                      n_contact_coordinates=system.n_r, condensation="modal" if system.lin.modal
                      else "direct", amplitude_definition="fundamental harmonic amplitude "
