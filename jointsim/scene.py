@@ -360,6 +360,10 @@ class HBMAnalysis:
                                     "repeats", ge=2)
     refine_peak: bool = spec(True, doc="refine each branch's largest amplitude by "
                                        "maximising over frequency (single-valued peaks)")
+    loops: str = spec("masing.points", choices=("masing.points", "peaks"),
+                      doc="points whose element loops and Masing checks are kept: those of "
+                          "analysis.masing.points (empty: every point), or each branch's "
+                          "largest-amplitude point")
 
 
 @dataclass(frozen=True, kw_only=True)

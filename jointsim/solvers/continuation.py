@@ -18,9 +18,18 @@ tolerances refer to the scaled quantities.
   non-finite values, or a jump farther than ``max_jump * h`` from the
   predictor) first tries, once per point, 4 and 16 times longer steps (a
   kink of the residual, where Newton cycles, is often passed by landing
-  beyond it), then the corner rule below, then halves the step and retries;
+  beyond it), then the corner rules below, then halves the step and retries;
   below ``step_min`` the branch gives up and returns what it has with the
   reason.
+* Corners (when the step is already small): a point beyond a corner of
+  the branch of up to 80 degrees is accepted although it lies far from the
+  predictor (``CORNER_JUMP``); failing that, the tangent of the piece beyond
+  the corner is tried in both orientations.
+* No retracing: a corrected point that lies back on the last
+  ``RETRACE_POINTS`` points of the branch (closer to one of their segments
+  than half its distance from the current point) is rejected; at a sharp
+  corner of a piecewise-smooth branch, the forward hyperplane can otherwise
+  cut the incoming piece and send the branch back the way it came.
 * End: when a point passes ``lam_end`` the branch is closed by a Newton
   solve at ``lam = lam_end`` exactly.  A branch that turns back out of the
   range through ``lam_start`` stops there.
@@ -41,6 +50,11 @@ log = logging.getLogger(__name__)
 
 #: Try to pass corners of piecewise-smooth branches (a switch for debugging).
 CORNERS = True
+#: At a corner, a corrected point may lie this many steps from the predictor
+#: (tan 80 deg: corners of up to 80 degrees).
+CORNER_JUMP = 5.7
+#: Points of the traced branch a new point is checked against (no retracing).
+RETRACE_POINTS = 500
 
 
 @dataclass
@@ -253,13 +267,26 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                       residual=np.array(res), step=np.array(steps), convergence=conv,
                       tangents=tans)
 
-    def correct(yk, t, h):
+    def retraces(yc, yk):
+        """Whether ``yc`` lies back on the branch already traced: closer to one of
+        the last segments than half its distance from ``yk``."""
+        d = np.linalg.norm(yc - yk)
+        pts = [p / scale for p in ys[-RETRACE_POINTS:]]
+        for a, b in zip(pts[:-1], pts[1:]):
+            ab = b - a
+            s_ = float(np.clip((yc - a) @ ab / max(ab @ ab, 1e-300), 0.0, 1.0))
+            if np.linalg.norm(yc - (a + s_ * ab)) < 0.5 * d:
+                return True
+        return False
+
+    def correct(yk, t, h, jump_limit=max_jump):
         """Predictor ``yk + h t`` and Newton on the hyperplane ``t.(y - yk) = h``.
 
         Fails on non-finite values, on ``max_iter`` iterations, on stagnation
         (the best residual not improved by 10 % in ``stall`` iterations: Newton
-        cycling across a kink), and when it lands farther than ``max_jump * h``
-        from the predictor.  Returns ``(ok, y, R, J, extra, iterations)``.
+        cycling across a kink), when it lands farther than ``jump_limit * h``
+        from the predictor, and when it lands back on the branch already traced.
+        Returns ``(ok, y, R, J, extra, iterations)``.
         """
         pred = yk + h * t
         yc = pred.copy()
@@ -293,10 +320,13 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
             elif it - best_it >= stall:
                 log.debug("%s: corrector stalled at residual %.2e (h = %.3g)", desc, rn, h)
                 break
-        if ok and np.linalg.norm(yc - pred) > max_jump * h:
+        if ok and np.linalg.norm(yc - pred) > jump_limit * h:
             ok = False
             log.debug("%s: corrector jumped %.3g from the predictor (h = %.3g); retrying",
                       desc, np.linalg.norm(yc - pred), h)
+        if ok and retraces(yc, yk):
+            ok = False
+            log.debug("%s: corrector landed back on the traced branch (h = %.3g)", desc, h)
         return ok, yc, R, J, extra, it
 
     yh = y0 / scale
@@ -340,11 +370,20 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                         h = hj
                         break
             if not ok and CORNERS and corner_tries < 2 and h < 0.05 * step_max:
-                # a corner of the piecewise-smooth branch: take the tangent of the
-                # piece beyond it and try both orientations (not back the old way)
+                # a corner of the piecewise-smooth branch: first accept a point
+                # beyond a corner of up to 80 degrees (the hyperplane still cuts
+                # the branch there, but far from the predictor), then take the
+                # tangent of the piece beyond it and try both orientations
                 corner_tries += 1
                 hc = max(h, 1e3 * step_min)
-                got = _corner(F, yk, t, hc, tol, max_iter, max_jump)
+                ok, yc, R, J, extra, it = correct(yk, t, hc, jump_limit=CORNER_JUMP)
+                if ok:
+                    h = hc
+                    log.debug("%s: passed a corner of the branch at lam = %.8g", desc,
+                              yk[-1] * scale[-1])
+                got = None if ok else _corner(F, yk, t, hc, tol, max_iter, max_jump)
+                if got is not None and retraces(got[0], yk):
+                    got = None
                 if got is not None:
                     yc, R, J, extra, it = got
                     ok = True

@@ -145,6 +145,8 @@ def run_epmc_analysis(scene, model, writer) -> None:
     from ..masing import check_loops
     from .continuation import continue_branch
 
+    import time
+    t_start = time.perf_counter()
     a = scene.analysis.epmc
     units = model.units
     system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods)
@@ -227,6 +229,8 @@ def run_epmc_analysis(scene, model, writer) -> None:
                          tol=a.tol, max_iter=a.max_iter, solve_first=solve_first,
                          tangent0=t0, on_point=on_point, desc=f"epmc mode {a.mode}")
     conv = br.convergence
+    g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
+    g.attrs["n_points"] = writer.rows("epmc/omega")
     g.attrs["branch_status"] = "complete" if conv.success else "gave up"
     for k, v in conv.as_attrs().items():
         g.attrs[k] = v

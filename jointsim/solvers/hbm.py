@@ -799,13 +799,21 @@ def harmonic_amplitude(basis: HarmonicBasis, X, h: int = 1):
 # --------------------------------------------------------------------------
 # Frequency-response curves
 # --------------------------------------------------------------------------
-def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: int = 9):
-    """Variable and residual scales of an FRC from the stuck linear response.
+def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: int = 9,
+               tol: float = 1e-6):
+    """Variable and residual scales of an FRC branch.
 
-    One Newton step from the static state ``z0`` (the response of the joint
-    stuck at its static state) at ``n`` frequencies of the range gives a
-    displacement scale ``q_ref = max |z|``; the residual scale is the largest
-    condensed force ``max |R(z0)|``.
+    The displacement scale ``q_ref`` is the largest ``max |z - z0|`` of
+
+    * the response of the joint stuck at its static state ``z0`` (one Newton
+      step from ``z0``) at ``n`` frequencies of the range and at every stuck
+      linear resonance inside it;
+    * and, when a resonance lies in the range, the nonlinear response at the
+      strongest of them (a Newton solve from the stuck response; skipped if
+      it does not converge), so that a branch whose friction damping keeps it
+      far below the linear peak is still resolved.
+
+    The residual scale is the largest condensed force ``max |R(z0)|``.
 
     Returns
     -------
@@ -813,21 +821,40 @@ def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: in
         ``q_ref`` for every coefficient, ``|omega_end - omega_start|`` for omega.
     rscale : float
     """
-    qref, rref = 0.0, 0.0
+    from .modes import stuck_modes
+    lo, hi = sorted((omega_start, omega_end))
     z0 = system.static_coordinates()
-    for w in np.linspace(omega_start, omega_end, n):
+    ws = list(np.linspace(omega_start, omega_end, n))
+    res = []
+    if system.model.n_dof:
+        f_hz = stuck_modes(system.model, min(system.model.n_dof, 40)).frequency_hz
+        res = [2 * np.pi * f for f in f_hz if lo < 2 * np.pi * f < hi]
+    q_off, q_res, rref, best = 0.0, 0.0, 0.0, (0.0, None, None)
+    for w in ws + res:
         ev = system.evaluate(z0, w, F, wrt=())
         rref = max(rref, float(np.abs(ev.R).max(initial=0.0)))
-        if system.n_z:
-            try:
-                z = z0 + np.linalg.solve(ev.J, -ev.R)
-                qref = max(qref, float(np.abs(z).max()))
-            except np.linalg.LinAlgError:
-                pass
-    if not qref > 0.0:
-        qref = 1.0
+        if not system.n_z:
+            continue
+        try:
+            dz = np.linalg.solve(ev.J, -ev.R)
+        except np.linalg.LinAlgError:
+            continue
+        d = float(np.abs(dz).max())
+        if w in res:
+            q_res = max(q_res, d)
+            if d > best[0]:
+                best = (d, w, z0 + dz)
+        else:
+            q_off = max(q_off, d)
     if not rref > 0.0:
         rref = 1.0
+    qref = max(q_off, q_res)
+    if best[1] is not None:
+        sol = solve_point(system, best[1], F, z0=best[2], tol=tol, max_iter=15, rscale=rref)
+        if sol.convergence.success:
+            qref = max(q_off, float(np.abs(sol.z - z0).max()))
+    if not qref > 0.0:
+        qref = 1.0
     scale = np.full(system.n_z + 1, qref)
     scale[-1] = max(abs(omega_end - omega_start), 1e-12 * abs(omega_start), 1e-300)
     return scale, rref
@@ -885,12 +912,15 @@ def run_hbm_analysis(scene, model, writer) -> None:
       branch ``/hbm/peak_omega``, ``/hbm/peak_amplitude``, ``/hbm/peak_refined``;
       group attributes ``branch<b>_status`` / ``branch<b>_message``;
     * ``/loops/*``, ``/masing/*`` for every point (or those listed in
-      ``analysis.masing.points``, global point indices).
+      ``analysis.masing.points``, global point indices; or, with
+      ``analysis.hbm.loops = "peaks"``, each branch's largest-amplitude point).
     """
     from ..io.hdf5 import unit, write_loops
     from ..masing import check_loops
     from .continuation import continue_branch
 
+    import time
+    t_start = time.perf_counter()
     a = scene.analysis.hbm
     units = model.units
     system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods)
@@ -989,7 +1019,8 @@ def run_hbm_analysis(scene, model, writer) -> None:
             writer.append("hbm/aft_periods",
                           np.int64(aft.periods.max() if aft is not None else 0), "1",
                           "largest number of periods the laws were marched")
-            if aft is not None and (not masing_points or p in masing_points):
+            if aft is not None and a.loops == "masing.points" and \
+                    (not masing_points or p in masing_points):
                 u = system.slips(X)
                 report = check_loops(u, aft.f, aft.N, law, scene.analysis.masing.tol)
                 write_loops(writer, p, u, aft.f, aft.N, report, units)
@@ -1014,6 +1045,16 @@ def run_hbm_analysis(scene, model, writer) -> None:
                 i = int(np.argmax(amp))
                 pw, pa, ok = float(om[i]), float(amp[i]), False
             peaks["omega"][ib], peaks["amplitude"][ib], refined[ib] = pw, pa, ok
+            if a.loops == "peaks":
+                # the element loops and Masing checks of the branch's largest point
+                i = int(np.argmax(amp))
+                p = int(rows[i])
+                ev = system.evaluate(Z[i], float(om[i]), F, jacobian=False)
+                X = system.reconstruct(Z[i], float(om[i]), F)
+                u = system.slips(X)
+                report = check_loops(u, ev.aft.f, ev.aft.N, law, scene.analysis.masing.tol)
+                write_loops(writer, p, u, ev.aft.f, ev.aft.N, report, units)
+                writer.h5["loops"].attrs["analysis"] = "hbm"
             writer.write("hbm/peak_omega", peaks["omega"], w_u, "frequency of the largest "
                          "amplitude of each branch")
             writer.write("hbm/peak_amplitude", peaks["amplitude"], d_u,
@@ -1025,6 +1066,8 @@ def run_hbm_analysis(scene, model, writer) -> None:
         if not conv.success:
             failures.append(f"branch {ib} (force scale {fs:g}): {conv.message}")
     _ = f_u
+    g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
+    g.attrs["n_points"] = writer.rows("hbm/omega")
     if failures:
         raise RuntimeError("hbm: " + "; ".join(failures))
 

@@ -63,14 +63,19 @@ class ModesResult:
     convergence: Convergence = field(default=None, repr=False)
 
 
+#: Sparse models above this many DOFs are solved by shift-invert Lanczos.
+DENSE_MAX = 600
+
+
 def eigenmodes(K, M, n_modes: int):
     """Lowest ``n_modes`` modes of ``K phi = w^2 M phi`` (dense for small models).
 
     Parameters
     ----------
     K, M : matrix or sparse matrix, shape (n, n)
-        Symmetric; ``M`` positive definite, ``K`` nonsingular for large models
-        (shift-invert about 0).
+        Symmetric, ``M`` positive definite.  Sparse ``K`` with more than
+        ``DENSE_MAX`` rows: shift-invert Lanczos about 0 (dense if ``K`` is
+        singular).
     n_modes : int
 
     Returns
@@ -81,16 +86,21 @@ def eigenmodes(K, M, n_modes: int):
     """
     n = K.shape[0]
     m = min(n_modes, n)
-    if n <= 2000:
+    sparse_big = sp.issparse(K) and n > DENSE_MAX and m < n - 2
+    if sparse_big:
+        try:
+            w2, phi = spla.eigsh(sp.csc_matrix(K), k=m, M=sp.csc_matrix(M), sigma=0.0,
+                                 which="LM")
+        except RuntimeError:  # singular K: the dense solver copes
+            sparse_big = False
+        else:
+            order = np.argsort(w2)
+            w2, phi = w2[order], phi[:, order]
+            phi = phi / np.sqrt(np.einsum("ij,ij->j", phi, M @ phi))
+    if not sparse_big:
         Kd = K.toarray() if sp.issparse(K) else np.asarray(K)
         Md = M.toarray() if sp.issparse(M) else np.asarray(M)
         w2, phi = sla.eigh(0.5 * (Kd + Kd.T), 0.5 * (Md + Md.T), subset_by_index=(0, m - 1))
-    else:
-        m = min(m, n - 2)
-        w2, phi = spla.eigsh(sp.csc_matrix(K), k=m, M=sp.csc_matrix(M), sigma=0.0, which="LM")
-        order = np.argsort(w2)
-        w2, phi = w2[order], phi[:, order]
-        phi = phi / np.sqrt(np.einsum("ij,ij->j", phi, M @ phi))
     return np.sqrt(np.maximum(w2, 0.0)) / (2 * np.pi), phi.T
 
 
