@@ -29,6 +29,9 @@ from .contact import KernelChoice, TangentialLaw, make_tangential_law
 
 log = logging.getLogger(__name__)
 
+#: Gap samples from which the normal law runs in parallel threads.
+PARALLEL_MIN_SAMPLES = 64 * 128
+
 
 @dataclass(frozen=True)
 class ContactSet:
@@ -81,11 +84,12 @@ class ContactSet:
         -------
         N, dNdg : ndarray, shape (n_e, n_t)
         """
-        from .contact._kernels import normal_penalty
+        from .contact._kernels import normal_penalty, normal_penalty_serial
         if not self.kernels.coupled:
             raise RuntimeError("normal load is fixed in this scene; no gap is evaluated")
-        return normal_penalty(np.ascontiguousarray(g, dtype=float), self.kn,
-                              self.kernels.normal == "unilateral")
+        g = np.ascontiguousarray(g, dtype=float)
+        run = normal_penalty if g.size >= PARALLEL_MIN_SAMPLES else normal_penalty_serial
+        return run(g, self.kn, self.kernels.normal == "unilateral")
 
 
 @dataclass(frozen=True)

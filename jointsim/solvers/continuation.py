@@ -104,6 +104,7 @@ class Branch:
 
 
 def _solve(A, b):
+    """``A^-1 b``; least squares if ``A`` is singular."""
     try:
         x = np.linalg.solve(A, b)
     except np.linalg.LinAlgError:
@@ -218,9 +219,11 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
     span = abs(lam_end - lam0)
     rs = float(rscale)
 
+    col = scale / rs
+
     def F(yh):
         R, J, extra = fun(yh * scale)
-        return R / rs, (J * scale[None, :]) / rs, extra
+        return R / rs, J * col[None, :], extra
 
     ys, its, res, steps, tans = [], [], [], [], []
     bar = tqdm(total=1000, desc=desc, disable=(not progress) or None, leave=False,

@@ -102,13 +102,13 @@ class EPMCSystem:
         nz = s.n_z
         zh, omega, xi, lam = y[:nz], y[nz], y[nz + 1], y[nz + 2]
         a = 10.0 ** lam
-        ev = s.evaluate(self.z0 + a * zh, omega, self.F, xi=xi, wrt=("omega", "xi"))
+        J = np.zeros((nz + 2, nz + 3))
+        ev = s.evaluate(self.z0 + a * zh, omega, self.F, xi=xi, wrt=("omega", "xi"),
+                        J_out=J[:nz, :nz])
         Rt = ev.R / a
         Q = zh.reshape(s.n_c, s.n_r)
         q1, ell, d = self._modal(Q, omega, xi, True)
         R = np.concatenate([Rt, [q1.real - 1.0, q1.imag]])
-        J = np.zeros((nz + 2, nz + 3))
-        J[:nz, :nz] = ev.J
         J[:nz, nz] = ev.dR["omega"] / a
         J[:nz, nz + 1] = ev.dR["xi"] / a
         J[:nz, nz + 2] = LN10 * (ev.J @ zh - Rt)

@@ -547,7 +547,7 @@ class HBMSystem:
 
     # -- residual --------------------------------------------------------------
     def evaluate(self, z, omega: float, F, xi: float = 0.0, jacobian: bool = True,
-                 wrt=("omega",)) -> Evaluation:
+                 wrt=("omega",), J_out=None) -> Evaluation:
         """Residual ``S(w) q + phi(q) - F_red`` and its analytic derivatives.
 
         Parameters
@@ -564,11 +564,14 @@ class HBMSystem:
             Also compute ``dR/dz`` and the derivatives named in ``wrt``.
         wrt : tuple of str
             Parameters to differentiate by: ``"omega"``, ``"xi"``.
+        J_out : ndarray, shape (n_z, n_z), optional
+            Zero-filled array (e.g. a block of a bordered matrix) that receives
+            ``dR/dz``; it is returned as ``J``.
         """
         nr, nc = self.n_r, self.n_c
         Q = np.asarray(z, dtype=float).reshape(nc, nr)
         R = np.zeros((nc, nr))
-        J = np.zeros((self.n_z, self.n_z)) if jacobian else None
+        J = (np.zeros((self.n_z, self.n_z)) if J_out is None else J_out) if jacobian else None
         dR = {p: np.zeros((nc, nr)) for p in wrt} if jacobian else {}
         lin = self.lin
         for h in self.basis.harmonics:
@@ -888,7 +891,7 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float)
 
     lo, hi = float(omega[i - 1]), float(omega[i + 1])
     res = minimize_scalar(neg_amp, bounds=(lo, hi), method="bounded",
-                          options={"xatol": 1e-12 * max(abs(hi), 1.0)})
+                          options={"xatol": 1e-12 * max(abs(hi), 1.0), "maxiter": 40})
     a = -float(res.fun)
     if a < amplitude[i]:
         return float(omega[i]), float(amplitude[i]), False
@@ -988,9 +991,10 @@ def run_hbm_analysis(scene, model, writer) -> None:
             t0, h0, solve_first, max_pts = None, a.step, True, a.max_points
 
         def fun(y, F=F):
-            ev = system.evaluate(y[:-1], y[-1], F)
-            J = np.hstack([ev.J, ev.dR["omega"][:, None]]) if system.n_z else \
-                np.zeros((0, 1))
+            nz = system.n_z
+            J = np.zeros((nz, nz + 1))
+            ev = system.evaluate(y[:-1], y[-1], F, J_out=J[:, :nz])
+            J[:, nz] = ev.dR["omega"]
             return ev.R, J, ev
 
         def on_point(i, y, info, F=F, ib=ib, fs=fs, skip=not solve_first):
