@@ -90,8 +90,7 @@ class EPMCSystem:
         for p in ("omega", "xi"):
             if lin.n_y:
                 _dA, _dB, dBp, dE = lin.dblocks(omega, xi, p, 1)
-                dEy = dE * y if np.ndim(dE) == 1 else dE @ y
-                d[p] = self.m_y @ (-lin.solve_E(Ef, dBp @ qh + dEy))
+                d[p] = self.m_y @ (-lin.solve_E(Ef, dBp @ qh + lin.apply_dE(dE, y)))
             else:
                 d[p] = 0.0 + 0.0j
         return q1, ell, d

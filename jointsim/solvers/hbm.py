@@ -30,7 +30,10 @@ Newton unknowns are the ``n_coeff x n_r`` harmonic coefficients of ``q`` only:
 one slip (and one gap) per contact element, whatever the number of structural
 DOFs.  ``Z`` is chosen M-orthonormal and K-orthogonal (the modes of the
 structure with the contact coordinates held at zero), so ``E`` is diagonal
-when the damping is (Rayleigh or modal); otherwise ``E`` is factorised per
+when the damping is too (Rayleigh, or modal in these modes); when the damping
+has low rank (modal damping of a few modes of another basis, e.g. of the
+stuck joint) ``E`` is a diagonal plus a rank-r term and is inverted by
+Woodbury's formula (an r x r solve); otherwise ``E`` is factorised per
 harmonic.  ``E`` is singular only at an undamped resonance of the structure
 with the contacts *welded* (``q = 0``); with damping it is not, and the
 formulation is exact (the linear FRF is reproduced to round-off).
@@ -345,8 +348,9 @@ class ReducedLinear:
         else:
             Psi = np.zeros((n, 0))
             Z0 = np.eye(n)
-        self.modal = False
+        self.kind = "direct"
         Z = Z0
+        lowrank = None
         if self.n_y:
             Kyy = Z0.T @ K @ Z0
             Myy = Z0.T @ M @ Z0
@@ -358,11 +362,22 @@ class ReducedLinear:
                 ref = max(np.abs(Cyy).max(), 1e-300)
                 sym = (np.allclose(K, K.T, rtol=0, atol=1e-12 * np.abs(K).max())
                        and np.allclose(M, M.T, rtol=0, atol=1e-12 * np.abs(M).max()))
+                csym = np.allclose(C, C.T, rtol=0, atol=1e-12 * max(np.abs(C).max(), 1e-300))
                 if sym and np.abs(off).max() <= 1e-11 * ref:
                     Z = Zm
-                    self.modal = True
+                    self.kind = "modal"
+                elif sym and csym:
+                    # modal damping of a few modes is a low-rank C: E is then a
+                    # diagonal plus a rank-r term, inverted by Woodbury's formula
+                    c, U = np.linalg.eigh(0.5 * (Cyy + Cyy.T))
+                    keep = np.abs(c) > 1e-12 * max(np.abs(c).max(), 1e-300)
+                    if keep.sum() <= self.n_y // 3:
+                        Z = Zm
+                        self.kind = "lowrank"
+                        lowrank = (U[:, keep], c[keep])
             except (np.linalg.LinAlgError, ValueError):
                 pass
+        self.modal = self.kind == "modal"
         self.Psi, self.Z = Psi, Z
         V = np.hstack([Psi, Z])
         Kt, Mt, Ct = V.T @ K @ V, V.T @ M @ V, V.T @ C @ V
@@ -371,43 +386,72 @@ class ReducedLinear:
         self.K = {b: Kt[i, j] for b, (i, j) in _blocks(r, y).items()}
         self.M = {b: Mt[i, j] for b, (i, j) in _blocks(r, y).items()}
         self.C = {b: Ct[i, j] for b, (i, j) in _blocks(r, y).items()}
-        if self.modal:
+        if self.kind in ("modal", "lowrank"):
             self.lam = np.diag(self.K["yy"]).copy()
             self.myy = np.diag(self.M["yy"]).copy()
-            self.cyy = np.diag(self.C["yy"]).copy()
+            self.cyy = np.diag(self.C["yy"]).copy() if self.modal else None
+        if self.kind == "lowrank":
+            self.U, self.cw = lowrank
+            self.Cyy = self.C["yy"]
         self._Mfull = M
 
     # -- blocks of the transformed dynamic stiffness --------------------------
     def blocks(self, nu: float, xi: float = 0.0):
         """``A, B, B', E`` at angular frequency ``nu`` with damping ``C - xi M``.
 
-        ``E`` is a 1-D array (its diagonal) when the condensation is modal.
+        ``E`` is a 1-D array (its diagonal) when the condensation is modal, a
+        :class:`_LowRankE` when the damping is of low rank, else a matrix.
         """
         def mat(b):
             return (self.K[b] - nu * nu * self.M[b]) + 1j * nu * (self.C[b] - xi * self.M[b])
         A, B, Bp = mat("qq"), mat("qy"), mat("yq")
-        if self.modal:
+        if self.kind == "modal":
             E = (self.lam - nu * nu * self.myy) + 1j * nu * (self.cyy - xi * self.myy)
+        elif self.kind == "lowrank":
+            E = _LowRankE((self.lam - nu * nu * self.myy) - 1j * nu * xi * self.myy,
+                          1j * nu * self.cw, self.U, self.Cyy, 1j * nu)
         else:
             E = mat("yy")
         return A, B, Bp, E
 
     def dblocks(self, nu: float, xi: float, wrt: str, h: int):
-        """Derivatives of ``A, B, B', E`` with respect to ``omega`` (``nu = h omega``) or ``xi``."""
+        """Derivatives of ``A, B, B', E`` with respect to ``omega`` (``nu = h omega``) or
+        ``xi``; apply ``dE`` with :meth:`apply_dE`."""
         if wrt == "omega":
             def d(b):
                 return h * (-2.0 * nu * self.M[b] + 1j * (self.C[b] - xi * self.M[b]))
-            dE = (h * (-2.0 * nu * self.myy + 1j * (self.cyy - xi * self.myy))
-                  if self.modal else d("yy"))
+            if self.kind == "modal":
+                dE = h * (-2.0 * nu * self.myy + 1j * (self.cyy - xi * self.myy))
+            elif self.kind == "lowrank":
+                dE = (h * (-2.0 * nu - 1j * xi) * self.myy, 1j * h)
+            else:
+                dE = d("yy")
         else:
             def d(b):
                 return -1j * nu * self.M[b]
-            dE = -1j * nu * self.myy if self.modal else d("yy")
+            if self.kind == "direct":
+                dE = d("yy")
+            elif self.kind == "lowrank":
+                dE = (-1j * nu * self.myy, 0.0)
+            else:
+                dE = -1j * nu * self.myy
         return d("qq"), d("qy"), d("yq"), dE
 
+    def apply_dE(self, dE, y):
+        """``dE @ y`` for a ``dE`` from :meth:`dblocks`."""
+        if isinstance(dE, tuple):        # low rank: diagonal + coefficient * Cyy
+            diag, coef = dE
+            out = diag * y
+            if coef != 0.0:
+                out = out + coef * (self.Cyy @ y)
+            return out
+        return dE * y if dE.ndim == 1 else dE @ y
+
     def solve_E(self, E, rhs, trans: bool = False):
-        """``E^-1 rhs`` (``E^-T rhs`` with ``trans``) for diagonal (1-D), full or
-        factorised (:meth:`factor_E`) ``E``."""
+        """``E^-1 rhs`` (``E^-T rhs`` with ``trans``) for diagonal (1-D), low-rank,
+        full or factorised (:meth:`factor_E`) ``E``."""
+        if isinstance(E, _LowRankE):
+            return E.solve(rhs)          # E is complex symmetric: E^T = E
         if isinstance(E, tuple):
             return sla.lu_solve(E, rhs, trans=1 if trans else 0, check_finite=False)
         if trans and E.ndim == 2:
@@ -422,9 +466,39 @@ class ReducedLinear:
 
     def factor_E(self, E):
         """``E`` prepared for several :meth:`solve_E` calls (LU of a full ``E``)."""
+        if isinstance(E, _LowRankE):
+            E.factor()
+            return E
         if E.ndim == 1 or E.shape[0] == 0:
             return E
         return sla.lu_factor(E, check_finite=False)
+
+
+class _LowRankE:
+    """``E = diag(d) + U diag(s) U^T`` (``U`` real, ``n_y x r``), solved by Woodbury:
+    ``E^-1 = D^-1 - D^-1 U (diag(1/s) + U^T D^-1 U)^-1 U^T D^-1``."""
+
+    def __init__(self, d, s, U, Cyy, coef):
+        self.d, self.s, self.U = d, s, U
+        self.Cyy, self.coef = Cyy, coef
+        self._small = None
+
+    def factor(self):
+        if np.any(self.d == 0):
+            raise np.linalg.LinAlgError("the structure with welded contacts is singular at "
+                                        "this frequency (an undamped resonance or an "
+                                        "unrestrained rigid-body motion)")
+        if self._small is None and np.any(self.s != 0):
+            small = np.diag(1.0 / self.s) + self.U.T @ (self.U / self.d[:, None])
+            self._small = sla.lu_factor(small, check_finite=False)
+
+    def solve(self, rhs):
+        self.factor()
+        d = self.d[:, None] if rhs.ndim == 2 else self.d
+        x = rhs / d
+        if self._small is None:          # no damping term (harmonic 0)
+            return x
+        return x - (self.U @ sla.lu_solve(self._small, self.U.T @ x, check_finite=False)) / d
 
 
 def _blocks(r, y):
@@ -503,7 +577,7 @@ class HBMSystem:
         self._Tt = _dense(c.Tt) if ne else np.zeros((0, model.n_dof))
         log.debug("HBM system: %d DOFs condensed onto %d contact coordinates x %d "
                   "coefficients (%s condensation)", model.n_dof, nr, self.n_c,
-                  "modal" if self.lin.modal else "direct")
+                  self.lin.kind)
 
     # -- static state ----------------------------------------------------------
     def static_coordinates(self):
@@ -609,8 +683,7 @@ class HBMSystem:
                 dA, dB, dBp, dE = lin.dblocks(nu, xi, p, h)
                 v = dA @ qh
                 if lin.n_y:
-                    dEy = dE * y if np.ndim(dE) == 1 else dE @ y
-                    y_p = -lin.solve_E(Ef, dBp @ qh + dEy)
+                    y_p = -lin.solve_E(Ef, dBp @ qh + lin.apply_dE(dE, y))
                     v = v + dB @ y + B @ y_p
                 self._store(dR[p], h, v)
         aft = None
@@ -891,7 +964,7 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float)
 
     lo, hi = float(omega[i - 1]), float(omega[i + 1])
     res = minimize_scalar(neg_amp, bounds=(lo, hi), method="bounded",
-                          options={"xatol": 1e-12 * max(abs(hi), 1.0), "maxiter": 40})
+                          options={"xatol": 1e-10 * max(abs(hi), 1.0), "maxiter": 25})
     a = -float(res.fun)
     if a < amplitude[i]:
         return float(omega[i]), float(amplitude[i]), False
@@ -946,8 +1019,8 @@ def run_hbm_analysis(scene, model, writer) -> None:
     g = writer.group("hbm", n_samples=a.n_samples, response_dof=dof,
                      response_label=str(model.dof_labels[dof]) if model.dof_labels else "",
                      omega_start=a.omega_start, omega_end=a.omega_end,
-                     n_contact_coordinates=system.n_r, condensation="modal" if system.lin.modal
-                     else "direct", amplitude_definition="fundamental harmonic amplitude "
+                     n_contact_coordinates=system.n_r, condensation=system.lin.kind,
+                     amplitude_definition="fundamental harmonic amplitude "
                      "sqrt(X_1c^2 + X_1s^2) at the response DOF")
     if "hbm/harmonics" not in writer.h5:
         writer.write("hbm/harmonics", np.array(a.harmonics, dtype=np.int64), "1",
