@@ -100,6 +100,9 @@ class EPMCSystem:
         s = self.s
         nz = s.n_z
         zh, omega, xi, lam = y[:nz], y[nz], y[nz + 1], y[nz + 2]
+        if not -300.0 < lam < 300.0 or not np.all(np.isfinite(y)):
+            # a diverged Newton iterate: report it as non-finite, not as a warning
+            return np.full(nz + 2, np.nan), np.full((nz + 2, nz + 3), np.nan), None
         a = 10.0 ** lam
         J = np.zeros((nz + 2, nz + 3))
         ev = s.evaluate(self.z0 + a * zh, omega, self.F, xi=xi, wrt=("omega", "xi"),
