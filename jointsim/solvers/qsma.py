@@ -146,7 +146,8 @@ def qsma(model, phi, x0, alphas, state0=None, tol: float = 1e-10,
     x_prev, f_prev = np.asarray(x0, dtype=float), f_static
     rows = []
     conv = None
-    for i, a in enumerate(tqdm(alphas, desc="qsma", unit="step", disable=not progress)):
+    for i, a in enumerate(tqdm(alphas, desc="qsma", unit="step",
+                               disable=None if progress else True)):
         f_new = f_static + a * Mphi
         res = solve_static(model.K, f_new, c, tangential="law", state=state, x_start=x_prev,
                            f_start=f_prev, tol=tol, n_increments=1)
