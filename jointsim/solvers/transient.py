@@ -906,26 +906,6 @@ def output_dofs(scene, model, settings):
     return np.asarray(dofs, dtype=np.int64), labels
 
 
-def append_rows(writer, name: str, rows, unit: str, doc: str = "") -> None:
-    """Append a block of rows to an extendable dataset (created on first use).
-
-    Like :meth:`ResultWriter.append` for many rows at once, flushed once.
-    """
-    rows = np.asarray(rows, dtype=float)
-    h5 = writer.h5
-    if name not in h5:
-        ds = h5.create_dataset(name, shape=(0,) + rows.shape[1:], dtype=float,
-                               maxshape=(None,) + rows.shape[1:], chunks=True)
-        ds.attrs["unit"] = unit
-        if doc:
-            ds.attrs["doc"] = doc
-    ds = h5[name]
-    n = ds.shape[0]
-    ds.resize(n + rows.shape[0], axis=0)
-    ds[n:] = rows
-    h5.flush()
-
-
 class _History:
     """Decimated time history of chosen DOFs, written period by period.
 
@@ -956,12 +936,14 @@ class _History:
         if t.size == 0:
             return
         w = self.writer
-        append_rows(w, "transient/x", x, self.units["x"],
-                    "time history of the output DOFs (transient/dofs)")
+        w.append_rows("transient/x", np.asarray(x, dtype=float), self.units["x"],
+                      "time history of the output DOFs (transient/dofs)")
         if extra is not None:
-            append_rows(w, "transient/q", extra, "m kg^0.5" if self.units["t"] == "s"
-                        else "length mass^0.5", "modal coordinate phi^T M (x - x_static)")
-        append_rows(w, "transient/t", t, self.units["t"], "time of each history sample")
+            w.append_rows("transient/q", np.asarray(extra, dtype=float),
+                          "m kg^0.5" if self.units["t"] == "s" else "length mass^0.5",
+                          "modal coordinate phi^T M (x - x_static)")
+        w.append_rows("transient/t", np.asarray(t, dtype=float), self.units["t"],
+                      "time of each history sample")
 
     def close(self):
         for block in self.blocks:
