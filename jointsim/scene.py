@@ -416,6 +416,10 @@ class TransientAnalysis:
     harmonics: tuple[int, ...] = spec((0, 1, 2, 3, 4, 5, 6, 7),
                                       doc="harmonics extracted from the last period "
                                           "(same order as /hbm/X)", ge=0)
+    crosscheck_tol: float = spec(1e-3, doc="steady runs of a scene that also runs "
+                                           "analysis.hbm: largest difference of a harmonic, "
+                                           "relative to the first harmonic, that counts as "
+                                           "agreement with HBM at the same frequency", gt=0)
     newton_tol: float = spec(1e-10, doc="Newton tolerance on the contact displacements, "
                                         "relative to their scale", gt=0)
     max_iter: int = spec(25, doc="Newton iterations per step before the step is cut", ge=1)

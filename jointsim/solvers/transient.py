@@ -1048,13 +1048,9 @@ def _run_steady(scene, model, writer, tr, history) -> Convergence:
         g.attrs["loops_group"] = "/transient/loops"
         log.info("transient: dev_manifold max %.3e, dev_masing max %.3e",
                  report.dev_manifold.max(), report.dev_masing.max())
-    if "hbm" in writer.h5:
-        try:
-            from .crosscheck import cross_check_file
-        except ModuleNotFoundError:  # pragma: no cover
-            cross_check_file = None
-        if cross_check_file is not None:
-            cross_check_file(writer, scene, model, res)
+    if "hbm/harmonics" in writer.h5:
+        from .crosscheck import cross_check_file
+        cross_check_file(writer, scene, model, res, tol=tr.crosscheck_tol)
     return res.convergence
 
 
