@@ -284,10 +284,5 @@ def build_model(scene) -> StructuralModel:
 
 def _load_builders() -> None:
     """Import modules that register builders for the FE and ROM kinds."""
-    import importlib
-    for mod in ("jointsim.fem", "jointsim.reduction"):
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as exc:  # module not written yet
-            if exc.name != mod:
-                raise
+    from ._plugins import import_available
+    import_available(("jointsim.fem", "jointsim.reduction"))

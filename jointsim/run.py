@@ -112,11 +112,7 @@ def run_scene(scene, out_path, resume: bool = False) -> Path:
 
 def _register_solvers() -> None:
     """Import the solver modules so that they register their analyses."""
-    import importlib
-    for mod in ("jointsim.solvers.modes", "jointsim.solvers.hbm", "jointsim.solvers.epmc",
-                "jointsim.solvers.transient", "jointsim.solvers.qsma"):
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as exc:
-            if exc.name != mod:
-                raise
+    from ._plugins import import_available
+    import_available(("jointsim.solvers.modes", "jointsim.solvers.hbm",
+                      "jointsim.solvers.epmc", "jointsim.solvers.transient",
+                      "jointsim.solvers.qsma"))

@@ -28,15 +28,10 @@ def figure_dir(result, outdir=None) -> Path:
 
 
 def _register() -> None:
+    from .._plugins import import_available
     from . import plots  # noqa: F401  (registers the built-in plotters)
-    import importlib
-    for mod in ("jointsim.post.fe_plots", "jointsim.post.hbm_plots",
-                "jointsim.post.transient_plots", "jointsim.post.study_plots"):
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as exc:
-            if exc.name != mod:
-                raise
+    import_available(("jointsim.post.fe_plots", "jointsim.post.hbm_plots",
+                      "jointsim.post.transient_plots", "jointsim.post.study_plots"))
 
 
 def make_figures(result, outdir=None) -> list[Path]:

@@ -47,3 +47,12 @@ def law_from_file(h5, n_elements: int | None = None):
     else:
         area = np.ones(n_elements or h5["loops/u"].shape[1])
     return make_tangential_law(k.tangential, k.law, scene.joint, area)
+
+
+def backbone_rows(a, f, z, n_rows: int = 8, indent: str = "    ") -> list[str]:
+    """A few rows of an amplitude / frequency / damping table, evenly spread."""
+    import numpy as np
+    idx = np.unique(np.linspace(0, a.size - 1, min(a.size, n_rows)).astype(int))
+    lines = [f"{indent}{'amplitude':>12} {'freq [Hz]':>12} {'zeta':>10}"]
+    lines += [f"{indent}{a[i]:>12.4g} {f[i]:>12.6g} {z[i]:>10.4g}" for i in idx]
+    return lines

@@ -9,7 +9,7 @@ import numpy as np
 
 from .. import study
 from . import PLOTTERS
-from .common import law_from_file, pyplot, quantity_label
+from .common import backbone_rows, law_from_file, pyplot, quantity_label
 from .tables import SECTIONS
 
 log = logging.getLogger(__name__)
@@ -157,11 +157,8 @@ def qsma_section(h5) -> str:
              f"{float(g.attrs.get('linear_frequency_hz', np.nan)):.6g} Hz; "
              f"{g.attrs.get('message', '')}"]
     if "amplitude" in g and g["amplitude"].shape[0]:
-        a, f, z = g["amplitude"][()], g["frequency_hz"][()], g["damping_ratio"][()]
-        idx = np.unique(np.linspace(0, a.size - 1, min(a.size, 8)).astype(int))
-        lines.append(f"    {'amplitude':>12} {'freq [Hz]':>12} {'zeta':>10}")
-        for i in idx:
-            lines.append(f"    {a[i]:>12.4g} {f[i]:>12.6g} {z[i]:>10.4g}")
+        lines += backbone_rows(g["amplitude"][()], g["frequency_hz"][()],
+                               g["damping_ratio"][()])
     return "\n".join(lines)
 
 
