@@ -148,10 +148,18 @@ def plot_crosscheck(h5, outdir: Path) -> Path | None:
     ax.bar([str(h) for h in hs], np.maximum(rel, 1e-17), color=colors)
     ax.set_yscale("log")
     ax.axhline(g.attrs["tol"], color="k", ls="--", lw=1, label="tolerance")
+    if "tab:orange" in colors:
+        from matplotlib.patches import Patch
+        ax.legend(handles=ax.get_legend_handles_labels()[0]
+                  + [Patch(color="tab:orange", label="DC: slider history (legitimate)")],
+                  fontsize=8)
+    else:
+        ax.legend(fontsize=8)
     ax.set_xlabel("harmonic")
     ax.set_ylabel("||X_TM - X_HBM|| / ||X_HBM,1||")
-    ax.set_title(str(g.attrs.get("verdict", ""))[:110], fontsize=7)
-    ax.legend(fontsize=8)
+    ax.set_title(f"time marching vs HBM at omega = {float(g.attrs.get('omega', np.nan)):.6g} "
+                 f"(force scale {float(g.attrs.get('force_scale', np.nan)):g}): "
+                 f"{'agree' if g.attrs.get('agree', False) else 'DISAGREE'}", fontsize=9)
     fig.tight_layout()
     path = outdir / "transient_crosscheck.png"
     fig.savefig(path, dpi=120)
