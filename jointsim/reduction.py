@@ -279,9 +279,10 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
     ``N = kn A max(0, -(gap0 + Tn x0))``), and
     ``f_static = f_ext + f_clamp + K_bolt x0`` so that ``x0`` is the
     equilibrium of ``K x + f_c(x) = f_static``.  With a fixed normal load the
-    linear normal springs go into ``K`` and ``f_static`` absorbs their force
-    at ``x0`` (``Tn^T (N0 + kn A (gap0 + Tn x0))``), so ``x0`` stays the
-    equilibrium.  Damping comes from ``[damping]`` on the preloaded, stuck
+    linear normal springs of the elements closed at the preload (``N0 > 0``)
+    go into ``K`` and ``f_static`` absorbs their force at ``x0``
+    (``Tn^T (N0 + kn A (gap0 + Tn x0))``), so ``x0`` stays the equilibrium
+    and the linearised joint is the same as with a coupled normal load.  Damping comes from ``[damping]`` on the preloaded, stuck
     tangent stiffness (plus ``rom.C``).
 
     Parameters
@@ -299,8 +300,9 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
     -------
     StructuralModel
         ``extra`` gains ``x0`` (preload displacement, m), ``preload``
-        (:class:`~jointsim.solvers.static.StaticResult`), ``K_stuck``
-        (tangent of the preloaded stuck joint, dense), ``rom`` and timings.
+        (:class:`~jointsim.solvers.static.StaticResult`), ``rom`` and timings.
+        The tangent of the preloaded stuck joint is
+        :func:`jointsim.solvers.static.stuck_linearisation` of the model.
     """
     from .solvers.static import solve_static, stuck_mode, tangent_stiffness
     t0 = time.perf_counter()
@@ -333,7 +335,7 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
     if preload_tangential == "stuck" and np.any(slip & (N0 > 0)):
         log.warning("preload: %d of %d contact elements carry a tangential force above "
                     "mu N0 in the stuck preload state", int(np.sum(slip & (N0 > 0))), ne)
-    K_model = with_fixed_normal_springs(K, contacts)
+    K_model = with_fixed_normal_springs(K, contacts)  # springs where N0 > 0 (fixed N)
     if not contacts.kernels.coupled:
         k_fixed = fixed_normal_stiffness(contacts)
         f_static = f_static + Tn.T @ (N0 + k_fixed * (contacts.gap0 + Tn @ x0))
@@ -357,7 +359,7 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
                                  f"must be < {n} (the reduced model has {n} DOFs)")
             load_dofs.append(ld.dof)
     info = dict(extra or {})
-    info.update(x0=x0, preload=pre, K_stuck=K_stuck.toarray(), rom=rom,
+    info.update(x0=x0, preload=pre, rom=rom,
                 f_clamp=f_clamp, K_bolt=K_bolt, preload_time_s=t_pre)
     log.info("preload: sum N0 = %.6g N over %d/%d elements in contact (%s)",
              N0.sum(), int(np.sum(N0 > 0)), ne, pre.convergence.message)

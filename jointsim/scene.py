@@ -324,9 +324,10 @@ class ModesAnalysis:
     """Linear modes of the preloaded joint with a stuck interface."""
 
     n_modes: int = spec(10, doc="linear modes of the preloaded, stuck joint", ge=1)
-    suspension_hz: float = spec(20.0, doc="modes below this frequency are rigid-body "
-                                          "(suspension) modes, not elastic ones", unit="Hz",
-                                ge=0)
+    suspension_hz: Optional[float] = spec(
+        None, doc="modes below this frequency are rigid-body (suspension) modes, not elastic "
+                  "ones; default: detected (FE: rigid-body share of the modal mass; ROM: "
+                  "spectral gap; lumped: none)", unit="Hz", ge=0)
     full_model: bool = spec(False, doc="also solve the unreduced FE model and compare "
                                        "(FE models)")
     monolithic: bool = spec(False, doc="also solve the monolithic beam: the same mesh with "
@@ -346,6 +347,8 @@ class HBMAnalysis:
     force_scale: tuple[float, ...] = spec((1.0,), doc="multipliers of the excitation; "
                                                       "one branch each")
     response_dof: int = spec(0, doc="DOF whose amplitude the FRC plots", ge=0)
+    response_point: str = spec("", doc="named model point whose amplitude the FRC plots "
+                                       "(FE/ROM, e.g. 'response'; overrides response_dof)")
     step: float = spec(0.01, doc="initial arclength step (scaled units)", gt=0)
     step_min: float = spec(1e-6, doc="smallest arclength step before giving up", gt=0)
     step_max: float = spec(0.1, doc="largest arclength step", gt=0)
@@ -357,6 +360,10 @@ class HBMAnalysis:
                                     "repeats", ge=2)
     refine_peak: bool = spec(True, doc="refine each branch's largest amplitude by "
                                        "maximising over frequency (single-valued peaks)")
+    loops: str = spec("masing.points", choices=("masing.points", "peaks"),
+                      doc="points whose element loops and Masing checks are kept: those of "
+                          "analysis.masing.points (empty: every point), or each branch's "
+                          "largest-amplitude point")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -368,9 +375,11 @@ class EPMCAnalysis:
     the structure with every contact at its rest tangent (stuck).
     """
 
-    mode: int = spec(1, doc="linear mode index followed (1-based, elastic modes)", ge=1)
-    rigid_cutoff_hz: float = spec(0.0, doc="modes below this frequency count as rigid-body "
-                                           "modes and are skipped by `mode`", unit="Hz", ge=0)
+    mode: int = spec(1, doc="elastic mode followed (1-based; rigid-body/suspension modes "
+                            "are not counted)", ge=1)
+    rigid_cutoff_hz: Optional[float] = spec(
+        None, doc="modes below this frequency count as rigid-body modes; default: detected "
+                  "like analysis.modes.suspension_hz", unit="Hz", ge=0)
     harmonics: tuple[int, ...] = spec((0, 1, 2, 3, 4, 5, 6, 7), doc="harmonics kept", ge=0)
     n_samples: int = spec(128, doc="AFT time samples per period", ge=4)
     log10_amplitude_start: float = spec(doc="log10 of the starting modal amplitude")
@@ -667,6 +676,15 @@ def _check_cross(scene: Scene, ctx: Context) -> None:
         if sec.min_periods > sec.max_periods:
             raise ctx.error(f"analysis.{name}.min_periods",
                             f"must not exceed analysis.{name}.max_periods")
+    if a.hbm is not None and a.hbm.response_point:
+        if isinstance(m, LumpedModel):
+            raise ctx.error("analysis.hbm.response_point",
+                            "names a model point, which lumped models do not have; use "
+                            "analysis.hbm.response_dof")
+        if isinstance(m, FEModel) and a.hbm.response_point.split(".")[0] not in m.retain_points:
+            raise ctx.error("analysis.hbm.response_point",
+                            f"{a.hbm.response_point!r} is not one of model.retain_points "
+                            f"({', '.join(m.retain_points)}), optionally with '.x' or '.y'")
     if a.hbm is not None and isinstance(m, LumpedModel) and a.hbm.response_dof >= m.n_dof:
         raise ctx.error("analysis.hbm.response_dof",
                         f"must be < {m.n_dof} (the model has {m.n_dof} DOFs)")

@@ -13,11 +13,28 @@ SCENE = ROOT / "models" / "lap_joint.toml"
 COARSE = "model.mesh='../meshes/lap_joint_coarse.msh'"
 
 
+def modes_only(text: str) -> str:
+    """The scene text without its analysis tables other than [analysis.modes]
+    (the nonlinear analyses of the scene are tested in test_hbm_fe.py)."""
+    out, keep = [], True
+    for line in text.splitlines():
+        s = line.strip()
+        if s.startswith("[") and not s.startswith("[["):
+            keep = not s.startswith("[analysis.") or s == "[analysis.modes]"
+        if keep:
+            out.append(line)
+    return "\n".join(out) + "\n"
+
+
 @pytest.fixture(scope="module")
 def result(tmp_path_factory):
     d = tmp_path_factory.mktemp("fe_run")
+    scene = d / "lap_joint.toml"
+    scene.write_text(modes_only(SCENE.read_text()).replace(
+        "../meshes/lap_joint_default.msh", str(ROOT / "meshes" / "lap_joint_default.msh")))
     out = d / "lap.h5"
-    rc = main(["run", str(SCENE), "-o", str(out), "--set", COARSE,
+    rc = main(["run", str(scene), "-o", str(out), "--set",
+               f"model.mesh='{ROOT / 'meshes' / 'lap_joint_coarse.msh'}'",
                "--set", "analysis.modes.export_rom=lap_rom.npz", "-q"])
     assert rc == 0
     return out
@@ -76,7 +93,7 @@ def test_post_writes_pressure_modes_and_paraview_files(result, tmp_path):
 def test_rom_scene_runs_from_the_exported_file(result, tmp_path):
     rom = result.parent / "lap_rom.npz"
     scene = tmp_path / "rom.toml"
-    base = SCENE.read_text()
+    base = modes_only(SCENE.read_text())
     start = base.index("[model]")
     end = base.index("[joint]")
     scene.write_text(base[:start] + f"[model]\nkind = \"rom\"\nfile = \"{rom}\"\n\n"
@@ -99,9 +116,12 @@ def test_rom_scene_runs_from_the_exported_file(result, tmp_path):
     ("excitation.loads.0.point=nowhere", "excitation.loads[0].point"),
 ])
 def test_bad_fe_scene_names_the_key(override, key):
+    from jointsim import _toml
     from jointsim.model import build_model
-    from jointsim.scene import SceneError, load_scene
-    scene = load_scene(SCENE, [COARSE, override])
+    from jointsim.scene import SceneError, apply_overrides, parse_scene
+    data = apply_overrides(_toml.loads(modes_only(SCENE.read_text())), [COARSE, override],
+                           str(SCENE))
+    scene = parse_scene(data, str(SCENE), SCENE.parent)
     with pytest.raises(SceneError) as err:
         build_model(scene)
     assert err.value.key == key and "lap_joint.toml" in str(err.value)

@@ -38,7 +38,9 @@ def test_sdof_jenkins_backbone_and_damping():
     assert np.max(np.abs(res.dissipation - D_exact)) < 8 * 0.25 * h ** 2
     big = q > 2.0
     zeta_exact = D_exact[big] / (2 * np.pi * q[big] * alpha_exact[big])
-    np.testing.assert_allclose(res.damping_ratio[big], zeta_exact, rtol=1e-3)
+    np.testing.assert_allclose(res.damping_ratio_friction[big], zeta_exact, rtol=1e-3)
+    assert res.zeta_linear == 0.0  # the model has no viscous damping
+    np.testing.assert_array_equal(res.damping_ratio, res.damping_ratio_friction)
     assert res.linear_hz == pytest.approx(np.sqrt(1.25) / (2 * np.pi), rel=1e-14)
 
 
@@ -70,7 +72,9 @@ def test_fe_low_amplitude_is_the_stuck_mode(fe_fixed):
     res = qsma(model, phi, model.extra["x0"], w0 ** 2 * np.array([1e-8, 1e-7]))
     np.testing.assert_allclose(2 * np.pi * res.frequency_hz, w0, rtol=1e-8)
     assert res.linear_hz == pytest.approx(w0 / (2 * np.pi), rel=1e-7)  # eigensolver accuracy
-    assert np.all(np.abs(res.damping_ratio) < 1e-8)
+    assert np.all(np.abs(res.damping_ratio_friction) < 1e-8)
+    # the total is the mode's viscous damping: 0.087 % in the scene
+    np.testing.assert_allclose(res.damping_ratio, 0.00087, rtol=1e-6)
 
 
 def test_fe_masing_dissipation_equals_marched_loop(fe_fixed):

@@ -287,6 +287,14 @@ def linear_spring(u, k):
     return f, dfdu
 
 
+@njit(cache=True, inline="always")
+def _normal_point(g, kn, unilateral):
+    """One sample of the normal penalty law: ``(N, dN/dg)``."""
+    if unilateral and g >= 0.0:
+        return 0.0, 0.0
+    return -kn * g, -kn
+
+
 @njit(cache=True)
 def normal_penalty(g, kn, unilateral):
     """Normal load from the gap: ``N = kn max(0, -g)`` (unilateral) or ``-kn g``.
@@ -310,10 +318,5 @@ def normal_penalty(g, kn, unilateral):
     dNdg = np.empty((ne, nt))
     for e in range(ne):
         for t in range(nt):
-            if unilateral and g[e, t] >= 0.0:
-                N[e, t] = 0.0
-                dNdg[e, t] = 0.0
-            else:
-                N[e, t] = -kn[e] * g[e, t]
-                dNdg[e, t] = -kn[e]
+            N[e, t], dNdg[e, t] = _normal_point(g[e, t], kn[e], unilateral)
     return N, dNdg

@@ -102,7 +102,7 @@ def build_fe(scene):
     ``extra`` holds ``structure`` (the full :class:`FEStructure`), ``cb``
     (the :class:`CraigBampton` basis), ``n_full_dof``, ``build_time_s``,
     ``reduce_time_s`` and everything :func:`jointsim.reduction.structural_model`
-    adds (``x0``, ``preload``, ``K_stuck``, ``rom``, ...).
+    adds (``x0``, ``preload``, ``rom``, ...).
     """
     m = scene.model
     file = str(scene.path)

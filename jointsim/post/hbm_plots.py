@@ -32,8 +32,8 @@ def plot_frc(h5: h5py.File, outdir: Path) -> list[Path]:
             ax.plot(g["peak_omega"][b], g["peak_amplitude"][b], "o", mfc="none",
                     color=line.get_color())
     ax.set_xlabel(quantity_label("omega", "angular_frequency", units))
-    ax.set_ylabel(quantity_label(f"|X_1| at DOF {int(g.attrs.get('response_dof', 0))}",
-                                 "displacement", units))
+    where = str(g.attrs.get("response_label", "")) or f"DOF {int(g.attrs.get('response_dof', 0))}"
+    ax.set_ylabel(quantity_label(f"|X_1| at {where}", "displacement", units))
     ax.set_title("frequency response (fundamental amplitude); circles: peaks", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)

@@ -14,10 +14,22 @@ tolerances refer to the scaled quantities.
   AFT residual is only piecewise smooth, and plain Newton can cycle across a
   kink.
 * Step control: after a success the step grows or shrinks towards
-  ``target_iter`` iterations; a failed corrector (no convergence, non-finite
-  values, or a jump farther than ``max_jump * h`` from the predictor) halves
-  the step and retries; below ``step_min`` the branch gives up and returns
-  what it has with the reason.
+  ``target_iter`` iterations.  A failed corrector (no convergence, a stall,
+  non-finite values, or a jump farther than ``max_jump * h`` from the
+  predictor) first tries, once per point, 4 and 16 times longer steps (a
+  kink of the residual, where Newton cycles, is often passed by landing
+  beyond it), then the corner rules below, then halves the step and retries;
+  below ``step_min`` the branch gives up and returns what it has with the
+  reason.
+* Corners (when the step is already small): a point beyond a corner of
+  the branch of up to 80 degrees is accepted although it lies far from the
+  predictor (``CORNER_JUMP``); failing that, the tangent of the piece beyond
+  the corner is tried in both orientations.
+* No retracing: a corrected point that lies back on the last
+  ``RETRACE_POINTS`` points of the branch (closer to one of their segments
+  than half its distance from the current point) is rejected; at a sharp
+  corner of a piecewise-smooth branch, the forward hyperplane can otherwise
+  cut the incoming piece and send the branch back the way it came.
 * End: when a point passes ``lam_end`` the branch is closed by a Newton
   solve at ``lam = lam_end`` exactly.  A branch that turns back out of the
   range through ``lam_start`` stops there.
@@ -38,6 +50,11 @@ log = logging.getLogger(__name__)
 
 #: Try to pass corners of piecewise-smooth branches (a switch for debugging).
 CORNERS = True
+#: At a corner, a corrected point may lie this many steps from the predictor
+#: (tan 80 deg: corners of up to 80 degrees).
+CORNER_JUMP = 5.7
+#: Points of the traced branch a new point is checked against (no retracing).
+RETRACE_POINTS = 500
 
 
 @dataclass
@@ -87,6 +104,7 @@ class Branch:
 
 
 def _solve(A, b):
+    """``A^-1 b``; least squares if ``A`` is singular."""
     try:
         x = np.linalg.solve(A, b)
     except np.linalg.LinAlgError:
@@ -110,7 +128,7 @@ def tangent(J, t_prev):
     return t
 
 
-def _corner(F, yk, t, h, tol, max_iter):
+def _corner(F, yk, t, h, tol, max_iter, max_jump=np.inf):
     """Try to leave a corner at ``yk`` along the tangent of the piece beyond it.
 
     Returns ``(y, R, J, extra, iterations)`` or None.
@@ -133,7 +151,8 @@ def _corner(F, yk, t, h, tol, max_iter):
             if not np.isfinite(rn):
                 break
             if rn <= tol:
-                if (yc - yk) @ (-t) / max(np.linalg.norm(yc - yk), 1e-300) < 0.99:
+                back = (yc - yk) @ (-t) / max(np.linalg.norm(yc - yk), 1e-300) >= 0.99
+                if not back and np.linalg.norm(yc - yk1) <= max_jump * h:
                     best = (yc, R, J, extra, it)
                 break
         if best is not None:
@@ -143,7 +162,8 @@ def _corner(F, yk, t, h, tol, max_iter):
 
 def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: float,
                     step_min: float, step_max: float, max_points: int, tol: float,
-                    max_iter: int = 20, target_iter: int = 4, max_jump: float = 2.0, backtrack: int = 4,
+                    max_iter: int = 20, target_iter: int = 4, max_jump: float = 2.0,
+                    backtrack: int = 4, stall: int = 5,
                     solve_first: bool = True, tangent0=None, on_point=None,
                     progress: bool = True, desc: str = "continuation") -> Branch:
     """Follow the solution branch of ``R(z, lam) = 0`` from ``y0`` to ``lam = lam_end``.
@@ -172,6 +192,9 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
         Corrector iterations at most / aimed at by the step control.
     backtrack : int
         Halvings of a Newton step that increases the residual (1: none).
+    stall : int
+        A corrector whose best residual has not fallen by 10 % in this many
+        iterations is given up (it cycles across a kink).
     max_jump : float
         A corrector landing farther than ``max_jump * h`` from its predictor
         is rejected (guards against jumping to another branch).
@@ -196,9 +219,11 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
     span = abs(lam_end - lam0)
     rs = float(rscale)
 
+    col = scale / rs
+
     def F(yh):
         R, J, extra = fun(yh * scale)
-        return R / rs, (J * scale[None, :]) / rs, extra
+        return R / rs, J * col[None, :], extra
 
     ys, its, res, steps, tans = [], [], [], [], []
     bar = tqdm(total=1000, desc=desc, disable=(not progress) or None, leave=False,
@@ -245,6 +270,68 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                       residual=np.array(res), step=np.array(steps), convergence=conv,
                       tangents=tans)
 
+    def retraces(yc, yk):
+        """Whether ``yc`` lies back on the branch already traced: closer to one of
+        the last segments than half its distance from ``yk``."""
+        d = np.linalg.norm(yc - yk)
+        pts = [p / scale for p in ys[-RETRACE_POINTS:]]
+        for a, b in zip(pts[:-1], pts[1:]):
+            ab = b - a
+            s_ = float(np.clip((yc - a) @ ab / max(ab @ ab, 1e-300), 0.0, 1.0))
+            if np.linalg.norm(yc - (a + s_ * ab)) < 0.5 * d:
+                return True
+        return False
+
+    def correct(yk, t, h, jump_limit=max_jump):
+        """Predictor ``yk + h t`` and Newton on the hyperplane ``t.(y - yk) = h``.
+
+        Fails on non-finite values, on ``max_iter`` iterations, on stagnation
+        (the best residual not improved by 10 % in ``stall`` iterations: Newton
+        cycling across a kink), when it lands farther than ``jump_limit * h``
+        from the predictor, and when it lands back on the branch already traced.
+        Returns ``(ok, y, R, J, extra, iterations)``.
+        """
+        pred = yk + h * t
+        yc = pred.copy()
+        R, J, extra = F(yc)
+        rn = np.abs(R).max(initial=0.0)
+        best, best_it = rn, 0
+        ok = False
+        it = 0
+        for it in range(1, max_iter + 1):
+            A = np.vstack([J, t[None, :]])
+            b = -np.concatenate([R, [t @ (yc - yk) - h]])
+            dy = _solve(A, b)
+            # backtracking: the residual is only piecewise smooth (stick/slip
+            # switches at samples) and a full step can cycle across a kink
+            lam = 1.0
+            for _ in range(backtrack):
+                yn = yc + lam * dy
+                Rn, Jn, en = F(yn)
+                rnn = np.abs(Rn).max(initial=0.0)
+                if np.isfinite(rnn) and (rnn <= rn or rnn <= tol):
+                    break
+                lam *= 0.5
+            yc, R, J, extra, rn = yn, Rn, Jn, en, rnn
+            if not np.isfinite(rn) or not np.all(np.isfinite(yc)):
+                break
+            if rn <= tol:
+                ok = True
+                break
+            if rn < 0.9 * best:
+                best, best_it = rn, it
+            elif it - best_it >= stall:
+                log.debug("%s: corrector stalled at residual %.2e (h = %.3g)", desc, rn, h)
+                break
+        if ok and np.linalg.norm(yc - pred) > jump_limit * h:
+            ok = False
+            log.debug("%s: corrector jumped %.3g from the predictor (h = %.3g); retrying",
+                      desc, np.linalg.norm(yc - pred), h)
+        if ok and retraces(yc, yk):
+            ok = False
+            log.debug("%s: corrector landed back on the traced branch (h = %.3g)", desc, h)
+        return ok, yc, R, J, extra, it
+
     yh = y0 / scale
     t_prev = np.zeros(n1)
     t_prev[-1] = direction
@@ -262,7 +349,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
         t = tangent(J, t_prev)
         accept(yh, PointInfo(it, float(np.abs(R).max(initial=0.0)), 0.0, t, extra))
         h = float(step)
-        corner_tries = 0
+        corner_tries = jump_tries = 0
         lam_start_h = lam0 / scale[-1]
         lam_end_h = lam_end / scale[-1]
         while len(ys) < max_points:
@@ -272,40 +359,34 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                 to_end = (lam_end_h - yk[-1]) / t[-1]
                 if 0 < to_end < h:
                     h = max(to_end * 1.001, step_min)
-            pred = yk + h * t
-            yc = pred.copy()
-            ok = False
-            R, J, extra = F(yc)
-            rn = np.abs(R).max(initial=0.0)
-            for it in range(1, max_iter + 1):
-                A = np.vstack([J, t[None, :]])
-                b = -np.concatenate([R, [t @ (yc - yk) - h]])
-                dy = _solve(A, b)
-                # backtracking: the residual is only piecewise smooth (stick/slip
-                # switches at samples) and a full step can cycle across a kink
-                lam = 1.0
-                for _ in range(backtrack):
-                    yn = yc + lam * dy
-                    Rn, Jn, en = F(yn)
-                    rnn = np.abs(Rn).max(initial=0.0)
-                    if np.isfinite(rnn) and (rnn <= rn or rnn <= tol):
+            ok, yc, R, J, extra, it = correct(yk, t, h)
+            if not ok and jump_tries == 0 and h < step_max:
+                # a kink of the piecewise-smooth residual (a stick/slip or contact
+                # switch crossing a sample) can make Newton cycle near it while a
+                # longer step lands beyond it: try longer steps once per point
+                jump_tries += 1
+                for hj in sorted({min(4.0 * h, step_max), min(16.0 * h, step_max)}):
+                    ok, yc, R, J, extra, it = correct(yk, t, hj)
+                    if ok:
+                        log.debug("%s: stepped over a kink at lam = %.8g (h %.3g -> %.3g)",
+                                  desc, yk[-1] * scale[-1], h, hj)
+                        h = hj
                         break
-                    lam *= 0.5
-                yc, R, J, extra, rn = yn, Rn, Jn, en, rnn
-                if not np.isfinite(rn) or not np.all(np.isfinite(yc)):
-                    break
-                if rn <= tol:
-                    ok = True
-                    break
-            if ok and np.linalg.norm(yc - pred) > max_jump * h:
-                ok = False
-                log.debug("%s: corrector jumped %.3g from the predictor (h = %.3g); retrying",
-                          desc, np.linalg.norm(yc - pred), h)
             if not ok and CORNERS and corner_tries < 2 and h < 0.05 * step_max:
-                # a corner of the piecewise-smooth branch: take the tangent of the
-                # piece beyond it and try both orientations (not back the old way)
+                # a corner of the piecewise-smooth branch: first accept a point
+                # beyond a corner of up to 80 degrees (the hyperplane still cuts
+                # the branch there, but far from the predictor), then take the
+                # tangent of the piece beyond it and try both orientations
                 corner_tries += 1
-                got = _corner(F, yk, t, max(h, 1e3 * step_min), tol, max_iter)
+                hc = max(h, 1e3 * step_min)
+                ok, yc, R, J, extra, it = correct(yk, t, hc, jump_limit=CORNER_JUMP)
+                if ok:
+                    h = hc
+                    log.debug("%s: passed a corner of the branch at lam = %.8g", desc,
+                              yk[-1] * scale[-1])
+                got = None if ok else _corner(F, yk, t, hc, tol, max_iter, max_jump)
+                if got is not None and retraces(got[0], yk):
+                    got = None
                 if got is not None:
                     yc, R, J, extra, it = got
                     ok = True
@@ -320,7 +401,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                                           f"step_min = {step_min:g} at lam = "
                                           f"{yk[-1] * scale[-1]:.8g} after {len(ys)} points")
                 continue
-            corner_tries = 0
+            corner_tries = jump_tries = 0
             t_new = tangent(J, (yc - yk) / max(np.linalg.norm(yc - yk), 1e-300))
             lam_new = yc[-1]
             if (lam_new - lam_end_h) * direction >= 0:

@@ -13,95 +13,43 @@ amplitude and the phase:
 
 * **amplitude** -- the modal amplitude of the fundamental harmonic,
   ``a = phi^T M (X_1c - i X_1s)``, with ``phi`` the mass-normalised linear mode
-  of the structure with every contact at its rest tangent (the stuck joint);
-  the phase is fixed by making it real: ``Re = a``, ``Im = 0``.  For a single
-  DOF with ``m = 1`` this is the amplitude of the cosine of ``x``.
-* **scaling** -- the unknowns are the contact coefficients divided by ``a``
-  (the shape), so that a branch over several decades of amplitude stays well
-  scaled; the residual is divided by ``a`` too.  The continuation parameter
-  is ``log10(a)``.
+  of the structure linearised at its static state ``x0`` with the joint stuck
+  (:func:`jointsim.solvers.static.stuck_linearisation`; for the lap joint:
+  the preloaded joint, the modes of ``[analysis.modes]``); the phase is fixed
+  by making it real: ``Re = a``, ``Im = 0``.  For a single DOF with ``m = 1``
+  this is the amplitude of the cosine of ``x``.  ``mode`` counts elastic
+  modes only (:func:`jointsim.solvers.modes.elastic_mode`).
+* **scaling** -- the unknowns are the contact coefficients measured from the
+  static state and divided by ``a``, ``z = z0 + a zh`` with ``z0`` the
+  contact coordinates of ``x0`` (harmonic 0), so that a branch over several
+  decades of amplitude stays well scaled and starts at the static state; the
+  residual is divided by ``a`` too.  The continuation parameter is
+  ``log10(a)``.
 
 At small amplitude the mode starts from the linear one (``omega`` = its
-frequency, ``xi = phi^T C phi``).
+frequency, ``xi = phi^T C phi``, ``zh`` = the contact coordinates of
+``phi`` in the cosine of harmonic 1).
 """
 from __future__ import annotations
 
 import logging
 
 import numpy as np
-import scipy.linalg as sla
 
-from .hbm import HBMSystem, _dense
+from .hbm import HBMSystem, _dense, single_threaded_blas
+from .modes import elastic_mode
 
 log = logging.getLogger(__name__)
 
 LN10 = np.log(10.0)
 
 
-def stuck_stiffness(model) -> np.ndarray:
-    """Stiffness of the structure with every contact at its rest tangent.
-
-    ``K + Tt^T diag(kt) Tt`` (friction and stuck laws), plus
-    ``Tn^T diag(kn A) Tn`` for coupled elements closed at rest (``gap0 < 0``,
-    or every element when the normal spring is bilateral).
-
-    Returns
-    -------
-    ndarray, shape (n_dof, n_dof) [N/m]
-    """
-    c = model.contacts
-    K = _dense(model.K).copy()
-    if c.n_elements == 0:
-        return K
-    if c.law.kind != "none":
-        Tt = _dense(c.Tt)
-        K += Tt.T @ (c.law.kt[:, None] * Tt)
-    if c.kernels.coupled:
-        Tn = _dense(c.Tn)
-        closed = (c.gap0 < 0.0) | (c.kernels.normal == "bilateral")
-        K += Tn.T @ ((c.kn * closed)[:, None] * Tn)
-    return K
-
-
-def linear_mode(model, mode: int, rigid_cutoff_hz: float = 0.0):
-    """Mass-normalised mode of the stuck structure.
-
-    Parameters
-    ----------
-    model : StructuralModel
-    mode : int
-        1-based index among the modes at or above ``rigid_cutoff_hz``.
-    rigid_cutoff_hz : float
-        Modes below this frequency are skipped (rigid-body modes).
-
-    Returns
-    -------
-    phi : ndarray, shape (n_dof,)
-    omega : float
-        Its angular frequency [rad/s].
-    """
-    K = stuck_stiffness(model)
-    M = _dense(model.M)
-    lam, Phi = sla.eigh(0.5 * (K + K.T), 0.5 * (M + M.T))
-    w = np.sqrt(np.maximum(lam, 0.0))
-    keep = np.flatnonzero(w / (2 * np.pi) >= rigid_cutoff_hz)
-    if mode > keep.size:
-        raise ValueError(f"analysis.epmc.mode = {mode}, but only {keep.size} modes lie above "
-                         f"rigid_cutoff_hz = {rigid_cutoff_hz:g}")
-    i = keep[mode - 1]
-    phi = Phi[:, i]
-    j = int(np.argmax(np.abs(phi)))
-    if phi[j] < 0:
-        phi = -phi
-    return phi, float(w[i])
-
-
 class EPMCSystem:
     """EPMC equations in amplitude-normalised unknowns.
 
-    Unknowns ``y = (zh, omega, xi, lam)`` with ``z = 10^lam zh`` the contact
-    coefficients; equations ``R(z, omega, xi) / a`` and the amplitude and phase
-    conditions.
+    Unknowns ``y = (zh, omega, xi, lam)`` with ``z = z0 + 10^lam zh`` the
+    contact coefficients (``z0``: the static state, harmonic 0); equations
+    ``R(z, omega, xi) / a`` and the amplitude and phase conditions.
 
     Parameters
     ----------
@@ -116,6 +64,7 @@ class EPMCSystem:
         if 1 not in system.basis.harmonics:
             raise ValueError("EPMC needs harmonic 1")
         self.s = system
+        self.z0 = system.static_coordinates()
         self.phi = np.asarray(phi, dtype=float)
         self.F = F
         lin = system.lin
@@ -129,18 +78,19 @@ class EPMCSystem:
         s, lin = self.s, self.s.lin
         qh = s._complex(Q, 1)
         A, B, Bp, E = lin.blocks(omega, xi)
+        Ef = lin.factor_E(E) if lin.n_y else E
         Fy = lin.Z.T @ s._complex(self.F, 1)
-        y = lin.solve_E(E, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)
+        y = lin.solve_E(Ef, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)
         q1 = self.m_q @ qh + self.m_y @ y
         if not derivs:
             return q1, None, None
-        ell = self.m_q - (lin.solve_E(E, Bp).T @ self.m_y if lin.n_y else 0.0)
+        ell = self.m_q - (Bp.T @ lin.solve_E(Ef, self.m_y.astype(complex), trans=True)
+                          if lin.n_y else 0.0)
         d = {}
         for p in ("omega", "xi"):
             if lin.n_y:
                 _dA, _dB, dBp, dE = lin.dblocks(omega, xi, p, 1)
-                dEy = dE * y if np.ndim(dE) == 1 else dE @ y
-                d[p] = self.m_y @ (-lin.solve_E(E, dBp @ qh + dEy))
+                d[p] = self.m_y @ (-lin.solve_E(Ef, dBp @ qh + lin.apply_dE(dE, y)))
             else:
                 d[p] = 0.0 + 0.0j
         return q1, ell, d
@@ -150,14 +100,17 @@ class EPMCSystem:
         s = self.s
         nz = s.n_z
         zh, omega, xi, lam = y[:nz], y[nz], y[nz + 1], y[nz + 2]
+        if not -300.0 < lam < 300.0 or not np.all(np.isfinite(y)):
+            # a diverged Newton iterate: report it as non-finite, not as a warning
+            return np.full(nz + 2, np.nan), np.full((nz + 2, nz + 3), np.nan), None
         a = 10.0 ** lam
-        ev = s.evaluate(a * zh, omega, self.F, xi=xi, wrt=("omega", "xi"))
+        J = np.zeros((nz + 2, nz + 3))
+        ev = s.evaluate(self.z0 + a * zh, omega, self.F, xi=xi, wrt=("omega", "xi"),
+                        J_out=J[:nz, :nz])
         Rt = ev.R / a
         Q = zh.reshape(s.n_c, s.n_r)
         q1, ell, d = self._modal(Q, omega, xi, True)
         R = np.concatenate([Rt, [q1.real - 1.0, q1.imag]])
-        J = np.zeros((nz + 2, nz + 3))
-        J[:nz, :nz] = ev.J
         J[:nz, nz] = ev.dR["omega"] / a
         J[:nz, nz + 1] = ev.dR["xi"] / a
         J[:nz, nz + 2] = LN10 * (ev.J @ zh - Rt)
@@ -177,6 +130,7 @@ class EPMCSystem:
         return R, J, ev
 
 
+@single_threaded_blas
 def run_epmc_analysis(scene, model, writer) -> None:
     """Runner of ``[analysis.epmc]``: the backbone of one mode, written point by point.
 
@@ -193,10 +147,13 @@ def run_epmc_analysis(scene, model, writer) -> None:
     from ..masing import check_loops
     from .continuation import continue_branch
 
+    import time
+    t_start = time.perf_counter()
     a = scene.analysis.epmc
     units = model.units
     system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods)
-    phi, w0 = linear_mode(model, a.mode, a.rigid_cutoff_hz)
+    em = elastic_mode(model, a.mode, a.rigid_cutoff_hz)
+    phi, w0 = em.phi, em.omega
     F = system.force_coefficients(0.0)
     ep = EPMCSystem(system, phi, F)
     C = _dense(model.C)
@@ -205,12 +162,15 @@ def run_epmc_analysis(scene, model, writer) -> None:
     amp_unit = "m kg^0.5" if units == "SI" else "length mass^0.5"
     g = writer.group("epmc", mode=a.mode, linear_frequency_hz=w0 / (2 * np.pi),
                      linear_damping_ratio=xi0 / (2 * w0), n_samples=a.n_samples,
+                     mode_index=em.index, n_rigid_below=em.n_rigid,
                      amplitude_definition="modal amplitude of the fundamental harmonic, "
-                     "|phi^T M (X_1c - i X_1s)|, phi the mass-normalised stuck mode")
+                     "|phi^T M (X_1c - i X_1s)|, phi the mass-normalised mode of the "
+                     "structure linearised at its static state with the joint stuck")
     if "epmc/harmonics" not in writer.h5:
         writer.write("epmc/harmonics", np.array(a.harmonics, dtype=np.int64), "1",
                      "harmonics kept; coefficient order [0, 1c, 1s, ...]")
-        writer.write("epmc/mode_shape", phi, "1", "mass-normalised stuck mode (phi^T M phi = 1)")
+        writer.write("epmc/mode_shape", phi, "1/sqrt(kg)" if units == "SI" else "1",
+                     "mass-normalised stuck mode at the static state (phi^T M phi = 1)")
     if "contacts/area" not in writer.h5 and model.contacts.n_elements:
         writer.write("contacts/area", model.contacts.area, "m^2" if units == "SI" else "length^2",
                      "contact area of each element")
@@ -243,7 +203,7 @@ def run_epmc_analysis(scene, model, writer) -> None:
             return
         omega, xi, lam = float(y[nz]), float(y[nz + 1]), float(y[nz + 2])
         amp = 10.0 ** lam
-        X = system.reconstruct(amp * y[:nz], omega, F, xi=xi)
+        X = system.reconstruct(ep.z0 + amp * y[:nz], omega, F, xi=xi)
         p = writer.rows("epmc/omega")
         writer.append("epmc/amplitude", amp, amp_unit, "modal amplitude of the fundamental")
         writer.append("epmc/omega", omega, unit("angular_frequency", units), "angular frequency")
@@ -271,6 +231,8 @@ def run_epmc_analysis(scene, model, writer) -> None:
                          tol=a.tol, max_iter=a.max_iter, solve_first=solve_first,
                          tangent0=t0, on_point=on_point, desc=f"epmc mode {a.mode}")
     conv = br.convergence
+    g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
+    g.attrs["n_points"] = writer.rows("epmc/omega")
     g.attrs["branch_status"] = "complete" if conv.success else "gave up"
     for k, v in conv.as_attrs().items():
         g.attrs[k] = v

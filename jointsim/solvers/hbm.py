@@ -30,7 +30,10 @@ Newton unknowns are the ``n_coeff x n_r`` harmonic coefficients of ``q`` only:
 one slip (and one gap) per contact element, whatever the number of structural
 DOFs.  ``Z`` is chosen M-orthonormal and K-orthogonal (the modes of the
 structure with the contact coordinates held at zero), so ``E`` is diagonal
-when the damping is (Rayleigh or modal); otherwise ``E`` is factorised per
+when the damping is too (Rayleigh, or modal in these modes); when the damping
+has low rank (modal damping of a few modes of another basis, e.g. of the
+stuck joint) ``E`` is a diagonal plus a rank-r term and is inverted by
+Woodbury's formula (an r x r solve); otherwise ``E`` is factorised per
 harmonic.  ``E`` is singular only at an undamped resonance of the structure
 with the contacts *welded* (``q = 0``); with damping it is not, and the
 formulation is exact (the linear FRF is reproduced to round-off).
@@ -62,6 +65,37 @@ log = logging.getLogger(__name__)
 
 #: Above this many structural DOFs the dense condensation is refused.
 MAX_DENSE_DOF = 6000
+
+
+def blas_threads(n: int = 1):
+    """Context that limits the BLAS thread pool to ``n`` threads.
+
+    The harmonic balance does many small dense products (tens to hundreds of
+    rows).  A multithreaded BLAS spins up its threads for each, and on a
+    loaded machine that costs far more than the work: on the shared 2-core
+    test machine, one FE residual took 0.25 s with OpenBLAS' 2 threads and
+    0.02 s with 1.  The runners of ``[analysis.hbm]`` and ``[analysis.epmc]``
+    therefore run single-threaded BLAS (the AFT kernels have their own numba
+    threads).
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        import contextlib
+        log.debug("threadpoolctl is not installed; BLAS threads are not limited")
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=n, user_api="blas")
+
+
+def single_threaded_blas(fun):
+    """Decorator: run ``fun`` inside :func:`blas_threads` (1 thread)."""
+    import functools
+
+    @functools.wraps(fun)
+    def wrapper(*args, **kwargs):
+        with blas_threads(1):
+            return fun(*args, **kwargs)
+    return wrapper
 
 
 # --------------------------------------------------------------------------
@@ -314,8 +348,9 @@ class ReducedLinear:
         else:
             Psi = np.zeros((n, 0))
             Z0 = np.eye(n)
-        self.modal = False
+        self.kind = "direct"
         Z = Z0
+        lowrank = None
         if self.n_y:
             Kyy = Z0.T @ K @ Z0
             Myy = Z0.T @ M @ Z0
@@ -327,11 +362,22 @@ class ReducedLinear:
                 ref = max(np.abs(Cyy).max(), 1e-300)
                 sym = (np.allclose(K, K.T, rtol=0, atol=1e-12 * np.abs(K).max())
                        and np.allclose(M, M.T, rtol=0, atol=1e-12 * np.abs(M).max()))
+                csym = np.allclose(C, C.T, rtol=0, atol=1e-12 * max(np.abs(C).max(), 1e-300))
                 if sym and np.abs(off).max() <= 1e-11 * ref:
                     Z = Zm
-                    self.modal = True
+                    self.kind = "modal"
+                elif sym and csym:
+                    # modal damping of a few modes is a low-rank C: E is then a
+                    # diagonal plus a rank-r term, inverted by Woodbury's formula
+                    c, U = np.linalg.eigh(0.5 * (Cyy + Cyy.T))
+                    keep = np.abs(c) > 1e-12 * max(np.abs(c).max(), 1e-300)
+                    if keep.sum() <= self.n_y // 3:
+                        Z = Zm
+                        self.kind = "lowrank"
+                        lowrank = (U[:, keep], c[keep])
             except (np.linalg.LinAlgError, ValueError):
                 pass
+        self.modal = self.kind == "modal"
         self.Psi, self.Z = Psi, Z
         V = np.hstack([Psi, Z])
         Kt, Mt, Ct = V.T @ K @ V, V.T @ M @ V, V.T @ C @ V
@@ -340,42 +386,76 @@ class ReducedLinear:
         self.K = {b: Kt[i, j] for b, (i, j) in _blocks(r, y).items()}
         self.M = {b: Mt[i, j] for b, (i, j) in _blocks(r, y).items()}
         self.C = {b: Ct[i, j] for b, (i, j) in _blocks(r, y).items()}
-        if self.modal:
+        if self.kind in ("modal", "lowrank"):
             self.lam = np.diag(self.K["yy"]).copy()
             self.myy = np.diag(self.M["yy"]).copy()
-            self.cyy = np.diag(self.C["yy"]).copy()
+            self.cyy = np.diag(self.C["yy"]).copy() if self.modal else None
+        if self.kind == "lowrank":
+            self.U, self.cw = lowrank
+            self.Cyy = self.C["yy"]
         self._Mfull = M
 
     # -- blocks of the transformed dynamic stiffness --------------------------
     def blocks(self, nu: float, xi: float = 0.0):
         """``A, B, B', E`` at angular frequency ``nu`` with damping ``C - xi M``.
 
-        ``E`` is a 1-D array (its diagonal) when the condensation is modal.
+        ``E`` is a 1-D array (its diagonal) when the condensation is modal, a
+        :class:`_LowRankE` when the damping is of low rank, else a matrix.
         """
         def mat(b):
             return (self.K[b] - nu * nu * self.M[b]) + 1j * nu * (self.C[b] - xi * self.M[b])
         A, B, Bp = mat("qq"), mat("qy"), mat("yq")
-        if self.modal:
+        if self.kind == "modal":
             E = (self.lam - nu * nu * self.myy) + 1j * nu * (self.cyy - xi * self.myy)
+        elif self.kind == "lowrank":
+            E = _LowRankE((self.lam - nu * nu * self.myy) - 1j * nu * xi * self.myy,
+                          1j * nu * self.cw, self.U, self.Cyy, 1j * nu)
         else:
             E = mat("yy")
         return A, B, Bp, E
 
     def dblocks(self, nu: float, xi: float, wrt: str, h: int):
-        """Derivatives of ``A, B, B', E`` with respect to ``omega`` (``nu = h omega``) or ``xi``."""
+        """Derivatives of ``A, B, B', E`` with respect to ``omega`` (``nu = h omega``) or
+        ``xi``; apply ``dE`` with :meth:`apply_dE`."""
         if wrt == "omega":
             def d(b):
                 return h * (-2.0 * nu * self.M[b] + 1j * (self.C[b] - xi * self.M[b]))
-            dE = (h * (-2.0 * nu * self.myy + 1j * (self.cyy - xi * self.myy))
-                  if self.modal else d("yy"))
+            if self.kind == "modal":
+                dE = h * (-2.0 * nu * self.myy + 1j * (self.cyy - xi * self.myy))
+            elif self.kind == "lowrank":
+                dE = (h * (-2.0 * nu - 1j * xi) * self.myy, 1j * h)
+            else:
+                dE = d("yy")
         else:
             def d(b):
                 return -1j * nu * self.M[b]
-            dE = -1j * nu * self.myy if self.modal else d("yy")
+            if self.kind == "direct":
+                dE = d("yy")
+            elif self.kind == "lowrank":
+                dE = (-1j * nu * self.myy, 0.0)
+            else:
+                dE = -1j * nu * self.myy
         return d("qq"), d("qy"), d("yq"), dE
 
-    def solve_E(self, E, rhs):
-        """``E^-1 rhs`` for diagonal (1-D) or full ``E``."""
+    def apply_dE(self, dE, y):
+        """``dE @ y`` for a ``dE`` from :meth:`dblocks`."""
+        if isinstance(dE, tuple):        # low rank: diagonal + coefficient * Cyy
+            diag, coef = dE
+            out = diag * y
+            if coef != 0.0:
+                out = out + coef * (self.Cyy @ y)
+            return out
+        return dE * y if dE.ndim == 1 else dE @ y
+
+    def solve_E(self, E, rhs, trans: bool = False):
+        """``E^-1 rhs`` (``E^-T rhs`` with ``trans``) for diagonal (1-D), low-rank,
+        full or factorised (:meth:`factor_E`) ``E``."""
+        if isinstance(E, _LowRankE):
+            return E.solve(rhs)          # E is complex symmetric: E^T = E
+        if isinstance(E, tuple):
+            return sla.lu_solve(E, rhs, trans=1 if trans else 0, check_finite=False)
+        if trans and E.ndim == 2:
+            E = E.T
         if E.ndim == 1:
             if np.any(E == 0):
                 raise np.linalg.LinAlgError("the structure with welded contacts is singular "
@@ -383,6 +463,42 @@ class ReducedLinear:
                                             "unrestrained rigid-body motion)")
             return rhs / (E[:, None] if rhs.ndim == 2 else E)
         return np.linalg.solve(E, rhs)
+
+    def factor_E(self, E):
+        """``E`` prepared for several :meth:`solve_E` calls (LU of a full ``E``)."""
+        if isinstance(E, _LowRankE):
+            E.factor()
+            return E
+        if E.ndim == 1 or E.shape[0] == 0:
+            return E
+        return sla.lu_factor(E, check_finite=False)
+
+
+class _LowRankE:
+    """``E = diag(d) + U diag(s) U^T`` (``U`` real, ``n_y x r``), solved by Woodbury:
+    ``E^-1 = D^-1 - D^-1 U (diag(1/s) + U^T D^-1 U)^-1 U^T D^-1``."""
+
+    def __init__(self, d, s, U, Cyy, coef):
+        self.d, self.s, self.U = d, s, U
+        self.Cyy, self.coef = Cyy, coef
+        self._small = None
+
+    def factor(self):
+        if np.any(self.d == 0):
+            raise np.linalg.LinAlgError("the structure with welded contacts is singular at "
+                                        "this frequency (an undamped resonance or an "
+                                        "unrestrained rigid-body motion)")
+        if self._small is None and np.any(self.s != 0):
+            small = np.diag(1.0 / self.s) + self.U.T @ (self.U / self.d[:, None])
+            self._small = sla.lu_factor(small, check_finite=False)
+
+    def solve(self, rhs):
+        self.factor()
+        d = self.d[:, None] if rhs.ndim == 2 else self.d
+        x = rhs / d
+        if self._small is None:          # no damping term (harmonic 0)
+            return x
+        return x - (self.U @ sla.lu_solve(self._small, self.U.T @ x, check_finite=False)) / d
 
 
 def _blocks(r, y):
@@ -461,7 +577,27 @@ class HBMSystem:
         self._Tt = _dense(c.Tt) if ne else np.zeros((0, model.n_dof))
         log.debug("HBM system: %d DOFs condensed onto %d contact coordinates x %d "
                   "coefficients (%s condensation)", model.n_dof, nr, self.n_c,
-                  "modal" if self.lin.modal else "direct")
+                  self.lin.kind)
+
+    # -- static state ----------------------------------------------------------
+    def static_coordinates(self):
+        """``z`` of the static state ``x0``: ``T x0`` in harmonic 0, zero elsewhere.
+
+        ``x0`` is :func:`jointsim.solvers.static.stuck_linearisation`'s (for
+        the lap joint the bolt preload).  It solves the harmonic-0 balance at
+        vanishing amplitude, so it is where every branch starts; without
+        harmonic 0 the result is zero.
+
+        Returns
+        -------
+        ndarray, shape (n_z,) [m]
+        """
+        z = np.zeros((self.n_c, self.n_r))
+        if 0 in self.basis.harmonics and self.n_r:
+            from .static import stuck_linearisation
+            x0 = stuck_linearisation(self.model).x0
+            z[self.basis.index[0][0]] = self.T @ x0
+        return z.ravel()
 
     # -- forcing -------------------------------------------------------------
     def force_coefficients(self, scale: float = 1.0):
@@ -485,7 +621,7 @@ class HBMSystem:
 
     # -- residual --------------------------------------------------------------
     def evaluate(self, z, omega: float, F, xi: float = 0.0, jacobian: bool = True,
-                 wrt=("omega",)) -> Evaluation:
+                 wrt=("omega",), J_out=None) -> Evaluation:
         """Residual ``S(w) q + phi(q) - F_red`` and its analytic derivatives.
 
         Parameters
@@ -502,25 +638,34 @@ class HBMSystem:
             Also compute ``dR/dz`` and the derivatives named in ``wrt``.
         wrt : tuple of str
             Parameters to differentiate by: ``"omega"``, ``"xi"``.
+        J_out : ndarray, shape (n_z, n_z), optional
+            Zero-filled array (e.g. a block of a bordered matrix) that receives
+            ``dR/dz``; it is returned as ``J``.
         """
         nr, nc = self.n_r, self.n_c
         Q = np.asarray(z, dtype=float).reshape(nc, nr)
         R = np.zeros((nc, nr))
-        J = np.zeros((self.n_z, self.n_z)) if jacobian else None
+        J = (np.zeros((self.n_z, self.n_z)) if J_out is None else J_out) if jacobian else None
         dR = {p: np.zeros((nc, nr)) for p in wrt} if jacobian else {}
         lin = self.lin
         for h in self.basis.harmonics:
             nu = h * omega
             A, B, Bp, E = lin.blocks(nu, xi)
+            Ef = lin.factor_E(E) if lin.n_y else E
             qh = self._complex(Q, h)
             Fh = self._complex(F, h)
             Fq = lin.Psi.T @ Fh
             Fy = lin.Z.T @ Fh
-            y = lin.solve_E(E, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)
+            if lin.n_y and jacobian:
+                both = lin.solve_E(Ef, np.column_stack([Fy - Bp @ qh, Bp]))
+                y, EinvBp = both[:, 0], both[:, 1:]
+            elif lin.n_y:
+                y = lin.solve_E(Ef, Fy - Bp @ qh)
+            else:
+                y, EinvBp = np.zeros(0, complex), np.zeros((0, nr), complex)
             self._store(R, h, A @ qh + B @ y - Fq)
             if not jacobian:
                 continue
-            EinvBp = lin.solve_E(E, Bp) if lin.n_y else np.zeros((0, nr), complex)
             S = A - B @ EinvBp
             ic, is_ = self.basis.index[h]
             rc = ic * nr + np.arange(nr)
@@ -538,8 +683,7 @@ class HBMSystem:
                 dA, dB, dBp, dE = lin.dblocks(nu, xi, p, h)
                 v = dA @ qh
                 if lin.n_y:
-                    dEy = dE * y if np.ndim(dE) == 1 else dE @ y
-                    y_p = -lin.solve_E(E, dBp @ qh + dEy)
+                    y_p = -lin.solve_E(Ef, dBp @ qh + lin.apply_dE(dE, y))
                     v = v + dB @ y + B @ y_p
                 self._store(dR[p], h, v)
         aft = None
@@ -683,7 +827,8 @@ def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
     F : ndarray, shape (n_c, n_dof)
         Force coefficients [N].
     z0 : ndarray, optional
-        Start (default: zero, whose first step is the stuck linear response).
+        Start (default: the static state, :meth:`HBMSystem.static_coordinates`,
+        whose first step is the stuck linear response).
     tol : float
         Tolerance on ``max|R| / rscale``.
     rscale : float, optional
@@ -692,7 +837,7 @@ def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
     from ..results import NOT_CONVERGED, SUCCESS, Convergence
     if rscale is None:
         rscale = max(float(np.abs(F).max(initial=0.0)), 1e-300)
-    z0 = np.zeros(system.n_z) if z0 is None else np.asarray(z0, dtype=float)
+    z0 = system.static_coordinates() if z0 is None else np.asarray(z0, dtype=float)
 
     def fun(z):
         ev = system.evaluate(z, omega, F, wrt=())
@@ -730,13 +875,21 @@ def harmonic_amplitude(basis: HarmonicBasis, X, h: int = 1):
 # --------------------------------------------------------------------------
 # Frequency-response curves
 # --------------------------------------------------------------------------
-def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: int = 9):
-    """Variable and residual scales of an FRC from the stuck linear response.
+def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: int = 9,
+               tol: float = 1e-6):
+    """Variable and residual scales of an FRC branch.
 
-    One Newton step from ``z = 0`` (the response with every element at its
-    rest tangent) at ``n`` frequencies of the range gives a displacement
-    scale ``q_ref = max |z|``; the residual scale is the largest condensed
-    force ``max |R(0)|``.
+    The displacement scale ``q_ref`` is the largest ``max |z - z0|`` of
+
+    * the response of the joint stuck at its static state ``z0`` (one Newton
+      step from ``z0``) at ``n`` frequencies of the range and at every stuck
+      linear resonance inside it;
+    * and, when a resonance lies in the range, the nonlinear response at the
+      strongest of them (a Newton solve from the stuck response; skipped if
+      it does not converge), so that a branch whose friction damping keeps it
+      far below the linear peak is still resolved.
+
+    The residual scale is the largest condensed force ``max |R(z0)|``.
 
     Returns
     -------
@@ -744,21 +897,40 @@ def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: in
         ``q_ref`` for every coefficient, ``|omega_end - omega_start|`` for omega.
     rscale : float
     """
-    qref, rref = 0.0, 0.0
-    z0 = np.zeros(system.n_z)
-    for w in np.linspace(omega_start, omega_end, n):
+    from .modes import stuck_modes
+    lo, hi = sorted((omega_start, omega_end))
+    z0 = system.static_coordinates()
+    ws = list(np.linspace(omega_start, omega_end, n))
+    res = []
+    if system.model.n_dof:
+        f_hz = stuck_modes(system.model, min(system.model.n_dof, 40)).frequency_hz
+        res = [2 * np.pi * f for f in f_hz if lo < 2 * np.pi * f < hi]
+    q_off, q_res, rref, best = 0.0, 0.0, 0.0, (0.0, None, None)
+    for w in ws + res:
         ev = system.evaluate(z0, w, F, wrt=())
         rref = max(rref, float(np.abs(ev.R).max(initial=0.0)))
-        if system.n_z:
-            try:
-                z = np.linalg.solve(ev.J, -ev.R)
-                qref = max(qref, float(np.abs(z).max()))
-            except np.linalg.LinAlgError:
-                pass
-    if not qref > 0.0:
-        qref = 1.0
+        if not system.n_z:
+            continue
+        try:
+            dz = np.linalg.solve(ev.J, -ev.R)
+        except np.linalg.LinAlgError:
+            continue
+        d = float(np.abs(dz).max())
+        if w in res:
+            q_res = max(q_res, d)
+            if d > best[0]:
+                best = (d, w, z0 + dz)
+        else:
+            q_off = max(q_off, d)
     if not rref > 0.0:
         rref = 1.0
+    qref = max(q_off, q_res)
+    if best[1] is not None:
+        sol = solve_point(system, best[1], F, z0=best[2], tol=tol, max_iter=15, rscale=rref)
+        if sol.convergence.success:
+            qref = max(q_off, float(np.abs(sol.z - z0).max()))
+    if not qref > 0.0:
+        qref = 1.0
     scale = np.full(system.n_z + 1, qref)
     scale[-1] = max(abs(omega_end - omega_start), 1e-12 * abs(omega_start), 1e-300)
     return scale, rref
@@ -792,13 +964,14 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float)
 
     lo, hi = float(omega[i - 1]), float(omega[i + 1])
     res = minimize_scalar(neg_amp, bounds=(lo, hi), method="bounded",
-                          options={"xatol": 1e-12 * max(abs(hi), 1.0)})
+                          options={"xatol": 1e-10 * max(abs(hi), 1.0), "maxiter": 25})
     a = -float(res.fun)
     if a < amplitude[i]:
         return float(omega[i]), float(amplitude[i]), False
     return float(res.x), a, True
 
 
+@single_threaded_blas
 def run_hbm_analysis(scene, model, writer) -> None:
     """Runner of ``[analysis.hbm]``: one FRC branch per force scale, written point by point.
 
@@ -815,26 +988,39 @@ def run_hbm_analysis(scene, model, writer) -> None:
       branch ``/hbm/peak_omega``, ``/hbm/peak_amplitude``, ``/hbm/peak_refined``;
       group attributes ``branch<b>_status`` / ``branch<b>_message``;
     * ``/loops/*``, ``/masing/*`` for every point (or those listed in
-      ``analysis.masing.points``, global point indices).
+      ``analysis.masing.points``, global point indices; or, with
+      ``analysis.hbm.loops = "peaks"``, each branch's largest-amplitude point).
     """
     from ..io.hdf5 import unit, write_loops
     from ..masing import check_loops
     from .continuation import continue_branch
 
+    import time
+    t_start = time.perf_counter()
     a = scene.analysis.hbm
     units = model.units
     system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods)
-    if not 0 <= a.response_dof < model.n_dof:
-        raise ValueError(f"{scene.path}: analysis.hbm.response_dof = {a.response_dof} is out "
-                         f"of range (the model has {model.n_dof} DOFs)")
+    from .._schema import SceneError
+    if a.response_point:
+        if a.response_point not in model.points:
+            raise SceneError(str(scene.path), "analysis.hbm.response_point",
+                             f"{a.response_point!r} is not a named point of the model "
+                             f"(named: {sorted(model.points)})")
+        dof = int(model.points[a.response_point])
+    elif not 0 <= a.response_dof < model.n_dof:
+        raise SceneError(str(scene.path), "analysis.hbm.response_dof",
+                         f"= {a.response_dof} is out of range (the model has {model.n_dof} "
+                         f"DOFs)")
+    else:
+        dof = a.response_dof
     b = system.basis
-    dof = a.response_dof
     d_u, f_u, w_u = unit("displacement", units), unit("force", units), \
         unit("angular_frequency", units)
     g = writer.group("hbm", n_samples=a.n_samples, response_dof=dof,
+                     response_label=str(model.dof_labels[dof]) if model.dof_labels else "",
                      omega_start=a.omega_start, omega_end=a.omega_end,
-                     n_contact_coordinates=system.n_r, condensation="modal" if system.lin.modal
-                     else "direct", amplitude_definition="fundamental harmonic amplitude "
+                     n_contact_coordinates=system.n_r, condensation=system.lin.kind,
+                     amplitude_definition="fundamental harmonic amplitude "
                      "sqrt(X_1c^2 + X_1s^2) at the response DOF")
     if "hbm/harmonics" not in writer.h5:
         writer.write("hbm/harmonics", np.array(a.harmonics, dtype=np.int64), "1",
@@ -874,13 +1060,14 @@ def run_hbm_analysis(scene, model, writer) -> None:
             solve_first, max_pts = False, a.max_points - resume_rows.size + 1
             log.info("hbm branch %d: resuming from point %d (omega = %g)", ib, last, y0[-1])
         else:
-            y0 = np.append(np.zeros(system.n_z), a.omega_start)
+            y0 = np.append(system.static_coordinates(), a.omega_start)
             t0, h0, solve_first, max_pts = None, a.step, True, a.max_points
 
         def fun(y, F=F):
-            ev = system.evaluate(y[:-1], y[-1], F)
-            J = np.hstack([ev.J, ev.dR["omega"][:, None]]) if system.n_z else \
-                np.zeros((0, 1))
+            nz = system.n_z
+            J = np.zeros((nz, nz + 1))
+            ev = system.evaluate(y[:-1], y[-1], F, J_out=J[:, :nz])
+            J[:, nz] = ev.dR["omega"]
             return ev.R, J, ev
 
         def on_point(i, y, info, F=F, ib=ib, fs=fs, skip=not solve_first):
@@ -909,7 +1096,8 @@ def run_hbm_analysis(scene, model, writer) -> None:
             writer.append("hbm/aft_periods",
                           np.int64(aft.periods.max() if aft is not None else 0), "1",
                           "largest number of periods the laws were marched")
-            if aft is not None and (not masing_points or p in masing_points):
+            if aft is not None and a.loops == "masing.points" and \
+                    (not masing_points or p in masing_points):
                 u = system.slips(X)
                 report = check_loops(u, aft.f, aft.N, law, scene.analysis.masing.tol)
                 write_loops(writer, p, u, aft.f, aft.N, report, units, prefix="hbm")
@@ -934,6 +1122,16 @@ def run_hbm_analysis(scene, model, writer) -> None:
                 i = int(np.argmax(amp))
                 pw, pa, ok = float(om[i]), float(amp[i]), False
             peaks["omega"][ib], peaks["amplitude"][ib], refined[ib] = pw, pa, ok
+            if a.loops == "peaks":
+                # the element loops and Masing checks of the branch's largest point
+                i = int(np.argmax(amp))
+                p = int(rows[i])
+                ev = system.evaluate(Z[i], float(om[i]), F, jacobian=False)
+                X = system.reconstruct(Z[i], float(om[i]), F)
+                u = system.slips(X)
+                report = check_loops(u, ev.aft.f, ev.aft.N, law, scene.analysis.masing.tol)
+                write_loops(writer, p, u, ev.aft.f, ev.aft.N, report, units)
+                writer.h5["loops"].attrs["analysis"] = "hbm"
             writer.write("hbm/peak_omega", peaks["omega"], w_u, "frequency of the largest "
                          "amplitude of each branch")
             writer.write("hbm/peak_amplitude", peaks["amplitude"], d_u,
@@ -945,6 +1143,8 @@ def run_hbm_analysis(scene, model, writer) -> None:
         if not conv.success:
             failures.append(f"branch {ib} (force scale {fs:g}): {conv.message}")
     _ = f_u
+    g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
+    g.attrs["n_points"] = writer.rows("hbm/omega")
     if failures:
         raise RuntimeError("hbm: " + "; ".join(failures))
 

@@ -12,7 +12,10 @@ Along it:
 * secant frequency ``w^2 = alpha / q``;
 * Masing dissipation ``D = 8 int_0^q alpha dq - 4 q alpha`` [J] (trapezoidal
   integral along the computed curve, which starts at the origin);
-* damping ratio ``zeta = D / (2 pi q alpha)``.
+* damping ratio ``zeta = D / (2 pi q alpha) + zeta_0``: the friction (Masing)
+  part plus the linear viscous damping of the mode, ``zeta_0 = phi^T C phi /
+  (2 w_0)``, so that it compares with EPMC and with measurements (the
+  friction part alone is stored too).
 
 The Masing construction assumes the whole structure obeys Masing's rules
 along this one load path; :func:`qsma_cycle` marches the full static loop
@@ -55,6 +58,11 @@ class QSMAResult:
     dissipation : ndarray, shape (n,)
         Masing dissipation per cycle [J].
     damping_ratio : ndarray, shape (n,)
+        ``damping_ratio_friction + zeta_linear`` [-].
+    damping_ratio_friction : ndarray, shape (n,)
+        ``D / (2 pi q alpha)`` [-].
+    zeta_linear : float
+        Viscous damping ratio of the mode, ``phi^T C phi / (2 w_0)`` [-].
     x : ndarray, shape (n, n_dof)
         Displacements along the loading curve [m].
     u_t, f_t, N : ndarray, shape (n, n_e)
@@ -71,6 +79,8 @@ class QSMAResult:
     frequency_hz: np.ndarray
     dissipation: np.ndarray
     damping_ratio: np.ndarray
+    damping_ratio_friction: np.ndarray
+    zeta_linear: float
     x: np.ndarray
     u_t: np.ndarray
     f_t: np.ndarray
@@ -152,7 +162,8 @@ def qsma(model, phi, x0, alphas, state0=None, tol: float = 1e-10,
         conv = Convergence(True, SUCCESS, f"{len(rows)} load increments", len(rows))
     if not rows:
         empty = np.zeros((0,))
-        return QSMAResult(empty, empty, empty, empty, empty, np.zeros((0, model.n_dof)),
+        return QSMAResult(empty, empty, empty, empty, empty, empty, float("nan"),
+                          np.zeros((0, model.n_dof)),
                           np.zeros((0, c.n_elements)), np.zeros((0, c.n_elements)),
                           np.zeros((0, c.n_elements)), float("nan"), conv)
     alpha = np.array([r[0] for r in rows])
@@ -162,8 +173,10 @@ def qsma(model, phi, x0, alphas, state0=None, tol: float = 1e-10,
     D = masing_dissipation(alpha, q)
     zeta = D / (2.0 * np.pi * q * alpha)
     w_lin = np.sqrt(float(phi @ (_stuck_K(model, x0) @ phi)))
+    zeta0 = float(phi @ (model.C @ phi)) / (2.0 * w_lin)
     return QSMAResult(alpha=alpha, amplitude=q, frequency_hz=np.sqrt(w2) / (2 * np.pi),
-                      dissipation=D, damping_ratio=zeta, x=x,
+                      dissipation=D, damping_ratio=zeta + zeta0, damping_ratio_friction=zeta,
+                      zeta_linear=zeta0, x=x,
                       u_t=np.array([r[2] for r in rows]), f_t=np.array([r[3] for r in rows]),
                       N=np.array([r[4] for r in rows]), linear_hz=w_lin / (2 * np.pi),
                       convergence=conv)
@@ -238,14 +251,17 @@ def run_qsma_analysis(scene, model, writer) -> QSMAResult:
     res = qsma(model, phi, x0, w0 ** 2 * amps, tol=a.tol, progress=True)
     units = model.units
     g = writer.group("qsma", mode=a.mode, linear_frequency_hz=res.linear_hz,
-                     **res.convergence.as_attrs())
+                     zeta_linear=res.zeta_linear, **res.convergence.as_attrs())
     del g
     writer.write("qsma/amplitude", res.amplitude, unit("modal_amplitude", units),
                  "modal amplitude q = phi^T M (x - x0), phi mass-normalised")
     writer.write("qsma/frequency_hz", res.frequency_hz, unit("frequency", units),
                  "secant frequency sqrt(alpha / q) / (2 pi)")
     writer.write("qsma/damping_ratio", res.damping_ratio, "1",
-                 "Masing damping D / (2 pi q alpha)")
+                 "Masing damping D / (2 pi q alpha) plus the linear viscous damping of the "
+                 "mode (attribute zeta_linear of /qsma)")
+    writer.write("qsma/damping_ratio_friction", res.damping_ratio_friction, "1",
+                 "friction (Masing) part D / (2 pi q alpha)")
     writer.write("qsma/dissipation", res.dissipation, unit("energy", units),
                  "Masing dissipation per cycle 8 int alpha dq - 4 q alpha")
     writer.write("qsma/alpha", res.alpha, unit("modal_load", units),

@@ -366,3 +366,130 @@ def solve_static(K, f, contacts, *, tangential=None, normal=None, state=None,
     return StaticResult(x=x, N=ev["N"], gap=ev["g"], u_t=ev["u"], f_t=ev["ft"], state=st,
                         K_t=sp.csr_matrix(ev["J"]), load_factor=lam, residual=float(res), convergence=conv)
 
+
+
+# --------------------------------------------------------------------------
+# The static state of a model and the linearisation of its stuck joint
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class StuckLinearisation:
+    """The static state ``x0`` of a model and the stuck tangent stiffness there.
+
+    This is the one definition of "the linear joint" that every solver uses:
+    the linear modes, the EPMC reference mode and its low-amplitude limit,
+    the harmonic-balance start (its harmonic-0 part) and QSMA's ``K0``.
+
+    Attributes
+    ----------
+    x0 : ndarray, shape (n_dof,)
+        Static displacement [m]: the equilibrium of
+        ``K x + f_c(x) = f0`` with the tangential contacts stuck.
+    K : scipy.sparse.csr_matrix, shape (n_dof, n_dof)
+        Tangent stiffness at ``x0`` with the interface stuck [N/m]: ``K``,
+        ``kt A`` of every element in contact (closed), and ``kn A`` of every
+        closed element when the normal load is coupled (with a fixed normal
+        load the normal springs are already part of ``K``).
+    f0 : ndarray, shape (n_dof,)
+        Static load [N]: ``f_static`` plus the constant parts of the loads.
+    N : ndarray, shape (n_e,)
+        Normal load of each element at ``x0`` [N] (``N0`` for a fixed normal load).
+    gap : ndarray, shape (n_e,)
+        Normal gap at ``x0`` [m] (``gap0 + Tn x0``).
+    closed : ndarray of bool, shape (n_e,)
+        Elements in contact at ``x0`` (these carry the stuck springs).
+    source : str
+        ``"model"`` (``x0`` solved by the model builder, e.g. the bolt
+        preload) or ``"solved"`` (solved here).
+    convergence : Convergence
+    """
+
+    x0: np.ndarray
+    K: sp.csr_matrix
+    f0: np.ndarray
+    N: np.ndarray
+    gap: np.ndarray
+    closed: np.ndarray
+    source: str
+    convergence: Convergence = field(repr=False)
+
+
+def static_load(model) -> np.ndarray:
+    """Constant load on a model: ``f_static`` plus the constant parts of its loads.
+
+    Returns
+    -------
+    ndarray, shape (n_dof,) [N]
+    """
+    from ..signals import harmonic_coefficients
+    f = np.array(model.f_static, dtype=float)
+    for dof, sig in zip(model.load_dofs, model.load_signals):
+        hs = (0,) + tuple(sorted({x.h for x in sig.harmonics}))
+        f[dof] += harmonic_coefficients(sig, hs)[0]
+    return f
+
+
+def stuck_linearisation(model, *, tol: float = 1e-10) -> StuckLinearisation:
+    """The static state of a structural model and its stuck linearisation.
+
+    ``x0`` is ``model.extra["x0"]`` when the builder solved it (FE and ROM
+    models: the bolt preload, which is the equilibrium of the model's own
+    ``K`` and ``f_static``); otherwise it is solved here by
+    :func:`solve_static` under the static load ``f0`` (``f_static`` plus the
+    constant parts of the loads), with the tangential contacts stuck and the
+    scene's normal contact.  The tangent at ``x0`` comes from
+    :func:`tangent_stiffness` with the stuck interface (:func:`stuck_mode`).
+
+    The result is cached in ``model.extra["stuck_linearisation"]`` (the
+    model is immutable, so it cannot change).
+
+    Parameters
+    ----------
+    model : jointsim.model.StructuralModel
+    tol : float
+        Residual tolerance of the static solve (when one is needed).
+
+    Returns
+    -------
+    StuckLinearisation
+
+    Raises
+    ------
+    RuntimeError
+        When the static state cannot be solved (the message says why).
+    """
+    cached = model.extra.get("stuck_linearisation")
+    if cached is not None:
+        return cached
+    c = model.contacts
+    f0 = static_load(model)
+    normal, tangential = _default_modes(c, None, stuck_mode(c))
+    given = model.extra.get("x0")
+    x_start = np.zeros(model.n_dof) if given is None else np.asarray(given, dtype=float)
+    r = residual(model.K, f0, c, x_start, tangential=tangential, normal=normal)
+    scale = max(np.linalg.norm(f0), np.linalg.norm(model.K @ x_start), 1e-300)
+    if np.linalg.norm(r) <= max(tol, 1e-8) * scale:
+        x0, source = x_start, ("model" if given is not None else "solved")
+        what = "from the model builder" if given is not None else "x = 0"
+        conv = Convergence(True, SUCCESS, f"static state {what} (residual "
+                                          f"{np.linalg.norm(r) / scale:.1e})", 0)
+    else:
+        # x_start is the equilibrium of f0 + r: step the load from there to f0
+        res = solve_static(model.K, f0, c, tangential=tangential, normal=normal, tol=tol,
+                           x_start=x_start, f_start=f0 + r)
+        if not res.convergence.success:
+            raise RuntimeError(f"static state (stuck joint under the static load): "
+                               f"{res.convergence.message}")
+        x0, source, conv = res.x, "solved", res.convergence
+    prob = _Problem(model.K, c, normal, tangential, _initial_state(c, tangential, None))
+    ev = prob.evaluate(x0, f0)
+    if normal == "fixed":
+        closed = np.asarray(c.N0, dtype=float) > 0.0
+    else:
+        closed = ev["g"] <= 0.0
+    lin = StuckLinearisation(x0=x0, K=sp.csr_matrix(ev["J"]), f0=f0, N=np.asarray(ev["N"]),
+                             gap=np.asarray(ev["g"]), closed=closed, source=source,
+                             convergence=conv)
+    model.extra["stuck_linearisation"] = lin
+    log.debug("stuck linearisation: %d/%d elements closed at x0 (%s)", int(closed.sum()),
+              c.n_elements, conv.message)
+    return lin
