@@ -445,9 +445,11 @@ class TransientAnalysis:
                             "(1-based, counted above rigid_cutoff_hz)", ge=1)
     amplitude: float = spec(0.0, doc="free decay: initial modal amplitude q0 = phi^T M x0 "
                                      "(phi mass-normalised)", unit="m kg^0.5", ge=0)
-    rigid_cutoff_hz: float = spec(0.0, doc="free decay: modes below this frequency are "
-                                           "rigid-body (suspension) modes and not counted",
-                                  unit="Hz", ge=0)
+    rigid_cutoff_hz: Optional[float] = spec(
+        None, doc="modes below this frequency are rigid-body (suspension) modes (default: "
+                  "detected like analysis.modes.suspension_hz): a free decay does not count "
+                  "them in `mode`, and a steady run leaves them out of the period-to-period "
+                  "change", unit="Hz", ge=0)
 
     def check(self):
         if 1 not in self.harmonics:
