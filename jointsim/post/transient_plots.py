@@ -242,8 +242,11 @@ def transient_table(h5) -> str:
                          f"{a['energy_viscous']:.6g}, friction {a['energy_friction']:.6g}, "
                          f"imbalance {a['energy_relative']:.2e} (relative)")
         if "error_estimate" in a:
+            rigid = int(a.get("rigid_modes_left_out", 0))
             lines.append(f"  estimated distance to the steady state: "
-                         f"{float(a['error_estimate']):.2e} of the amplitude")
+                         f"{float(a['error_estimate']):.2e} of the amplitude"
+                         + (f" ({rigid} rigid-body mode(s) left out of the period change)"
+                            if rigid else ""))
         if "transient/harmonics" in h5:
             X = h5["transient/harmonics"][()]
             dofs = h5["transient/dofs"][()]
