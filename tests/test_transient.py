@@ -546,3 +546,25 @@ def test_linear_start_with_a_stuck_joint():
     Z = 1.25 - 0.81 + 0.09j                  # stuck: k + kt - w^2 m + i w c
     assert abs(res.X[1, 0] - 1j * res.X[2, 0] - 0.02 / Z) < 2e-3 * abs(0.02 / Z)
     assert np.abs(res.last.f).max() < 0.2    # never at the slip force
+
+
+def test_rigid_modes_of_the_free_free_lap_joint():
+    """The coarse lap joint hangs from soft springs: three suspension modes below
+    5 Hz are detected; a rigid translation of the reduced model is (nearly) all
+    rigid-body motion, and the first bending mode has none."""
+    from pathlib import Path
+
+    from jointsim.scene import load_scene
+    from jointsim.solvers.modes import stuck_modes
+    root = Path(__file__).resolve().parents[1]
+    model = build_model(load_scene(root / "models" / "lap_joint.toml",
+                                   ["model.mesh='../meshes/lap_joint_coarse.msh'"]))
+    rig = rigid_modes(model)
+    assert rig.n == 3
+    modes = stuck_modes(model, 5)
+    assert np.all(modes.frequency_hz[~modes.elastic] < 5.0) and (~modes.elastic).sum() == 3
+    for axis in (".x", ".y"):
+        t = np.array([1.0 if lab.endswith(axis) else 0.0 for lab in model.dof_labels])
+        assert np.linalg.norm(rig.elastic(t)) < 1e-3 * np.linalg.norm(t)
+    bending = modes.shapes[np.flatnonzero(modes.elastic)[0]]
+    assert np.allclose(rig.elastic(bending), bending, rtol=0, atol=1e-12 * np.abs(bending).max())
