@@ -580,15 +580,16 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
                  fused: bool = True) -> SteadyResult:
     """March a forced response until it is periodic.
 
-    The structure starts at rest at its static equilibrium under the
-    constant forces (preload and the loads' constant parts), with the
-    contact laws marched along the static load path, and the harmonic loads
-    are switched on at ``t = 0``; or, with ``settings.start = "linear"``, on
-    the discrete steady response of the linearised structure
-    (:func:`linear_start`).  Each period of ``steps_per_period`` steps is
-    compared with the one before; the march stops when the change relative
-    to the vibration amplitude falls below ``steady_tol`` (after at least
-    ``min_periods``), or after ``max_periods``.
+    The structure starts at rest at its static state under the constant
+    forces (preload and the loads' constant parts, :func:`static_start`), and
+    the harmonic loads are switched on at ``t = 0``; or, with
+    ``settings.start = "linear"``, on the discrete steady response of the
+    linearised structure (:func:`linear_start`).  Each period of
+    ``steps_per_period`` steps is compared with the one before, with the
+    rigid-body modes left out (:func:`rigid_modes`, ``rigid_cutoff_hz``);
+    the march stops when the change relative to the vibration amplitude
+    falls below ``steady_tol`` (after at least ``min_periods``), or after
+    ``max_periods``.
 
     Parameters
     ----------
