@@ -10,7 +10,8 @@ For each element and steady period, with samples ``(u_k, f_k, N_k)``:
   ``s = sign(u_k - u_r)``, the predictions are
 
   - manifold: ``f_man = f_r N_k / N_r + 2 s f_bb(|u_k - u_r| / 2; N_k)``
-    (the first term is 0 when ``N_r = 0``);
+    (the first term is 0 when ``N_r <= 0``, and ``N_k < 0`` counts as 0:
+    separated);
   - classical Masing: ``f_mas = f_r + 2 s f_bb(|u_k - u_r| / 2; Nbar)``,
     ``Nbar`` the period mean of ``N``;
 
@@ -114,7 +115,8 @@ def check_loops(u, f, N, law, tol: float = 0.01) -> MasingReport:
     half = 0.5 * np.abs(delta)
 
     with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(N_ref > 0.0, Nr / N_ref, 0.0)
+        # a negative sample of N means separation: no load, no reference force
+        scale = np.where(N_ref > 0.0, np.maximum(Nr, 0.0) / N_ref, 0.0)
     f_man = f_ref * scale + 2.0 * s * law.backbone(half, Nr)
     Nbar = Nr.mean(axis=1, keepdims=True)
     f_mas = f_ref + 2.0 * s * law.backbone(half, np.broadcast_to(Nbar, Nr.shape))

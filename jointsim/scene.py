@@ -392,6 +392,10 @@ class EPMCAnalysis:
     max_iter: int = spec(20, doc="Newton iterations per corrector", ge=1)
     min_periods: int = spec(2, doc="AFT: periods the laws are marched at least", ge=2)
     max_periods: int = spec(50, doc="AFT: periods marched at most", ge=2)
+    loop_amplitudes: tuple[float, ...] = spec(
+        (), doc="modal amplitudes at which the element loops and Masing checks are kept "
+                "(the first point at or past each); empty: the points of "
+                "analysis.masing.points (every point when that is empty too)", gt=0)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -1,7 +1,7 @@
 """Hypothesis properties of the contact laws and of the Masing check."""
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from jointsim.contact import make_tangential_law
@@ -140,13 +140,19 @@ def test_masing_exact_at_constant_normal_load(inputs, name):
 
 
 @SETTINGS
-@given(periodic_inputs(n=128, varying_N=True))
+@given(periodic_inputs(n=128, varying_N=True, separating=True))
 def test_scaled_jenkins_stays_on_manifold_when_slipping_at_reversals(inputs):
     """Seed condition 5: with the scaled law, a single-harmonic loop that slips
-    before each reversal lies on its manifold for any (positive) N(t)."""
+    before each reversal lies on its manifold for any N(t) that is positive at
+    the reversals; separation elsewhere included (N <= 0 counts as no load).
+    The reference force is measured from the far reversal, so a slip limit
+    that rises faster than kt (Eq. 6) cannot make this law stick again before
+    a reversal.  (An element separated at a reversal restarts on its virgin
+    curve, which DESIGN's manifold, with reference term 0, does not describe.)"""
     u, N = inputs
     t = 2 * np.pi * np.arange(u.size) / u.size
     u = 3.0 * np.cos(t + 0.3)  # large enough to slip: kt A = 3 > 2 mu max(N)
+    assume(N[np.argmax(u)] > 0 and N[np.argmin(u)] > 0)
     law = make_law("jenkins", "scaled", kt=1.0, mu=0.2)
     res = march_periods(law, u, N)
     rep = check_loops(*res.last_period(), law)

@@ -36,7 +36,7 @@ import logging
 
 import numpy as np
 
-from .hbm import HBMSystem, _dense, single_threaded_blas
+from .hbm import HBMSystem, _dense
 from .modes import elastic_mode
 
 log = logging.getLogger(__name__)
@@ -130,7 +130,35 @@ class EPMCSystem:
         return R, J, ev
 
 
-@single_threaded_blas
+class _LoopSelection:
+    """Which EPMC points keep their element loops.
+
+    With target amplitudes, the first point at or past each target (in the
+    direction of the continuation); otherwise the indices of
+    ``analysis.masing.points`` (every point when empty).  On resume, targets
+    already passed by the stored points are done.
+    """
+
+    def __init__(self, amplitudes, points, lam0, lam1, stored):
+        self.up = lam1 >= lam0
+        targets = sorted(amplitudes, reverse=not self.up)
+        if stored.size:
+            reached = stored.max() if self.up else stored.min()
+            targets = [t for t in targets if (t > reached if self.up else t < reached)]
+        self.targets = targets
+        self.by_amplitude = bool(amplitudes)
+        self.points = set(points)
+
+    def __call__(self, p: int, amp: float) -> bool:
+        if not self.by_amplitude:
+            return not self.points or p in self.points
+        hit = False
+        while self.targets and (amp >= self.targets[0] if self.up else amp <= self.targets[0]):
+            self.targets.pop(0)
+            hit = True
+        return hit
+
+
 def run_epmc_analysis(scene, model, writer) -> None:
     """Runner of ``[analysis.epmc]``: the backbone of one mode, written point by point.
 
@@ -194,7 +222,9 @@ def run_epmc_analysis(scene, model, writer) -> None:
     R0, J0, _ = ep.fun(y0)
     rscale = max(float(np.abs(J0[:nz, :nz]).max(initial=0.0)) * zscale, 1e-300) if nz else 1.0
     masing = scene.analysis.masing
-    write_loops_here = scene.analysis.hbm is None
+    keep = _LoopSelection(a.loop_amplitudes, masing.points, lam0, lam1,
+                          writer.h5["epmc/amplitude"][()] if "epmc/amplitude" in writer.h5
+                          else np.zeros(0))
     d_u = unit("displacement", units)
     law = model.contacts.law
 
@@ -219,8 +249,7 @@ def run_epmc_analysis(scene, model, writer) -> None:
         writer.append("epmc/y", y, "1", "unknowns (shape, omega, xi, log10 a), for --resume")
         writer.append("epmc/tangent", info.tangent, "1", "unit tangent (scaled)")
         ev = info.extra
-        if write_loops_here and ev is not None and ev.aft is not None and \
-                (not masing.points or p in masing.points):
+        if ev is not None and ev.aft is not None and keep(p, amp):
             u = system.slips(X)
             report = check_loops(u, ev.aft.f, ev.aft.N, law, masing.tol)
             write_loops(writer, p, u, ev.aft.f, ev.aft.N, report, units, prefix="epmc")

@@ -67,37 +67,6 @@ log = logging.getLogger(__name__)
 MAX_DENSE_DOF = 6000
 
 
-def blas_threads(n: int = 1):
-    """Context that limits the BLAS thread pool to ``n`` threads.
-
-    The harmonic balance does many small dense products (tens to hundreds of
-    rows).  A multithreaded BLAS spins up its threads for each, and on a
-    loaded machine that costs far more than the work: on the shared 2-core
-    test machine, one FE residual took 0.25 s with OpenBLAS' 2 threads and
-    0.02 s with 1.  The runners of ``[analysis.hbm]`` and ``[analysis.epmc]``
-    therefore run single-threaded BLAS (the AFT kernels have their own numba
-    threads).
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
-        import contextlib
-        log.debug("threadpoolctl is not installed; BLAS threads are not limited")
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=n, user_api="blas")
-
-
-def single_threaded_blas(fun):
-    """Decorator: run ``fun`` inside :func:`blas_threads` (1 thread)."""
-    import functools
-
-    @functools.wraps(fun)
-    def wrapper(*args, **kwargs):
-        with blas_threads(1):
-            return fun(*args, **kwargs)
-    return wrapper
-
-
 # --------------------------------------------------------------------------
 # Harmonic bases
 # --------------------------------------------------------------------------
@@ -971,7 +940,6 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float)
     return float(res.x), a, True
 
 
-@single_threaded_blas
 def run_hbm_analysis(scene, model, writer) -> None:
     """Runner of ``[analysis.hbm]``: one FRC branch per force scale, written point by point.
 
@@ -1130,8 +1098,8 @@ def run_hbm_analysis(scene, model, writer) -> None:
                 X = system.reconstruct(Z[i], float(om[i]), F)
                 u = system.slips(X)
                 report = check_loops(u, ev.aft.f, ev.aft.N, law, scene.analysis.masing.tol)
-                write_loops(writer, p, u, ev.aft.f, ev.aft.N, report, units)
-                writer.h5["loops"].attrs["analysis"] = "hbm"
+                write_loops(writer, p, u, ev.aft.f, ev.aft.N, report, units, prefix="hbm")
+                writer.h5["hbm/loops"].attrs["analysis"] = "hbm"
             writer.write("hbm/peak_omega", peaks["omega"], w_u, "frequency of the largest "
                          "amplitude of each branch")
             writer.write("hbm/peak_amplitude", peaks["amplitude"], d_u,
