@@ -18,7 +18,8 @@ import numpy as np
 
 from jointsim.model import build_model
 from jointsim.scene import parse_scene
-from jointsim.solvers._march import GeneralizedAlpha, LoadFunction, static_equilibrium
+from jointsim.solvers._march import GeneralizedAlpha, LoadFunction
+from jointsim.solvers.transient import static_start
 from jointsim.solvers._transient_kernels import single_threaded
 
 
@@ -54,7 +55,7 @@ def timed(sc, fused, periods, steps_per_period=256):
     model = build_model(sc)
     w = sc.analysis.transient.omega
     force = LoadFunction(model, w)
-    st = static_equilibrium(model, force.static())
+    st = static_start(model)
     ga = GeneralizedAlpha(model, force, rho_inf=0.9, fused=fused)
     s = ga.start(0.0, st.x, np.zeros(model.n_dof), st.contact.state)
     h = 2 * np.pi / w / steps_per_period

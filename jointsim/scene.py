@@ -429,6 +429,10 @@ class TransientAnalysis:
     harmonics: tuple[int, ...] = spec((0, 1, 2, 3, 4, 5, 6, 7),
                                       doc="harmonics extracted from the last period "
                                           "(same order as /hbm/X)", ge=0)
+    crosscheck_tol: float = spec(1e-3, doc="steady runs of a scene that also runs "
+                                           "analysis.hbm: largest difference of a harmonic, "
+                                           "relative to the first harmonic, that counts as "
+                                           "agreement with HBM at the same frequency", gt=0)
     newton_tol: float = spec(1e-10, doc="Newton tolerance on the contact displacements, "
                                         "relative to their scale", gt=0)
     max_iter: int = spec(25, doc="Newton iterations per step before the step is cut", ge=1)
@@ -445,9 +449,11 @@ class TransientAnalysis:
                             "(1-based, counted above rigid_cutoff_hz)", ge=1)
     amplitude: float = spec(0.0, doc="free decay: initial modal amplitude q0 = phi^T M x0 "
                                      "(phi mass-normalised)", unit="m kg^0.5", ge=0)
-    rigid_cutoff_hz: float = spec(0.0, doc="free decay: modes below this frequency are "
-                                           "rigid-body (suspension) modes and not counted",
-                                  unit="Hz", ge=0)
+    rigid_cutoff_hz: Optional[float] = spec(
+        None, doc="modes below this frequency are rigid-body (suspension) modes (default: "
+                  "detected like analysis.modes.suspension_hz): a free decay does not count "
+                  "them in `mode`, and a steady run leaves them out of the period-to-period "
+                  "change", unit="Hz", ge=0)
 
     def check(self):
         if 1 not in self.harmonics:

@@ -78,3 +78,25 @@ def test_append_shape_mismatch_is_an_error(tmp_path):
         w.append("x", np.zeros(3), "m")
         with pytest.raises(ValueError, match="does not fit"):
             w.append("x", np.zeros(4), "m")
+
+
+
+def test_append_rows_matches_row_by_row_appends(tmp_path):
+    """A block of rows lands exactly where one-row appends would put it, keeps its
+    unit, and a block of the wrong width is refused."""
+    scene = load_scene(SEED / "const.toml")
+    rng = np.random.default_rng(1)
+    data = rng.normal(size=(7, 3))
+    with ResultWriter(tmp_path / "r.h5", scene) as w:
+        for row in data[:2]:
+            w.append("a", row, "m")
+        assert w.append_rows("a", data[2:6], "m") == 6
+        assert w.append_rows("a", data[6:6], "m") == 6      # an empty block is a no-op
+        assert w.append("a", data[6], "m") == 7
+        assert w.append_rows("b", data, "s", "doc") == 7
+        with pytest.raises(ValueError, match="does not fit"):
+            w.append_rows("b", np.zeros((2, 4)), "s")
+    with h5py.File(tmp_path / "r.h5") as h5:
+        assert np.array_equal(h5["a"][()], data) and np.array_equal(h5["b"][()], data)
+        assert h5["b"].attrs["unit"] == "s" and h5["b"].attrs["doc"] == "doc"
+        assert h5["a"].maxshape == (None, 3)

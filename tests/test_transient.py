@@ -12,9 +12,9 @@ from jointsim.model import build_model
 from jointsim.results import STEP_TOO_SMALL
 from jointsim.scene import SceneError
 from jointsim.solvers import _march
-from jointsim.solvers._march import GeneralizedAlpha, LoadFunction, static_equilibrium
+from jointsim.solvers._march import GeneralizedAlpha, LoadFunction
 from jointsim.solvers.transient import (ExtremumTracker, decay_estimates, dft_matrix,
-                                        free_decay, march_steady)
+                                        free_decay, march_steady, rigid_modes, static_start)
 
 from ._transient_scenes import (jenkins_backbone, jenkins_dissipation, lumped, separating,
                                 sdof_jenkins, two_dof_jenkins)
@@ -69,7 +69,7 @@ def _marched(sc, n_steps, h, rho=0.8):
     model = build_model(sc)
     tr = sc.analysis.transient
     force = LoadFunction(model, tr.omega)
-    st = static_equilibrium(model, force.static())
+    st = static_start(model)
     ga = GeneralizedAlpha(model, force, rho_inf=rho)
     s = ga.start(0.0, st.x, np.zeros(model.n_dof), st.contact.state)
     for s in ga.march(s, h * np.arange(1, n_steps + 1)):
@@ -110,7 +110,7 @@ def _state_in_regime(sc, h, want, n_max=2000):
     model = build_model(sc)
     tr = sc.analysis.transient
     force = LoadFunction(model, tr.omega)
-    st = static_equilibrium(model, force.static())
+    st = static_start(model)
     ga = GeneralizedAlpha(model, force, rho_inf=0.8)
     s = ga.start(0.0, st.x, np.zeros(model.n_dof), st.contact.state)
     rng = np.random.default_rng(3)
@@ -401,20 +401,20 @@ def test_run_scene_writes_free_decay(tmp_path):
 
 
 @pytest.mark.parametrize("frictionless,u_expected,f_expected", [
-    (False, 1.0 - 0.5 * 10.0 / 10.5, 0.5 * 10.0 / 10.5),  # slips along the load path
+    (False, 1.0 - 0.5 * 10.0 / 10.5, 0.5 * 10.0 / 10.5),  # the slider slips to mu N
     (True, 1.0, 0.0),                                     # no friction while loading
 ])
-def test_static_preload_with_coupled_normal_load(frictionless, u_expected, f_expected):
+def test_static_start_with_coupled_normal_load(frictionless, u_expected, f_expected):
     """DOF 1 pushed by 1 into a penalty contact (kn = 10, spring 0.5): N = 10/10.5;
-    DOF 0 pulled by 1 against a spring of 1 and a Jenkins slider (kt = 2, mu = 0.5)."""
+    DOF 0 pulled by 1 against a spring of 1 and a Jenkins slider (kt = 2, mu = 0.5).
+    Stuck, the slider would carry 2/3 > mu N: the law lets it slip to mu N."""
     sc = lumped([[1.0, 0.0], [0.0, 1.0]], [[1.0, 0.0], [0.0, 0.5]],
                 contacts=[{"t_dof": 0, "n_dof": 1, "gap0": 0.0}],
                 joint={"law": "jenkins", "kt": 2.0, "mu": 0.5, "kn": 10.0},
                 effects={"normal": "coupled"},
                 loads=[{"dof": 1, "force": -1.0}, {"dof": 0, "force": 1.0}])
     model = build_model(sc)
-    st = static_equilibrium(model, LoadFunction(model, 0.0).static(), n_increments=20,
-                            frictionless=frictionless)
+    st = static_start(model, frictionless=frictionless)
     N = 10.0 / 10.5
     assert st.x[1] == pytest.approx(-1.0 / 10.5, rel=1e-10)
     assert st.contact.N[0] == pytest.approx(N, rel=1e-10)
@@ -422,33 +422,64 @@ def test_static_preload_with_coupled_normal_load(frictionless, u_expected, f_exp
     assert st.contact.f[0] == pytest.approx(f_expected, rel=1e-10, abs=1e-14)
     if frictionless:  # the slider rests, unloaded, at the preloaded slip
         assert st.contact.state[0, 0] == pytest.approx(1.0, rel=1e-10)
+    else:             # anchored where it stopped slipping: f = kt (u - w) = mu N
+        assert 2.0 * (st.x[0] - st.contact.state[0, 0]) == pytest.approx(0.5 * N, rel=1e-10)
 
 
-def test_static_state_resolves_an_initial_interference():
+def test_static_start_below_the_slip_limit_is_the_stuck_linearisation():
+    """A small pull keeps the slider stuck: the start is the stuck static state of
+    every solver, 1 = x0 + kt x0 -> x0 = 1/3 with a force kt x0 = 2/3 < mu N."""
+    from jointsim.solvers.static import stuck_linearisation
+    sc = lumped([[1.0]], [[1.0]], contacts=[{"t_dof": 0, "N0": 10.0}],
+                joint={"law": "jenkins", "kt": 2.0, "mu": 0.5},
+                loads=[{"dof": 0, "force": 1.0}])
+    model = build_model(sc)
+    st = static_start(model)
+    assert st.x[0] == pytest.approx(1.0 / 3.0, rel=1e-12)
+    assert np.array_equal(st.x, stuck_linearisation(model).x0)
+    assert st.contact.f[0] == pytest.approx(2.0 / 3.0, rel=1e-12)
+
+
+def test_static_start_resolves_an_initial_interference():
     """gap0 = -0.1 and no load: the penalty force N = 10 (0.1 - x1) balances 0.5 x1."""
     sc = lumped([[1.0, 0.0], [0.0, 1.0]], [[1.0, 0.0], [0.0, 0.5]],
                 contacts=[{"t_dof": 0, "n_dof": 1, "gap0": -0.1}],
                 joint={"law": "jenkins", "kt": 2.0, "mu": 0.5, "kn": 10.0},
                 effects={"normal": "coupled"})
     model = build_model(sc)
-    st = static_equilibrium(model, np.zeros(2))
+    st = static_start(model)
     # 0.5 x1 - N = 0 with N = 10 (0.1 - x1)  ->  x1 = 1 / 10.5
     assert st.x[1] == pytest.approx(1.0 / 10.5, rel=1e-12)
     assert st.contact.N[0] == pytest.approx(0.5 / 10.5, rel=1e-12)
     assert st.x[0] == 0.0
 
 
-def test_static_state_from_a_given_start():
-    """Starting from a converged state, the force ramps from the one that balances it."""
+def test_static_start_from_the_model_preload_state():
+    """A model that carries its preload state (``extra["x0"]``, as FE models do)
+    starts from it when it is an equilibrium: no Newton iteration."""
     sc = separating({"omega": 0.8})
+    a = static_start(build_model(sc))
     model = build_model(sc)
-    f = LoadFunction(model, 0.8).static()
-    a = static_equilibrium(model, f)
-    b = static_equilibrium(model, f, start=(a.x, a.contact.state))
-    assert np.allclose(b.x, a.x, rtol=1e-12, atol=1e-15) and b.iterations <= 1
-    # a larger push from there, as from rest (no friction involved in the normal DOF)
-    c = static_equilibrium(model, 2 * f, start=(a.x, a.contact.state))
-    assert c.x[1] == pytest.approx(-2.0 / 10.5, rel=1e-10)
+    model.extra["x0"] = a.x.copy()
+    b = static_start(model)
+    assert b.source == "model" and b.iterations == 0
+    assert np.allclose(b.x, a.x, rtol=1e-12, atol=1e-15)
+
+
+def test_steady_change_leaves_out_the_rigid_body_modes():
+    """A free mass on a slider pair: the rigid-body mode (a drift of the whole
+    structure) does not count in the period-to-period change, the elastic motion
+    does."""
+    sc = lumped([[1.0, 0.0], [0.0, 1.0]], [[1.0, -1.0], [-1.0, 1.0]], [[0.1, 0.0], [0.0, 0.1]],
+                loads=[{"dof": 0, "force": {"harmonics": [{"h": 1, "cos": 1.0}]}}],
+                transient={"omega": 2.0})
+    model = build_model(sc)
+    rig = rigid_modes(model)
+    assert rig.n == 1 and np.allclose(np.abs(rig.shapes[0]), np.sqrt(0.5))
+    x = np.array([[1.0, 1.0], [0.3, -0.3]])
+    assert np.allclose(rig.elastic(x), [[0.0, 0.0], [0.3, -0.3]])
+    cut = rigid_modes(model, cutoff_hz=0.0)   # an explicit cutoff of 0: nothing left out
+    assert cut.n == 0 and np.array_equal(cut.elastic(x), x)
 
 
 def _bouncing(rho, fused, correct=True, n=3000):
@@ -515,3 +546,25 @@ def test_linear_start_with_a_stuck_joint():
     Z = 1.25 - 0.81 + 0.09j                  # stuck: k + kt - w^2 m + i w c
     assert abs(res.X[1, 0] - 1j * res.X[2, 0] - 0.02 / Z) < 2e-3 * abs(0.02 / Z)
     assert np.abs(res.last.f).max() < 0.2    # never at the slip force
+
+
+def test_rigid_modes_of_the_free_free_lap_joint():
+    """The coarse lap joint hangs from soft springs: three suspension modes below
+    5 Hz are detected; a rigid translation of the reduced model is (nearly) all
+    rigid-body motion, and the first bending mode has none."""
+    from pathlib import Path
+
+    from jointsim.scene import load_scene
+    from jointsim.solvers.modes import stuck_modes
+    root = Path(__file__).resolve().parents[1]
+    model = build_model(load_scene(root / "models" / "lap_joint.toml",
+                                   ["model.mesh='../meshes/lap_joint_coarse.msh'"]))
+    rig = rigid_modes(model)
+    assert rig.n == 3
+    modes = stuck_modes(model, 5)
+    assert np.all(modes.frequency_hz[~modes.elastic] < 5.0) and (~modes.elastic).sum() == 3
+    for axis in (".x", ".y"):
+        t = np.array([1.0 if lab.endswith(axis) else 0.0 for lab in model.dof_labels])
+        assert np.linalg.norm(rig.elastic(t)) < 1e-3 * np.linalg.norm(t)
+    bending = modes.shapes[np.flatnonzero(modes.elastic)[0]]
+    assert np.allclose(rig.elastic(bending), bending, rtol=0, atol=1e-12 * np.abs(bending).max())

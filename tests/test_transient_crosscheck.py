@@ -9,7 +9,7 @@ import pytest
 from jointsim.io.hdf5 import ResultWriter
 from jointsim.model import build_model
 from jointsim.solvers.crosscheck import (cross_check, cross_check_file, explain_dc,
-                                         hbm_solution_at, memory_elements)
+                                         hbm_reference, hbm_solution_at, memory_elements)
 from jointsim.solvers.transient import march_steady
 
 from ._transient_scenes import lumped, two_dof_jenkins
@@ -99,16 +99,24 @@ def test_cross_check_file_reads_the_hbm_contract(tmp_path):
         # generalized-alpha period error O((w h)^2) with 512 steps per period
         assert cc.rel_diff[1] < 1e-4
         g = wr.h5["crosscheck"]
-        assert not g.attrs["interpolated"] and list(g.attrs["hbm_points"]) == [1]
+        # the stored point at the frequency is taken as it is
+        assert g.attrs["hbm_source"] == "stored point 1"
+        assert list(g.attrs["hbm_points"]) == [1]
         assert g.attrs["agree"]
     with h5py.File(tmp_path / "x.h5") as h5:
         for name in ("rel_diff", "rel_own", "amplitude_hbm", "harmonics"):
             assert "unit" in h5["crosscheck"][name].attrs
-        # between stored points the solution is interpolated, and says so
+        # between stored points the stored solution is interpolated, and says so (only
+        # to seed a Newton solve at the frequency)
         pt = hbm_solution_at(h5, 1.1)
         assert pt.interpolated and pt.points == (0, 1)
         assert np.allclose(pt.X, 0.5 * (X[0] + X[1]))
         assert hbm_solution_at(h5, 2.0) is None
+        # ... and the reference at 1.1 is solved, not interpolated: the exact FRF
+        ref = hbm_reference(h5, sc, m, 1.1, 1.0)
+        assert ref.convergence.success and ref.source.startswith("solved at omega")
+        exact = _linear_frf(M, K, C, np.array([0.2, 0.0]), 1.1, hs, 2)
+        assert np.allclose(ref.X, exact, rtol=0, atol=1e-13)
 
 
 def test_hbm_branches_and_force_scales(tmp_path):

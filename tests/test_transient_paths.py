@@ -11,7 +11,8 @@ import pytest
 from jointsim.model import build_model
 from jointsim.solvers import _march
 from jointsim.solvers import _transient_kernels as TK
-from jointsim.solvers._march import GeneralizedAlpha, LoadFunction, static_equilibrium
+from jointsim.solvers._march import GeneralizedAlpha, LoadFunction
+from jointsim.solvers.transient import static_start
 
 from ._transient_scenes import lumped, separating, sdof_jenkins, two_dof_jenkins
 
@@ -44,7 +45,7 @@ def _march_block(sc, fused, n_steps=300, steps_per_period=64):
     model = build_model(sc)
     w = sc.analysis.transient.omega
     force = LoadFunction(model, w)
-    st = static_equilibrium(model, force.static())
+    st = static_start(model)
     ga = GeneralizedAlpha(model, force, rho_inf=0.85, fused=fused)
     s = ga.start(0.0, st.x, np.zeros(model.n_dof), st.contact.state)
     t = np.arange(n_steps + 1) * (2 * np.pi / w / steps_per_period)

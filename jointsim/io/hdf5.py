@@ -156,6 +156,19 @@ class ResultWriter:
             ds.attrs[k] = v
         self.h5.flush()
 
+    def _extendable(self, name: str, shape: tuple, dtype, unit: str, doc: str, chunks):
+        """The extendable dataset ``name`` for rows of ``shape`` (created on first use)."""
+        if name not in self.h5:
+            ds = self.h5.create_dataset(name, shape=(0,) + shape, dtype=dtype,
+                                        maxshape=(None,) + shape, chunks=chunks)
+            ds.attrs["unit"] = unit
+            if doc:
+                ds.attrs["doc"] = doc
+        ds = self.h5[name]
+        if ds.shape[1:] != shape:
+            raise ValueError(f"{name}: a row of shape {shape} does not fit {ds.shape[1:]}")
+        return ds
+
     def append(self, name: str, row, unit: str, doc: str = "") -> int:
         """Append one row along the first axis of an extendable dataset.
 
@@ -173,21 +186,40 @@ class ResultWriter:
             The number of rows now stored.
         """
         row = np.asarray(row)
-        if name not in self.h5:
-            ds = self.h5.create_dataset(name, shape=(0,) + row.shape, dtype=row.dtype,
-                                        maxshape=(None,) + row.shape,
-                                        chunks=(1,) + row.shape if row.size else True)
-            ds.attrs["unit"] = unit
-            if doc:
-                ds.attrs["doc"] = doc
-        ds = self.h5[name]
-        if ds.shape[1:] != row.shape:
-            raise ValueError(f"{name}: row of shape {row.shape} does not fit {ds.shape[1:]}")
+        ds = self._extendable(name, row.shape, row.dtype, unit, doc,
+                              (1,) + row.shape if row.size else True)
         n = ds.shape[0]
         ds.resize(n + 1, axis=0)
         ds[n] = row
         self.h5.flush()
         return n + 1
+
+    def append_rows(self, name: str, rows, unit: str, doc: str = "") -> int:
+        """Append a block of rows at once (one resize, one flush).
+
+        Parameters
+        ----------
+        name : str
+            Dataset path, created on first use with shape ``(0, *rows.shape[1:])``.
+        rows : array_like, shape (n_rows, ...)
+            Several points' data, stacked along the first axis.
+        unit : str
+
+        Returns
+        -------
+        int
+            The number of rows now stored.
+        """
+        rows = np.asarray(rows)
+        if rows.ndim == 0:
+            raise ValueError(f"{name}: append_rows needs an array of rows, got a scalar")
+        ds = self._extendable(name, rows.shape[1:], rows.dtype, unit, doc, True)
+        n = ds.shape[0]
+        if rows.shape[0]:
+            ds.resize(n + rows.shape[0], axis=0)
+            ds[n:] = rows
+            self.h5.flush()
+        return n + rows.shape[0]
 
     def rows(self, name: str) -> int:
         """Rows stored in an extendable dataset (0 if absent)."""

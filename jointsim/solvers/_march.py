@@ -2,10 +2,11 @@
 
 This module holds the integrator itself: the contact map in condensed
 coordinates, the stepper (a Newton solve per step, condensed onto the contact
-coordinates, with step cutting), the quasi-static solve of the preload, and
-the linear modes of the stuck joint.  The drivers that march to a steady
-state or ring down a free decay, and the runner that writes the result file,
-are in :mod:`jointsim.solvers.transient`.
+coordinates, with step cutting) and the external force.  The drivers that
+march to a steady state or ring down a free decay, and the runner that writes
+the result file, are in :mod:`jointsim.solvers.transient`; the static state
+they start from and the linear modes come from :mod:`jointsim.solvers.static`
+and :mod:`jointsim.solvers.modes`, as for every solver.
 
 Equation of motion
 ------------------
@@ -775,152 +776,6 @@ class GeneralizedAlpha:
                          NN[:, done].copy())
         return MarchState(float(times[done]), X[done].copy(), V[done].copy(),
                           A[done].copy(), ev), done
-
-
-# --------------------------------------------------------------------------
-# Statics and modes
-# --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class StaticState:
-    """A quasi-static equilibrium ``K x + f_c(x) = f``.
-
-    Attributes
-    ----------
-    x : ndarray, shape (n_dof,)
-        Displacement [m].
-    contact : ContactEval
-        Contact forces; ``contact.state`` is the law state to start from.
-    iterations : int
-        Newton iterations over all increments.
-    """
-
-    x: np.ndarray
-    contact: ContactEval
-    iterations: int
-
-
-def static_equilibrium(model, f, n_increments: int = 10, frictionless: bool = False,
-                       tol: float = 1e-10, max_iter: int = 50, start=None) -> StaticState:
-    """Load the structure quasi-statically from rest to the constant force ``f``.
-
-    The force is applied in ``n_increments`` equal increments; the contact
-    laws are marched along the path (history matters), with Newton condensed
-    on the contact coordinates at each increment.  With ``start``, the path
-    starts from a known state instead of rest: the force ramps from the one
-    that balances that state (``K x0 + f_c(x0)``) to ``f``.
-
-    Parameters
-    ----------
-    model : jointsim.model.StructuralModel
-    f : ndarray, shape (n_dof,)
-        Constant external force (preload, static parts of the loads) [N].
-    n_increments : int
-    frictionless : bool
-        No tangential force during the load path (``preload_tangential =
-        "frictionless"``); the sliders are then set at rest at the final slip.
-    tol, max_iter : float, int
-        Newton settings.
-    start : tuple, optional
-        ``(x0, state0)``: displacement [m] and law state to start from (for
-        instance the preload state of an FE model, ``model.extra["x0"]``);
-        ``frictionless`` is then ignored.
-
-    Returns
-    -------
-    StaticState
-
-    Raises
-    ------
-    NewtonFailure
-        If an increment does not converge.
-    """
-    f = np.asarray(f, dtype=float)
-    n = model.n_dof
-    dense = n <= DENSE_MAX_DOF
-    if start is not None:
-        frictionless = False
-    cmap = ContactMap(model.contacts, friction=not frictionless, dense=dense)
-    K = np.asarray(sp.csr_matrix(model.K).toarray()) if dense else sp.csr_matrix(model.K)
-    fac = _Condensed(K, cmap, dense)
-    if start is None:
-        N_start = cmap.normal(np.zeros(cmap.n_c))[0] if cmap.active else np.zeros(0)
-        state = model.contacts.law.rest_state(N_start)
-        y = np.zeros(cmap.n_c)
-        f0 = np.zeros(n)
-    else:
-        x0, state = np.asarray(start[0], dtype=float), start[1]
-        y = cmap.B @ x0
-        f0 = np.asarray(K @ x0).ravel()
-        if cmap.active:
-            ev0 = cmap.evaluate(y, state)
-            state = ev0.state
-            f0 = f0 + cmap.Bt @ ev0.phi
-    total = 0
-    # without a change of force one increment suffices (an initial interference,
-    # gap0 < 0, is still resolved by the Newton solve)
-    n_inc = n_increments if np.any(f - f0) else 1
-    for i in range(1, n_inc + 1):
-        x_lin = np.asarray(fac.solver.solve(f0 + (f - f0) * (i / n_inc)))
-        if cmap.active:
-            y_p = cmap.B @ x_lin
-            y, ev, its, _c = condensed_newton(cmap, fac.G, 1.0, y_p, y, state, tol, max_iter)
-            total += its
-            state = ev.state
-            x = x_lin - fac.Z @ ev.phi
-        else:
-            x, ev = x_lin, None
-    if not cmap.active:
-        return StaticState(x, empty_eval(state), total)
-    if frictionless:
-        # sliders rest, unloaded, at the preloaded slip
-        full = ContactMap(model.contacts)
-        state = full.state_at(ev.u, ev.N)
-        ev = full.evaluate(cmap.B @ x, state)
-    return StaticState(x, ev, total)
-
-
-def stuck_modes(model, contact: ContactEval, n_modes: int):
-    """Linear modes of the structure with its contacts linearised (stuck).
-
-    The contact tangent ``D`` at ``contact`` is added to ``K``; with coupled
-    normal load ``D`` may be non-symmetric (for the scaled law), and its
-    symmetric part is used.
-
-    Parameters
-    ----------
-    model : jointsim.model.StructuralModel
-    contact : ContactEval
-        Contact state at the static equilibrium.
-    n_modes : int
-        Number of lowest modes wanted.
-
-    Returns
-    -------
-    omega : ndarray, shape (n_modes,)
-        Angular frequencies [rad/s].
-    phi : ndarray, shape (n_dof, n_modes)
-        Mass-normalised mode shapes (largest entry positive).
-    """
-    cmap = ContactMap(model.contacts)
-    K = sp.csr_matrix(model.K)
-    if cmap.active:
-        D = cmap.D_matrix(contact)
-        D = 0.5 * (D + D.T)
-        K = K + cmap.Bt @ sp.csr_matrix(D) @ cmap.B
-    M = sp.csr_matrix(model.M)
-    n = model.n_dof
-    n_modes = min(n_modes, n)
-    if n <= 2000:
-        w2, phi = sla.eigh(K.toarray(), M.toarray(), subset_by_index=(0, n_modes - 1))
-    else:
-        w2, phi = spla.eigsh(sp.csc_matrix(K), k=n_modes, M=sp.csc_matrix(M), sigma=0.0,
-                             which="LM")
-        order = np.argsort(w2)
-        w2, phi = w2[order], phi[:, order]
-    phi = phi / np.sqrt(np.einsum("ij,ij->j", phi, M @ phi))
-    big = np.argmax(np.abs(phi), axis=0)
-    phi = phi * np.sign(phi[big, np.arange(phi.shape[1])])
-    return np.sqrt(np.maximum(w2, 0.0)), phi
 
 
 # --------------------------------------------------------------------------

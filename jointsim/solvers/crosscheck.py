@@ -35,6 +35,10 @@ log = logging.getLogger(__name__)
 #: Relative closeness to the slip force that counts as macroslip.
 SLIP_RTOL = 1e-6
 
+#: A harmonic smaller than this fraction of the first one is round-off: no
+#: ``rel_own`` for it.
+OWN_FLOOR = 1e-12
+
 
 @dataclass(frozen=True)
 class CrossCheck:
@@ -48,7 +52,8 @@ class CrossCheck:
         ``||X_a,h - X_b,h|| / ||X_b,1||`` per harmonic (cos and sin rows and all
         DOFs together) [-].
     rel_own : ndarray, shape (n_h,)
-        ``||X_a,h - X_b,h|| / ||X_b,h||`` (``nan`` where ``X_b,h`` is 0) [-].
+        ``||X_a,h - X_b,h|| / ||X_b,h||`` (``nan`` where ``X_b,h`` is below
+        ``OWN_FLOOR`` times ``||X_b,1||``, i.e. round-off) [-].
     amplitude_a, amplitude_b : ndarray, shape (n_dof,)
         First-harmonic amplitude ``sqrt(c^2 + s^2)`` of each DOF [m].
     dc_diff : float
@@ -200,7 +205,7 @@ def cross_check(Xa, harmonics_a, Xb, harmonics_b, *, model=None, loops=None,
         d = np.linalg.norm(Xa[ra[h]] - Xb[rb[h]])
         nb = np.linalg.norm(Xb[rb[h]])
         rel.append(d / ref)
-        own.append(d / nb if nb > 0 else np.nan)
+        own.append(d / nb if nb > OWN_FLOOR * ref else np.nan)
     rel, own = np.array(rel), np.array(own)
     ne = model.contacts.n_elements if model is not None else 0
     df, dN = np.zeros(ne), np.zeros(ne)
@@ -248,7 +253,7 @@ def cross_check(Xa, harmonics_a, Xb, harmonics_b, *, model=None, loops=None,
 # --------------------------------------------------------------------------
 @dataclass(frozen=True)
 class HBMPoint:
-    """An HBM solution at a requested frequency, read from a result file.
+    """A stored HBM solution near a requested frequency, read from a result file.
 
     Attributes
     ----------
@@ -260,8 +265,8 @@ class HBMPoint:
         The stored HBM point(s) used.
     interpolated : bool
         True when ``X`` is interpolated linearly in omega between two stored
-        points (no HBM point sits at the frequency); the interpolation error
-        is not controlled.
+        points (no HBM point sits at the frequency); such an ``X`` is only a
+        seed, not a solution.
     """
 
     X: np.ndarray
@@ -273,14 +278,17 @@ class HBMPoint:
 
 def hbm_solution_at(h5, omega: float, force_scale: float | None = None, X_near=None,
                     rtol: float = 1e-9) -> HBMPoint | None:
-    """The HBM solution at ``omega`` from ``/hbm`` (DESIGN §4 paths).
+    """The stored HBM solution at (or around) ``omega`` from ``/hbm`` (DESIGN §4 paths).
 
     Uses ``/hbm/omega`` [n_points], ``/hbm/X`` [n_points, n_coeff, n_dof] and
     ``/hbm/harmonics``; with ``/hbm/branch`` [n_points] (the branch of each
     point) brackets never span two branches, and with ``/hbm/force_scale``
     (one entry per branch, indexed by ``/hbm/branch``) only branches of the
     requested force scale are used.  Where a branch passes ``omega`` several
-    times (turning points), the solution nearest ``X_near`` is taken.
+    times (turning points), the solution nearest ``X_near`` is taken.  Between
+    stored points the coefficients are interpolated linearly (flagged
+    ``interpolated``): :func:`hbm_reference` uses that only to pick the seed
+    of a Newton solve at exactly ``omega``.
 
     Returns
     -------
@@ -293,11 +301,8 @@ def hbm_solution_at(h5, omega: float, force_scale: float | None = None, X_near=N
     X = h5["hbm/X"]
     hs = tuple(int(h) for h in h5["hbm/harmonics"][()])
     n = w.size
-    ok = np.ones(n, dtype=bool)
+    ok = _scale_mask(h5, n, force_scale)
     branch = h5["hbm/branch"][()] if "hbm/branch" in h5 else np.zeros(n, dtype=int)
-    if force_scale is not None and "hbm/force_scale" in h5:
-        scales = np.atleast_1d(h5["hbm/force_scale"][()])
-        ok &= np.isclose(scales[branch], force_scale, rtol=1e-12)
     cands = []
     for i in np.flatnonzero(ok & np.isclose(w, omega, rtol=rtol, atol=0.0)):
         cands.append(HBMPoint(X[i], hs, float(w[i]), (int(i),), False))
@@ -319,13 +324,165 @@ def hbm_solution_at(h5, omega: float, force_scale: float | None = None, X_near=N
     return min(pool, key=lambda c: np.linalg.norm(c.X[rows] - np.asarray(X_near)[rows]))
 
 
-def cross_check_file(writer, scene, model, result, tol: float = 1e-3) -> CrossCheck | None:
-    """Cross-check a steady time-marching result against ``/hbm`` of the same file.
+def _scale_mask(h5, n: int, force_scale) -> np.ndarray:
+    """Stored points that belong to a branch of ``force_scale`` (all when None)."""
+    ok = np.ones(n, dtype=bool)
+    if force_scale is not None and "hbm/force_scale" in h5:
+        branch = h5["hbm/branch"][()] if "hbm/branch" in h5 else np.zeros(n, dtype=int)
+        scales = np.atleast_1d(h5["hbm/force_scale"][()])
+        ok &= np.isclose(scales[branch], force_scale, rtol=1e-12)
+    return ok
 
-    Writes ``/crosscheck/*``: ``harmonics``, ``rel_diff``, ``rel_own``,
-    ``amplitude_transient``, ``amplitude_hbm``, ``df``, ``dN``, ``memory`` and
-    attributes ``omega``, ``dc_diff``, ``dc_history``, ``agree``, ``tol``,
-    ``verdict``, ``hbm_points``, ``interpolated``.
+
+@dataclass(frozen=True)
+class HBMReference:
+    """A harmonic-balance solution at exactly the frequency of a time-marching run.
+
+    Attributes
+    ----------
+    X : ndarray, shape (n_coeff, n_dof)
+        Coefficients ``[0, 1c, 1s, ...]`` [m].
+    harmonics : tuple of int
+    omega : float
+        [rad/s]
+    source : str
+        Where it comes from: ``"stored point i"`` (a point of ``/hbm`` at the
+        frequency), or ``"solved ..."`` with the seed of the Newton solve.
+    points : tuple of int
+        Stored HBM points used (as solution or seed).
+    n_samples : int
+        AFT samples of the solve.
+    residual : float
+        ``max |R|`` over the force scale [-] (nan for a stored point).
+    wall_time : float
+        [s]
+    convergence : jointsim.results.Convergence
+    """
+
+    X: np.ndarray
+    harmonics: tuple
+    omega: float
+    source: str
+    points: tuple
+    n_samples: int
+    residual: float
+    wall_time: float
+    convergence: object
+
+
+def hbm_reference(h5, scene, model, omega: float, force_scale: float, X_near=None,
+                  harmonics_near=None) -> HBMReference:
+    """Solve the harmonic balance at exactly ``omega`` with the settings of ``/hbm``.
+
+    The harmonics and AFT samples are those the file's HBM used
+    (``/hbm/harmonics``, attribute ``n_samples``); the AFT march limits and
+    the tolerance come from ``scene.analysis.hbm`` when the scene has one.  A
+    stored point at ``omega`` (same force scale) is taken as it is.
+    Otherwise Newton (:func:`jointsim.solvers.hbm.solve_point`) is seeded, in
+    turn, from
+
+    1. the stored point of the same force scale nearest ``omega`` on a branch
+       that passes ``omega`` (of several passes, the one nearest ``X_near``
+       in the first harmonic), or else the stored point nearest in frequency;
+    2. zero (whose first Newton step is the stuck linear response);
+    3. ``X_near`` itself (the time-marching solution),
+
+    until one converges.  The seed only picks which solution Newton finds
+    where there are several; the solution is HBM's own.
+
+    Parameters
+    ----------
+    h5 : h5py.File
+        A file with ``/hbm``.
+    scene : jointsim.scene.Scene
+    model : jointsim.model.StructuralModel
+    omega : float
+        [rad/s]
+    force_scale : float
+        Multiplier of the harmonic loads.
+    X_near : ndarray, shape (n_coeff_near, n_dof), optional
+        The solution to compare with (selects among several HBM solutions).
+    harmonics_near : sequence of int, optional
+        Harmonics of the rows of ``X_near``.
+
+    Returns
+    -------
+    HBMReference
+        With ``convergence.success`` False when no seed converged (``X`` is
+        then the last iterate).
+    """
+    import time
+
+    from ..results import NOT_CONVERGED, SUCCESS, Convergence
+    from .hbm import HBMSystem, solve_point
+    t0 = time.perf_counter()
+    hs = tuple(int(h) for h in h5["hbm/harmonics"][()])
+    rows = _rows(hs)
+    near = None
+    if X_near is not None and harmonics_near is not None:
+        rn = _rows(tuple(harmonics_near))
+        near = np.zeros((max(s.stop for s in rows.values()), model.n_dof))
+        for h, sl in rows.items():
+            if h in rn:
+                near[sl] = np.asarray(X_near)[rn[h]]
+    settings = scene.analysis.hbm if scene is not None else None
+    n_samples = int(h5["hbm"].attrs.get("n_samples", getattr(settings, "n_samples", 128)))
+    pt = hbm_solution_at(h5, omega, force_scale, near)
+    if pt is not None and not pt.interpolated:
+        i = pt.points[0]
+        return HBMReference(pt.X, hs, pt.omega, f"stored point {i}", pt.points, n_samples,
+                            np.nan, time.perf_counter() - t0,
+                            Convergence(True, SUCCESS, f"stored HBM point {i} at omega", 0))
+    system = HBMSystem(model, hs, n_samples, getattr(settings, "min_periods", 2),
+                       getattr(settings, "max_periods", 50))
+    F = system.force_coefficients(force_scale)
+    tol = min(float(getattr(settings, "tol", 1e-10)), 1e-10)
+    max_iter = max(int(getattr(settings, "max_iter", 20)), 30)
+    seeds = []
+    if pt is not None:   # a branch passes omega: the nearer end of its bracket
+        w = h5["hbm/omega"][()]
+        i = min(pt.points, key=lambda j: abs(w[j] - omega))
+        seeds.append((f"stored point {i} (omega = {w[i]:.8g})", (i,), h5["hbm/q"][i]
+                      if "hbm/q" in h5 else system.contact_coordinates(h5["hbm/X"][i])))
+    elif "hbm/omega" in h5 and h5["hbm/omega"].shape[0]:
+        w = h5["hbm/omega"][()]
+        ok = np.flatnonzero(_scale_mask(h5, w.size, force_scale))
+        if ok.size:
+            i = int(ok[np.argmin(np.abs(w[ok] - omega))])
+            seeds.append((f"stored point {i} (omega = {w[i]:.8g})", (i,), h5["hbm/q"][i]
+                          if "hbm/q" in h5 else system.contact_coordinates(h5["hbm/X"][i])))
+    seeds.append(("the stuck linear response", (), np.zeros(system.n_z)))
+    if near is not None:
+        seeds.append(("the time-marching solution", (), system.contact_coordinates(near)))
+    sol, used = None, seeds[-1]
+    for seed in seeds:
+        z0 = np.asarray(seed[2], dtype=float)
+        if z0.shape != (system.n_z,):
+            continue
+        sol = solve_point(system, omega, F, z0=z0, tol=tol, max_iter=max_iter)
+        used = seed
+        if sol.convergence.success:
+            break
+    c = sol.convergence
+    source = f"solved at omega by Newton from {used[0]}"
+    conv = Convergence(c.success, SUCCESS if c.success else NOT_CONVERGED,
+                       f"{source}: {c.message}", c.iterations)
+    return HBMReference(sol.X, hs, float(omega), source, used[1], n_samples,
+                        sol.residual / max(float(np.abs(F).max(initial=0.0)), 1e-300),
+                        time.perf_counter() - t0, conv)
+
+
+def cross_check_file(writer, scene, model, result, tol: float = 1e-3) -> CrossCheck | None:
+    """Cross-check a steady time-marching result against harmonic balance at its frequency.
+
+    The HBM solution is solved at exactly the frequency and force scale of
+    the march, with the harmonics and samples of the file's ``/hbm``
+    (:func:`hbm_reference`).  Writes ``/crosscheck/*``: ``harmonics``,
+    ``rel_diff``, ``rel_own``, ``amplitude_transient``, ``amplitude_hbm``,
+    ``X_transient``, ``X_hbm``, ``df``, ``dN``, ``memory`` and attributes
+    ``omega``, ``force_scale``, ``dc_diff``, ``dc_history``, ``agree``,
+    ``tol``, ``verdict``, ``hbm_source``, ``hbm_points``, ``hbm_success``,
+    ``hbm_message``, ``hbm_n_samples``, ``hbm_time_s``.
 
     Parameters
     ----------
@@ -334,39 +491,37 @@ def cross_check_file(writer, scene, model, result, tol: float = 1e-3) -> CrossCh
     model : jointsim.model.StructuralModel
     result : jointsim.solvers.transient.SteadyResult
     tol : float
+        Agreement tolerance on ``rel_diff``.
 
     Returns
     -------
     CrossCheck or None
-        None (and a warning) when no HBM solution reaches the frequency.
+        None (and a warning, and ``verdict`` saying why) when the HBM solve
+        at the frequency did not converge.
     """
     from ..io.hdf5 import unit
     ht = result.harmonics
-    hb = _rows(tuple(int(h) for h in writer.h5["hbm/harmonics"][()])) \
-        if "hbm/harmonics" in writer.h5 else {}
-    Xnear = None
-    if 1 in hb:
-        Xnear = np.zeros((max(s.stop for s in hb.values()), model.n_dof))
-        Xnear[hb[1]] = result.X[_rows(ht)[1]]
-    pt = hbm_solution_at(writer.h5, result.omega, result.force_scale, Xnear)
-    if pt is None:
-        log.warning("cross-check: no HBM solution at omega = %g (force scale %g) in the "
-                    "file; nothing compared", result.omega, result.force_scale)
-        writer.group("crosscheck", omega=result.omega, agree=False,
-                     verdict="no HBM solution at this frequency")
+    ref = hbm_reference(writer.h5, scene, model, result.omega, result.force_scale,
+                        result.X, ht)
+    common = dict(omega=result.omega, force_scale=result.force_scale, tol=float(tol),
+                  hbm_source=ref.source, hbm_points=np.asarray(ref.points, dtype=np.int64),
+                  hbm_success=bool(ref.convergence.success),
+                  hbm_message=ref.convergence.message, hbm_n_samples=ref.n_samples,
+                  hbm_time_s=ref.wall_time)
+    if not ref.convergence.success:
+        msg = f"no HBM solution at omega = {result.omega:g}: {ref.convergence.message}"
+        log.warning("cross-check: %s; nothing compared", msg)
+        writer.group("crosscheck", agree=False, verdict=msg, **common)
         return None
     n = result.last.f.shape[1] - 1
     loops = (result.last.f[:, :n], result.last.N[:, :n])
-    cc = cross_check(result.X, ht, pt.X, pt.harmonics, model=model, loops=loops, tol=tol)
-    if pt.interpolated:
-        cc_verdict = cc.verdict + (f" (HBM interpolated between points {pt.points}; "
-                                   "the interpolation error is not controlled)")
-    else:
-        cc_verdict = cc.verdict
-    writer.group("crosscheck", omega=result.omega, force_scale=result.force_scale,
-                     dc_diff=cc.dc_diff, dc_history=cc.dc_history, agree=cc.agree,
-                     tol=cc.tol, verdict=cc_verdict, hbm_points=np.asarray(pt.points),
-                     interpolated=pt.interpolated)
+    cc = cross_check(result.X, ht, ref.X, ref.harmonics, model=model, loops=loops, tol=tol)
+    verdict = cc.verdict
+    if not result.convergence.success:
+        verdict += (f" (the march is not steady: {result.convergence.message})")
+    writer.group("crosscheck", dc_diff=cc.dc_diff, dc_history=cc.dc_history, agree=cc.agree,
+                 verdict=verdict, transient_steady=bool(result.convergence.success),
+                 error_estimate=float(result.error_estimate), **common)
     units = model.units
     one = unit("dimensionless", units)
     writer.write("crosscheck/harmonics", np.asarray(cc.harmonics, dtype=np.int64), "1",
@@ -380,12 +535,16 @@ def cross_check_file(writer, scene, model, result, tol: float = 1e-3) -> CrossCh
                  "first-harmonic amplitude per DOF, time marching")
     writer.write("crosscheck/amplitude_hbm", cc.amplitude_b, d,
                  "first-harmonic amplitude per DOF, harmonic balance")
+    writer.write("crosscheck/X_transient", result.X, d, "coefficients of the time-marching "
+                 "period [0, 1c, 1s, ...] of its harmonics", harmonics=np.asarray(ht))
+    writer.write("crosscheck/X_hbm", ref.X, d, "coefficients of the HBM solution at the "
+                 "same frequency", harmonics=np.asarray(ref.harmonics))
     F = unit("force", units)
     writer.write("crosscheck/df", cc.df, F, "mean tangential force differences that hold "
                  "the DC difference")
     writer.write("crosscheck/dN", cc.dN, F, "mean normal load differences")
     writer.write("crosscheck/memory", cc.memory, "1",
                  "elements that stick all period (keep their history)")
-    (log.info if cc.agree else log.warning)("cross-check at omega = %g: %s", result.omega,
-                                            cc_verdict)
+    (log.info if cc.agree else log.warning)("cross-check at omega = %g (HBM %s): %s",
+                                            result.omega, ref.source, verdict)
     return cc

@@ -29,8 +29,7 @@ import numpy as np
 from ..results import (INTERRUPTED, NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS,
                        Convergence)
 from ..signals import coefficient_harmonics
-from ._march import (ContactMap, GeneralizedAlpha, LoadFunction, NewtonFailure, StepFailure,
-                     static_equilibrium, stuck_modes)
+from ._march import ContactMap, GeneralizedAlpha, LoadFunction, StepFailure, empty_eval
 from ._transient_kernels import single_threaded
 
 log = logging.getLogger(__name__)
@@ -444,31 +443,90 @@ def decay_estimates(t_ext, q_ext):
 # --------------------------------------------------------------------------
 # Drivers
 # --------------------------------------------------------------------------
-def _start_state(model, settings, force, frictionless):
-    """Static equilibrium under the constant forces, as a starting point.
+@dataclass(frozen=True)
+class StartState:
+    """The static state a march starts from, with the contact laws' state there.
 
-    A model that carries its preload state (``model.extra["x0"]``, the FE
-    builder's) starts from it, with the sliders at rest (stuck preload: anchors
-    at zero slip) or unloaded at the preloaded slip (frictionless preload);
-    otherwise the structure is loaded from rest.
+    Attributes
+    ----------
+    x : ndarray, shape (n_dof,)
+        Static displacement [m].
+    contact : ContactEval
+        Contact forces at ``x``; ``contact.state`` is the law state to start from.
+    iterations : int
+        Newton iterations of the static solves.
+    source : str
+        Where ``x`` comes from (the stuck linearisation's ``source``, or
+        ``"frictionless"``).
     """
-    x0 = model.extra.get("x0") if isinstance(model.extra, dict) else None
-    start = None
-    if x0 is not None:
-        x0 = np.asarray(x0, dtype=float)
-        cmap = ContactMap(model.contacts)
-        N0 = cmap.normal(cmap.B @ x0)[0] if cmap.active else np.zeros(0)
-        if frictionless:
-            state0 = cmap.state_at(np.asarray(model.contacts.Tt @ x0).ravel(), N0)
-        else:
-            state0 = model.contacts.law.rest_state(N0)
-        start = (x0, state0)
-    try:
-        return static_equilibrium(model, force.static(), frictionless=frictionless,
-                                  tol=settings.newton_tol, start=start)
-    except NewtonFailure as exc:
-        raise RuntimeError(f"the static (preload) equilibrium did not converge: {exc}") \
-            from None
+
+    x: np.ndarray
+    contact: object
+    iterations: int
+    source: str
+
+
+def static_start(model, frictionless: bool = False, tol: float = 1e-10) -> StartState:
+    """The static state under the constant loads, and the laws' state there.
+
+    The state is the one every solver starts from,
+    :func:`jointsim.solvers.static.stuck_linearisation` (the model builder's
+    preload state when it has one, else solved with the joint stuck), with
+    the sliders at rest: anchors at zero slip, so that a stuck slider carries
+    ``kt A u_t``.  Where that force exceeds the slip limit, one
+    :func:`~jointsim.solvers.static.solve_static` step with the law itself
+    (``tangential = "law"``) lets the slider slip to equilibrium.
+
+    With ``frictionless`` (``model.preload_tangential = "frictionless"``) the
+    static state carries no tangential force (``solve_static`` with
+    ``tangential = "frictionless"``), and the sliders rest, unloaded, at the
+    slip it leaves.
+
+    Parameters
+    ----------
+    model : jointsim.model.StructuralModel
+    frictionless : bool
+    tol : float
+        Residual tolerance of the static solves.
+
+    Returns
+    -------
+    StartState
+
+    Raises
+    ------
+    RuntimeError
+        When a static solve fails (the message says why).
+    """
+    from .static import solve_static, static_load, stuck_linearisation
+    c = model.contacts
+    cmap = ContactMap(c)
+    f0 = static_load(model)
+    if frictionless and cmap.active:
+        x_start = model.extra.get("x0") if isinstance(model.extra, dict) else None
+        res = solve_static(model.K, f0, c, tangential="frictionless", tol=tol,
+                           x_start=x_start, f_start=None if x_start is None else f0)
+        if not res.convergence.success:
+            raise RuntimeError(f"the static (preload) state, frictionless: "
+                               f"{res.convergence.message}")
+        state = cmap.state_at(res.u_t, res.N)
+        ev = cmap.evaluate(cmap.B @ res.x, state)
+        return StartState(res.x, ev, res.convergence.iterations, "frictionless")
+    lin = stuck_linearisation(model, tol=tol)
+    if not cmap.active:
+        return StartState(lin.x0, empty_eval(c.law.rest_state(np.zeros(0))),
+                          lin.convergence.iterations, lin.source)
+    rest = c.law.rest_state(lin.N)
+    if c.law.kind not in ("bank_anchor", "bank_scaled"):   # linear or no friction: cannot slip
+        return StartState(lin.x0, cmap.evaluate(cmap.B @ lin.x0, rest),
+                          lin.convergence.iterations, lin.source)
+    res = solve_static(model.K, f0, c, tangential="law", state=rest, tol=tol,
+                       x_start=lin.x0, f_start=f0)
+    if not res.convergence.success:
+        raise RuntimeError(f"the static state with the contact law: {res.convergence.message}")
+    ev = cmap.evaluate(cmap.B @ res.x, res.state)
+    return StartState(res.x, ev, lin.convergence.iterations + res.convergence.iterations,
+                      lin.source)
 
 
 def _frictionless_preload(scene) -> bool:
@@ -522,15 +580,16 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
                  fused: bool = True) -> SteadyResult:
     """March a forced response until it is periodic.
 
-    The structure starts at rest at its static equilibrium under the
-    constant forces (preload and the loads' constant parts), with the
-    contact laws marched along the static load path, and the harmonic loads
-    are switched on at ``t = 0``; or, with ``settings.start = "linear"``, on
-    the discrete steady response of the linearised structure
-    (:func:`linear_start`).  Each period of ``steps_per_period`` steps is
-    compared with the one before; the march stops when the change relative
-    to the vibration amplitude falls below ``steady_tol`` (after at least
-    ``min_periods``), or after ``max_periods``.
+    The structure starts at rest at its static state under the constant
+    forces (preload and the loads' constant parts, :func:`static_start`), and
+    the harmonic loads are switched on at ``t = 0``; or, with
+    ``settings.start = "linear"``, on the discrete steady response of the
+    linearised structure (:func:`linear_start`).  Each period of
+    ``steps_per_period`` steps is compared with the one before, with the
+    rigid-body modes left out (:func:`rigid_modes`, ``rigid_cutoff_hz``);
+    the march stops when the change relative to the vibration amplitude
+    falls below ``steady_tol`` (after at least ``min_periods``), or after
+    ``max_periods``.
 
     Parameters
     ----------
@@ -570,7 +629,7 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
                          scene.base_dir if scene is not None else None)
     if frictionless_preload is None:
         frictionless_preload = _frictionless_preload(scene)
-    static = _start_state(model, settings, force, frictionless_preload)
+    static = static_start(model, frictionless_preload, settings.newton_tol)
     ga = _stepper(model, settings, force, fused)
     n = settings.steps_per_period
     period = 2.0 * np.pi / omega
@@ -582,6 +641,7 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
     else:
         s = ga.start(0.0, *initial)
 
+    rigid = rigid_modes(model, getattr(settings, "rigid_cutoff_hz", None))
     changes: list[float] = []
     last: PeriodData | None = None
     status, message = NOT_CONVERGED, ""
@@ -595,7 +655,8 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
                 if not (np.all(np.isfinite(pd.x)) and np.all(np.isfinite(pd.v))):
                     status, message = NON_FINITE, f"non-finite displacement in period {k}"
                     break
-                c = period_change(pd.x[1:], last.x[1:]) if last is not None else np.nan
+                c = period_change(rigid.elastic(pd.x[1:]), rigid.elastic(last.x[1:])) \
+                    if last is not None else np.nan
                 changes.append(c)
                 last = pd
                 bar.update(1)
@@ -631,6 +692,7 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
         energy = None
     stats = ga.stats.as_attrs()
     stats["static_iterations"] = static.iterations
+    stats["rigid_modes_left_out"] = rigid.n
     return SteadyResult(
         omega=omega, force_scale=float(settings.force_scale),
         harmonics=tuple(settings.harmonics), X=X, last=last, energy=energy,
@@ -638,6 +700,58 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
         error_estimate=geometric_error(changes), static_x=static.x, stats=stats,
         wall_time=time.perf_counter() - t_start,
         convergence=Convergence(status == SUCCESS, status, message, n_periods))
+
+
+@dataclass(frozen=True)
+class RigidModes:
+    """Rigid-body (suspension) modes, to leave out of the period-to-period change.
+
+    On a free-free structure hung from soft springs these modes ring at a few
+    Hz with little damping long after the elastic response is periodic (the
+    suspension of the lap joint: 3.7 Hz at 0.087 %, a decay time of thousands
+    of forcing periods).  They do not touch the joint.
+
+    Attributes
+    ----------
+    shapes : ndarray, shape (n_rigid, n_dof)
+        Mass-normalised shapes.
+    Mshapes : ndarray, shape (n_dof, n_rigid)
+        ``M @ shapes.T``.
+    method : str
+        How they were told apart (:func:`jointsim.solvers.modes.rigid_body_modes`).
+    """
+
+    shapes: np.ndarray
+    Mshapes: np.ndarray
+    method: str
+
+    @property
+    def n(self) -> int:
+        return int(self.shapes.shape[0])
+
+    def elastic(self, x):
+        """``x`` without its rigid-body part, shape of ``x`` (..., n_dof)."""
+        if self.n == 0:
+            return x
+        return x - (x @ self.Mshapes) @ self.shapes
+
+
+def rigid_modes(model, cutoff_hz=None) -> RigidModes:
+    """The rigid-body modes of the stuck linearisation (none for most lumped models).
+
+    Parameters
+    ----------
+    model : jointsim.model.StructuralModel
+    cutoff_hz : float, optional
+        Modes below it are rigid-body modes; default: detected
+        (:func:`jointsim.solvers.modes.rigid_body_modes`).
+    """
+    from .modes import MAX_RIGID, stuck_modes
+    res = stuck_modes(model, min(model.n_dof, MAX_RIGID + 1), cutoff_hz)
+    shapes = np.ascontiguousarray(res.shapes[~res.elastic])
+    M = model.M
+    Mshapes = np.asarray(M @ shapes.T) if shapes.size else np.zeros((model.n_dof, 0))
+    return RigidModes(shapes, Mshapes, res.rigid_method)
 
 
 def linear_start(ga: GeneralizedAlpha, force: LoadFunction, static, h: float):
@@ -663,7 +777,7 @@ def linear_start(ga: GeneralizedAlpha, force: LoadFunction, static, h: float):
     ga : GeneralizedAlpha
         The stepper (its matrices and parameters).
     force : LoadFunction
-    static : StaticState
+    static : StartState
     h : float
         Time step [s].
 
@@ -703,31 +817,6 @@ def linear_start(ga: GeneralizedAlpha, force: LoadFunction, static, h: float):
     if cmap.active:
         state = loaded_state(cmap, cmap.B @ static.x, cmap.B @ x0, state).state
     return x0, v0, state, a0
-
-
-def elastic_mode(model, contact, mode: int, rigid_cutoff_hz: float = 0.0):
-    """The ``mode``-th linear mode of the stuck joint above the rigid-body cutoff.
-
-    Returns
-    -------
-    omega : float
-        Angular frequency [rad/s].
-    phi : ndarray, shape (n_dof,)
-        Mass-normalised shape.
-    """
-    n = model.n_dof
-    want = min(n, mode + 12)
-    while True:
-        w, phi = stuck_modes(model, contact, want)
-        elastic = np.flatnonzero(w / (2.0 * np.pi) > rigid_cutoff_hz)
-        if elastic.size >= mode:
-            i = elastic[mode - 1]
-            return float(w[i]), phi[:, i]
-        if want >= n:
-            raise ValueError(f"analysis.transient.mode = {mode}: the model has only "
-                             f"{elastic.size} modes above rigid_cutoff_hz = "
-                             f"{rigid_cutoff_hz:g}")
-        want = min(n, 2 * want)
 
 
 def loaded_state(cmap: ContactMap, y0, y1, state, n: int = PATH_SAMPLES):
@@ -796,8 +885,10 @@ def free_decay(model, settings, *, scene=None, on_block=None, on_estimate=None,
     force = LoadFunction(model, 0.0, 1.0, scene.base_dir if scene is not None else None)
     if frictionless_preload is None:
         frictionless_preload = _frictionless_preload(scene)
-    static = _start_state(model, settings, force, frictionless_preload)
-    w_lin, phi = elastic_mode(model, static.contact, settings.mode, settings.rigid_cutoff_hz)
+    static = static_start(model, frictionless_preload, settings.newton_tol)
+    from .modes import elastic_mode
+    em = elastic_mode(model, settings.mode, settings.rigid_cutoff_hz)
+    w_lin, phi = em.omega, em.phi
     if w_lin <= 0.0:
         raise ValueError(f"mode {settings.mode} has zero frequency; set "
                          "analysis.transient.rigid_cutoff_hz to skip rigid-body modes")
@@ -906,26 +997,6 @@ def output_dofs(scene, model, settings):
     return np.asarray(dofs, dtype=np.int64), labels
 
 
-def append_rows(writer, name: str, rows, unit: str, doc: str = "") -> None:
-    """Append a block of rows to an extendable dataset (created on first use).
-
-    Like :meth:`ResultWriter.append` for many rows at once, flushed once.
-    """
-    rows = np.asarray(rows, dtype=float)
-    h5 = writer.h5
-    if name not in h5:
-        ds = h5.create_dataset(name, shape=(0,) + rows.shape[1:], dtype=float,
-                               maxshape=(None,) + rows.shape[1:], chunks=True)
-        ds.attrs["unit"] = unit
-        if doc:
-            ds.attrs["doc"] = doc
-    ds = h5[name]
-    n = ds.shape[0]
-    ds.resize(n + rows.shape[0], axis=0)
-    ds[n:] = rows
-    h5.flush()
-
-
 class _History:
     """Decimated time history of chosen DOFs, written period by period.
 
@@ -956,12 +1027,14 @@ class _History:
         if t.size == 0:
             return
         w = self.writer
-        append_rows(w, "transient/x", x, self.units["x"],
-                    "time history of the output DOFs (transient/dofs)")
+        w.append_rows("transient/x", np.asarray(x, dtype=float), self.units["x"],
+                      "time history of the output DOFs (transient/dofs)")
         if extra is not None:
-            append_rows(w, "transient/q", extra, "m kg^0.5" if self.units["t"] == "s"
-                        else "length mass^0.5", "modal coordinate phi^T M (x - x_static)")
-        append_rows(w, "transient/t", t, self.units["t"], "time of each history sample")
+            w.append_rows("transient/q", np.asarray(extra, dtype=float),
+                          "m kg^0.5" if self.units["t"] == "s" else "length mass^0.5",
+                          "modal coordinate phi^T M (x - x_static)")
+        w.append_rows("transient/t", np.asarray(t, dtype=float), self.units["t"],
+                      "time of each history sample")
 
     def close(self):
         for block in self.blocks:
@@ -1066,13 +1139,9 @@ def _run_steady(scene, model, writer, tr, history) -> Convergence:
         g.attrs["loops_group"] = "/transient/loops"
         log.info("transient: dev_manifold max %.3e, dev_masing max %.3e",
                  report.dev_manifold.max(), report.dev_masing.max())
-    if "hbm" in writer.h5:
-        try:
-            from .crosscheck import cross_check_file
-        except ModuleNotFoundError:  # pragma: no cover
-            cross_check_file = None
-        if cross_check_file is not None:
-            cross_check_file(writer, scene, model, res)
+    if "hbm/harmonics" in writer.h5:
+        from .crosscheck import cross_check_file
+        cross_check_file(writer, scene, model, res, tol=tr.crosscheck_tol)
     return res.convergence
 
 
