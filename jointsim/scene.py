@@ -360,6 +360,9 @@ class HBMAnalysis:
                                     "repeats", ge=2)
     refine_peak: bool = spec(True, doc="refine each branch's largest amplitude by "
                                        "maximising over frequency (single-valued peaks)")
+    workers: int = spec(0, doc="branches (force levels) computed at once in worker "
+                               "processes; 0: one per core, up to the number of branches; "
+                               "1: one after the other in this process", ge=0)
     loops: str = spec("masing.points", choices=("masing.points", "peaks"),
                       doc="points whose element loops and Masing checks are kept: those of "
                           "analysis.masing.points (empty: every point), or each branch's "

@@ -360,7 +360,7 @@ def test_interrupted_run_resumes_to_the_same_branch(tmp_path, monkeypatch):
     """Ctrl-C after 12 points leaves a valid file; --resume completes the branch."""
     from jointsim.io import hdf5
     overrides = ["analysis.hbm.force_scale=[0.05, 0.2]", "analysis.hbm.harmonics=[0, 1, 3]",
-                 "analysis.hbm.n_samples=32"]
+                 "analysis.hbm.n_samples=32", "analysis.hbm.workers=1"]
     sc = load_scene(MODELS / "chain2_jenkins.toml", overrides)
     full = tmp_path / "full.h5"
     run_scene(sc, full)
@@ -408,3 +408,50 @@ def test_harmonic_amplitude():
     X = np.array([[1.0], [3.0], [4.0], [0.0], [0.0]])
     assert harmonic_amplitude(b, X, 1)[0] == 5.0
     assert harmonic_amplitude(b, X, 0)[0] == 1.0
+
+
+def test_parallel_branches_equal_serial_and_resume(tmp_path, monkeypatch):
+    """Branches on two worker processes give the serial branches point for point
+    (rows interleave; /hbm/branch tells them apart); an interrupted parallel run
+    leaves a valid file that --resume completes."""
+    from jointsim.io import hdf5
+    base = ["analysis.hbm.force_scale=[0.05, 0.2]", "analysis.hbm.harmonics=[0, 1, 3]",
+            "analysis.hbm.n_samples=32"]
+    serial = run_scene(load_scene(MODELS / "chain2_jenkins.toml",
+                                  base + ["analysis.hbm.workers=1"]), tmp_path / "s.h5")
+    sc = load_scene(MODELS / "chain2_jenkins.toml", base + ["analysis.hbm.workers=2"])
+    par = run_scene(sc, tmp_path / "p.h5")
+    with h5py.File(serial) as s, h5py.File(par) as p:
+        assert p["hbm"].attrs["workers"] == 2
+        for b in (0, 1):
+            ms, mp_ = s["hbm/branch"][()] == b, p["hbm/branch"][()] == b
+            np.testing.assert_allclose(p["hbm/omega"][()][mp_], s["hbm/omega"][()][ms],
+                                       rtol=1e-12)
+            np.testing.assert_allclose(p["hbm/X"][()][mp_], s["hbm/X"][()][ms], rtol=1e-9,
+                                       atol=1e-12)
+        np.testing.assert_allclose(p["hbm/peak_amplitude"][()], s["hbm/peak_amplitude"][()],
+                                   rtol=1e-10)
+        assert p["loops/u"].shape == s["loops/u"].shape
+    part = tmp_path / "part.h5"
+    original = hdf5.ResultWriter.append
+
+    def interrupting(self, name, row, unit, doc=""):
+        if name == "hbm/omega" and self.rows("hbm/omega") >= 12:
+            raise KeyboardInterrupt
+        return original(self, name, row, unit, doc)
+
+    monkeypatch.setattr(hdf5.ResultWriter, "append", interrupting)
+    with pytest.raises(KeyboardInterrupt):
+        run_scene(sc, part)
+    monkeypatch.setattr(hdf5.ResultWriter, "append", original)
+    with h5py.File(part) as h:
+        assert h.attrs["status"] == "interrupted" and h["hbm/omega"].shape[0] == 12
+    run_scene(sc, part, resume=True)
+    with h5py.File(part) as h, h5py.File(serial) as s:
+        assert h.attrs["status"] == "complete"
+        for b in (0, 1):
+            assert h["hbm"].attrs[f"branch{b}_status"] == "complete"
+            om = h["hbm/omega"][()][h["hbm/branch"][()] == b]
+            assert om[-1] == pytest.approx(1.3, abs=1e-12)
+        np.testing.assert_allclose(h["hbm/peak_amplitude"][()], s["hbm/peak_amplitude"][()],
+                                   rtol=1e-7)

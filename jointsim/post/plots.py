@@ -68,6 +68,7 @@ def _loop_axes(ax3, ax2, u, f, N, fman, fmas, law, e, units, title=""):
     ax2.plot(u, fmas, ":", color="tab:red", lw=1.4, label="classical Masing (mean N)")
     ax2.set_xlabel(quantity_label("u_t", "displacement", units))
     ax2.set_ylabel(quantity_label("f_t", "force", units))
+    ax2.ticklabel_format(axis="both", style="sci", scilimits=(-3, 4))
     ax2.grid(alpha=0.3)
 
 

@@ -53,6 +53,7 @@ The frequency derivative of the residual is analytic too:
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -1009,77 +1010,41 @@ def run_hbm_analysis(scene, model, writer) -> None:
             peaks[name][:] = writer.h5[f"hbm/peak_{name}"][()]
     if "hbm/peak_refined" in writer.h5:
         refined[:] = writer.h5["hbm/peak_refined"][()]
-    failures = []
-    for ib, fs in enumerate(a.force_scale):
-        status = g.attrs.get(f"branch{ib}_status", "")
-        if status in ("complete", "gave up"):
-            log.info("hbm branch %d (force scale %g) already %s; skipped", ib, fs, status)
-            continue
+    want_aft = a.loops == "masing.points"
+
+    def write_point(rec) -> None:
+        """Append one solution point (a record from :func:`_point_record`)."""
+        p = writer.rows("hbm/omega")
+        writer.append("hbm/omega", rec["omega"], w_u, "angular frequency of the point")
+        writer.append("hbm/X", rec["X"], d_u, "harmonic coefficients [n_coeff, n_dof]")
+        writer.append("hbm/q", rec["q"], d_u, "coefficients of the contact coordinates")
+        writer.append("hbm/branch", np.int64(rec["branch"]), "1",
+                      "branch (force level) of the point")
+        writer.append("hbm/amplitude", rec["amplitude"], d_u,
+                      "fundamental amplitude at the response DOF")
+        writer.append("hbm/max_abs", rec["max_abs"], d_u,
+                      "max |x(t)| at the response DOF over the AFT samples")
+        writer.append("hbm/iterations", np.int64(rec["iterations"]), "1",
+                      "Newton iterations of the corrector")
+        writer.append("hbm/residual", rec["residual"], "1",
+                      "max |R| / residual scale at the point")
+        writer.append("hbm/step", rec["step"], "1", "scaled arclength step to the point")
+        writer.append("hbm/tangent", rec["tangent"], "1", "unit tangent (scaled variables)")
+        writer.append("hbm/aft_periods", np.int64(rec["aft_periods"]), "1",
+                      "largest number of periods the laws were marched")
+        if rec.get("f") is not None and (not masing_points or p in masing_points):
+            u = system.slips(rec["X"])
+            report = check_loops(u, rec["f"], rec["N"], law, scene.analysis.masing.tol)
+            write_loops(writer, p, u, rec["f"], rec["N"], report, units, prefix="hbm")
+            writer.h5["hbm/loops"].attrs["analysis"] = "hbm"
+
+    def finish_branch(ib, fs, success, message) -> str | None:
+        """Status, peak and peak loops of a finished branch; the failure, if any."""
+        g.attrs[f"branch{ib}_status"] = "complete" if success else "gave up"
+        g.attrs[f"branch{ib}_message"] = message
         F = system.force_coefficients(fs)
-        scale, rscale = frc_scales(system, F, a.omega_start, a.omega_end)
-        resume_rows = np.zeros(0, dtype=np.int64)
-        if "hbm/branch" in writer.h5:
-            resume_rows = np.flatnonzero(writer.h5["hbm/branch"][()] == ib)
-        if resume_rows.size:
-            last = int(resume_rows[-1])
-            y0 = np.append(writer.h5["hbm/q"][last], writer.h5["hbm/omega"][last])
-            t0 = writer.h5["hbm/tangent"][last]
-            h0 = float(writer.h5["hbm/step"][last]) or a.step
-            solve_first, max_pts = False, a.max_points - resume_rows.size + 1
-            log.info("hbm branch %d: resuming from point %d (omega = %g)", ib, last, y0[-1])
-        else:
-            y0 = np.append(system.static_coordinates(), a.omega_start)
-            t0, h0, solve_first, max_pts = None, a.step, True, a.max_points
-
-        def fun(y, F=F):
-            nz = system.n_z
-            J = np.zeros((nz, nz + 1))
-            ev = system.evaluate(y[:-1], y[-1], F, J_out=J[:, :nz])
-            J[:, nz] = ev.dR["omega"]
-            return ev.R, J, ev
-
-        def on_point(i, y, info, F=F, ib=ib, fs=fs, skip=not solve_first):
-            if skip and i == 0:
-                return
-            w = float(y[-1])
-            X = system.reconstruct(y[:-1], w, F)
-            xs = b.samples(X[:, dof])
-            p = writer.rows("hbm/omega")
-            writer.append("hbm/omega", w, w_u, "angular frequency of the point")
-            writer.append("hbm/X", X, d_u, "harmonic coefficients [n_coeff, n_dof]")
-            writer.append("hbm/q", y[:-1], d_u, "coefficients of the contact coordinates")
-            writer.append("hbm/branch", np.int64(ib), "1", "branch (force level) of the point")
-            writer.append("hbm/amplitude", float(harmonic_amplitude(b, X[:, dof])), d_u,
-                          "fundamental amplitude at the response DOF")
-            writer.append("hbm/max_abs", float(np.abs(xs).max()), d_u,
-                          "max |x(t)| at the response DOF over the AFT samples")
-            writer.append("hbm/iterations", np.int64(info.iterations), "1",
-                          "Newton iterations of the corrector")
-            writer.append("hbm/residual", info.residual, "1",
-                          "max |R| / residual scale at the point")
-            writer.append("hbm/step", info.step, "1", "scaled arclength step to the point")
-            writer.append("hbm/tangent", info.tangent, "1", "unit tangent (scaled variables)")
-            ev = info.extra
-            aft = ev.aft if ev is not None else None
-            writer.append("hbm/aft_periods",
-                          np.int64(aft.periods.max() if aft is not None else 0), "1",
-                          "largest number of periods the laws were marched")
-            if aft is not None and a.loops == "masing.points" and \
-                    (not masing_points or p in masing_points):
-                u = system.slips(X)
-                report = check_loops(u, aft.f, aft.N, law, scene.analysis.masing.tol)
-                write_loops(writer, p, u, aft.f, aft.N, report, units, prefix="hbm")
-                writer.h5["hbm/loops"].attrs["analysis"] = "hbm"
-
-        br = continue_branch(
-            fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,
-            step_max=a.step_max, max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
-            solve_first=solve_first, tangent0=t0, on_point=on_point,
-            desc=f"hbm branch {ib + 1}/{n_br} (x{fs:g})")
-        conv = br.convergence
-        g.attrs[f"branch{ib}_status"] = "complete" if conv.success else "gave up"
-        g.attrs[f"branch{ib}_message"] = conv.message
-        rows = np.flatnonzero(writer.h5["hbm/branch"][()] == ib)
+        rows = np.flatnonzero(writer.h5["hbm/branch"][()] == ib) \
+            if "hbm/branch" in writer.h5 else np.zeros(0, dtype=np.int64)
         if rows.size:
             om = writer.h5["hbm/omega"][()][rows]
             amp = writer.h5["hbm/amplitude"][()][rows]
@@ -1107,14 +1072,177 @@ def run_hbm_analysis(scene, model, writer) -> None:
             writer.write("hbm/peak_refined", refined, "1", "peak refined by maximising "
                          "over frequency (false: largest computed point, e.g. at a fold)")
         log.info("hbm branch %d (force scale %g): %s; peak %.6g at omega = %.6g", ib, fs,
-                 conv.message, peaks["amplitude"][ib], peaks["omega"][ib])
-        if not conv.success:
-            failures.append(f"branch {ib} (force scale {fs:g}): {conv.message}")
-    _ = f_u
+                 message, peaks["amplitude"][ib], peaks["omega"][ib])
+        return None if success else f"branch {ib} (force scale {fs:g}): {message}"
+
+    todo = []
+    for ib, fs in enumerate(a.force_scale):
+        status = g.attrs.get(f"branch{ib}_status", "")
+        if status in ("complete", "gave up"):
+            log.info("hbm branch %d (force scale %g) already %s; skipped", ib, fs, status)
+            continue
+        rows = np.flatnonzero(writer.h5["hbm/branch"][()] == ib) \
+            if "hbm/branch" in writer.h5 else np.zeros(0, dtype=np.int64)
+        start = None
+        if rows.size:
+            last = int(rows[-1])
+            start = (np.append(writer.h5["hbm/q"][last], writer.h5["hbm/omega"][last]),
+                     writer.h5["hbm/tangent"][last],
+                     float(writer.h5["hbm/step"][last]) or a.step, int(rows.size))
+            log.info("hbm branch %d: resuming from point %d (omega = %g)", ib, last,
+                     start[0][-1])
+        todo.append(_BranchJob(ib, fs, start))
+    job_args = dict(system=system, a=a, dof=dof, want_aft=want_aft, n_branches=n_br)
+    n_workers = a.workers or min(len(todo), os.cpu_count() or 1)
+    if n_workers > 1 and len(todo) > 1 and _can_fork():
+        failures = _run_branches_forked(todo, job_args, min(n_workers, len(todo)),
+                                        write_point, finish_branch)
+    else:
+        failures = []
+        for job in todo:
+            conv = _run_branch(job, on_record=write_point, progress=True, **job_args)
+            fail = finish_branch(job.ib, job.fs, conv.success, conv.message)
+            if fail:
+                failures.append(fail)
+    g.attrs["workers"] = n_workers if len(todo) > 1 else 1
     g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
     g.attrs["n_points"] = writer.rows("hbm/omega")
     if failures:
         raise RuntimeError("hbm: " + "; ".join(failures))
+
+
+@dataclass(frozen=True)
+class _BranchJob:
+    """One FRC branch to compute: its index, force scale and resume point."""
+
+    ib: int
+    fs: float
+    start: tuple | None  # (y0, tangent, step, rows already stored) when resuming
+
+
+def _point_record(system, F, y, info, ib, dof, want_aft) -> dict:
+    """Everything written for one solution point (plain arrays, picklable)."""
+    b = system.basis
+    w = float(y[-1])
+    X = system.reconstruct(y[:-1], w, F)
+    aft = info.extra.aft if info.extra is not None else None
+    return dict(omega=w, X=X, q=np.array(y[:-1]), branch=ib,
+                amplitude=float(harmonic_amplitude(b, X[:, dof])),
+                max_abs=float(np.abs(b.samples(X[:, dof])).max()),
+                iterations=int(info.iterations), residual=float(info.residual),
+                step=float(info.step), tangent=np.array(info.tangent),
+                aft_periods=int(aft.periods.max()) if aft is not None else 0,
+                f=np.array(aft.f) if (want_aft and aft is not None) else None,
+                N=np.array(aft.N) if (want_aft and aft is not None) else None)
+
+
+def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progress):
+    """Follow one FRC branch; every accepted point goes to ``on_record(record)``.
+
+    Returns
+    -------
+    Convergence
+    """
+    from .continuation import continue_branch
+    F = system.force_coefficients(job.fs)
+    scale, rscale = frc_scales(system, F, a.omega_start, a.omega_end)
+    if job.start is not None:
+        y0, t0, h0, n_stored = job.start
+        solve_first, max_pts = False, a.max_points - n_stored + 1
+    else:
+        y0 = np.append(system.static_coordinates(), a.omega_start)
+        t0, h0, solve_first, max_pts = None, a.step, True, a.max_points
+    nz = system.n_z
+
+    def fun(y):
+        J = np.zeros((nz, nz + 1))
+        ev = system.evaluate(y[:-1], y[-1], F, J_out=J[:, :nz])
+        J[:, nz] = ev.dR["omega"]
+        return ev.R, J, ev
+
+    def on_point(i, y, info):
+        if not solve_first and i == 0:
+            return
+        on_record(_point_record(system, F, y, info, job.ib, dof, want_aft))
+
+    br = continue_branch(
+        fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,
+        step_max=a.step_max, max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
+        solve_first=solve_first, tangent0=t0, on_point=on_point, progress=progress,
+        desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})")
+    return br.convergence
+
+
+def _can_fork() -> bool:
+    import multiprocessing as mp
+    return "fork" in mp.get_all_start_methods()
+
+
+def _branch_process(job, job_args, queue) -> None:
+    """Body of a worker process: compute a branch, send its points to the parent."""
+    try:
+        conv = _run_branch(job, on_record=lambda rec: queue.put(("point", job.ib, rec)),
+                           progress=False, **job_args)
+        queue.put(("done", job.ib, (conv.success, conv.message)))
+    except BaseException as exc:  # reported to the parent, which keeps the file valid
+        queue.put(("done", job.ib, (False, f"worker failed: {type(exc).__name__}: {exc}")))
+
+
+def _run_branches_forked(todo, job_args, n_workers, write_point, finish_branch):
+    """Compute branches in forked worker processes; the parent writes every point.
+
+    Points arrive through a queue and are written as they come, so the file
+    grows point by point as in a serial run (rows of different branches
+    interleave; ``/hbm/branch`` tells them apart).  A worker that dies without
+    a word is reported as a failed branch.
+    """
+    import multiprocessing as mp
+    import queue as queue_mod
+
+    from tqdm import tqdm
+    ctx = mp.get_context("fork")
+    q = ctx.Queue()
+    pending = list(todo)
+    running: dict[int, tuple] = {}
+    failures: list[str] = []
+    bar = tqdm(desc=f"hbm ({n_workers} workers)", unit="pt", disable=None, leave=False)
+    log.info("hbm: %d branches on %d worker processes", len(todo), n_workers)
+    try:
+        while pending or running:
+            while pending and len(running) < n_workers:
+                job = pending.pop(0)
+                proc = ctx.Process(target=_branch_process, args=(job, job_args, q),
+                                   daemon=True)
+                proc.start()
+                running[job.ib] = (job, proc)
+            try:
+                kind, ib, payload = q.get(timeout=1.0)
+            except queue_mod.Empty:
+                for ib, (job, proc) in list(running.items()):
+                    if not proc.is_alive() and q.empty():
+                        del running[ib]
+                        failures.append(finish_branch(
+                            ib, job.fs, False, f"worker process ended (exit code "
+                                               f"{proc.exitcode}) without finishing"))
+                continue
+            if kind == "point":
+                write_point(payload)
+                bar.update(1)
+            else:
+                job, proc = running.pop(ib)
+                proc.join()
+                fail = finish_branch(ib, job.fs, *payload)
+                if fail:
+                    failures.append(fail)
+    finally:
+        bar.close()
+        for job, proc in running.values():
+            proc.terminate()
+        for job, proc in running.values():
+            # a forked worker shares the result file's descriptor (and its lock)
+            # until it is gone
+            proc.join(timeout=10)
+    return [f for f in failures if f]
 
 
 def _register():
