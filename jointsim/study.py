@@ -237,7 +237,11 @@ def study_text(h5: h5py.File) -> str:
         lines.append(f"  Masing manifold ({prefix or 'root'} loops; loaded elements):")
         lines.append(f"    {sets.parameter_name:>15} {'loaded':>7} {'on manifold':>12} "
                      f"{'on Masing':>10} {'max dev_man':>12}")
-        for i in range(sets.u.shape[0]):
+        n_sets = sets.u.shape[0]
+        shown = np.unique(np.linspace(0, n_sets - 1, min(n_sets, 12)).astype(int))
+        if shown.size < n_sets:
+            lines.append(f"    ({shown.size} of {n_sets} loop sets shown)")
+        for i in shown:
             dm = sets.dev_manifold[i][sets.loaded[i]]
             lines.append(f"    {sets.parameter[i]:>15.4g} {n[i]:>7d} {man[i]:>12.2f} "
                          f"{mas[i]:>10.2f} {dm.max() if dm.size else 0.0:>12.3g}")

@@ -134,6 +134,8 @@ def modes_table(h5) -> str:
 
 
 def static_table(h5) -> str:
+    if h5.attrs.get("model_kind") not in ("fe", "rom"):
+        return ""
     a = h5["static"].attrs
     N = h5["static/N"][()]
     s = (f"Preload: sum N0 = {N.sum():.6g} N (bolts {float(a.get('bolt_force_total', 0)):.6g} N),"

@@ -64,7 +64,9 @@ def info_text(path) -> str:
         _register()
         for name, fn in SECTIONS.items():
             if name in h5:
-                lines.append(fn(h5))
+                text = fn(h5)
+                if text:
+                    lines.append(text)
         if "masing" in h5:
             lines.append(masing_table(h5))
     return "\n".join(lines)
