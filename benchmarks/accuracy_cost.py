@@ -162,7 +162,12 @@ def figure(tables, path):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, len(tables), figsize=(4.2 * len(tables), 3.8))
+    ncol = 3
+    nrow = -(-len(tables) // ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.4 * ncol, 3.6 * nrow))
+    axes = axes.ravel()
+    for ax in axes[len(tables):]:
+        ax.set_visible(False)
     for ax, (title, label, rows) in zip(axes, tables):
         t = np.array([r[2] for r in rows]) * 1e3
         e = np.array([max(r[1], 1e-17) for r in rows])
