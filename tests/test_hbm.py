@@ -356,26 +356,31 @@ def test_continuation_stops_exactly_at_the_end():
     assert np.all(np.diff(br.y[:, 1]) > 0)
 
 
+def run_interrupted_after(scene, path, n_points, monkeypatch):
+    """Run a scene and press Ctrl-C when the file holds ``n_points`` HBM points."""
+    from jointsim.io import hdf5
+    original = hdf5.ResultWriter.append
+
+    def interrupting(self, name, row, unit, doc=""):
+        if name == "hbm/omega" and self.rows("hbm/omega") >= n_points:
+            raise KeyboardInterrupt
+        return original(self, name, row, unit, doc)
+
+    monkeypatch.setattr(hdf5.ResultWriter, "append", interrupting)
+    with pytest.raises(KeyboardInterrupt):
+        run_scene(scene, path)
+    monkeypatch.setattr(hdf5.ResultWriter, "append", original)
+
+
 def test_interrupted_run_resumes_to_the_same_branch(tmp_path, monkeypatch):
     """Ctrl-C after 12 points leaves a valid file; --resume completes the branch."""
-    from jointsim.io import hdf5
     overrides = ["analysis.hbm.force_scale=[0.05, 0.2]", "analysis.hbm.harmonics=[0, 1, 3]",
                  "analysis.hbm.n_samples=32", "analysis.hbm.workers=1"]
     sc = load_scene(MODELS / "chain2_jenkins.toml", overrides)
     full = tmp_path / "full.h5"
     run_scene(sc, full)
     part = tmp_path / "part.h5"
-    original = hdf5.ResultWriter.append
-
-    def interrupting(self, name, row, unit, doc=""):
-        if name == "hbm/omega" and self.rows("hbm/omega") >= 12:
-            raise KeyboardInterrupt
-        return original(self, name, row, unit, doc)
-
-    monkeypatch.setattr(hdf5.ResultWriter, "append", interrupting)
-    with pytest.raises(KeyboardInterrupt):
-        run_scene(sc, part)
-    monkeypatch.setattr(hdf5.ResultWriter, "append", original)
+    run_interrupted_after(sc, part, 12, monkeypatch)
     with h5py.File(part) as h:
         assert h.attrs["status"] == "interrupted"
         n0 = h["hbm/omega"].shape[0]
@@ -414,7 +419,6 @@ def test_parallel_branches_equal_serial_and_resume(tmp_path, monkeypatch):
     """Branches on two worker processes give the serial branches point for point
     (rows interleave; /hbm/branch tells them apart); an interrupted parallel run
     leaves a valid file that --resume completes."""
-    from jointsim.io import hdf5
     base = ["analysis.hbm.force_scale=[0.05, 0.2]", "analysis.hbm.harmonics=[0, 1, 3]",
             "analysis.hbm.n_samples=32"]
     serial = run_scene(load_scene(MODELS / "chain2_jenkins.toml",
@@ -433,17 +437,7 @@ def test_parallel_branches_equal_serial_and_resume(tmp_path, monkeypatch):
                                    rtol=1e-10)
         assert p["loops/u"].shape == s["loops/u"].shape
     part = tmp_path / "part.h5"
-    original = hdf5.ResultWriter.append
-
-    def interrupting(self, name, row, unit, doc=""):
-        if name == "hbm/omega" and self.rows("hbm/omega") >= 12:
-            raise KeyboardInterrupt
-        return original(self, name, row, unit, doc)
-
-    monkeypatch.setattr(hdf5.ResultWriter, "append", interrupting)
-    with pytest.raises(KeyboardInterrupt):
-        run_scene(sc, part)
-    monkeypatch.setattr(hdf5.ResultWriter, "append", original)
+    run_interrupted_after(sc, part, 12, monkeypatch)
     with h5py.File(part) as h:
         assert h.attrs["status"] == "interrupted" and h["hbm/omega"].shape[0] == 12
     run_scene(sc, part, resume=True)

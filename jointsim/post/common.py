@@ -56,3 +56,16 @@ def backbone_rows(a, f, z, n_rows: int = 8, indent: str = "    ") -> list[str]:
     lines = [f"{indent}{'amplitude':>12} {'freq [Hz]':>12} {'zeta':>10}"]
     lines += [f"{indent}{a[i]:>12.4g} {f[i]:>12.6g} {z[i]:>10.4g}" for i in idx]
     return lines
+
+
+def backbone_section(h5, group: str, label: str) -> str:
+    """``jointsim info`` section of an amplitude-dependent backbone (EPMC, QSMA)."""
+    import numpy as np
+    g = h5[group]
+    lines = [f"  {label} mode {g.attrs.get('mode', '?')}: linear "
+             f"{float(g.attrs.get('linear_frequency_hz', np.nan)):.6g} Hz; "
+             f"{g.attrs.get('message', '')}"]
+    if "amplitude" in g and g["amplitude"].shape[0]:
+        lines += backbone_rows(g["amplitude"][()], g["frequency_hz"][()],
+                               g["damping_ratio"][()])
+    return "\n".join(lines)

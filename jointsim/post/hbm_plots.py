@@ -8,7 +8,7 @@ import h5py
 import numpy as np
 
 from . import PLOTTERS
-from .common import backbone_rows, pyplot, quantity_label
+from .common import backbone_section, pyplot, quantity_label
 from .tables import SECTIONS
 
 log = logging.getLogger(__name__)
@@ -89,14 +89,7 @@ def hbm_section(h5) -> str:
 
 
 def epmc_section(h5) -> str:
-    g = h5["epmc"]
-    lines = [f"  EPMC mode {g.attrs.get('mode', '?')}: linear "
-             f"{float(g.attrs.get('linear_frequency_hz', np.nan)):.6g} Hz; "
-             f"{g.attrs.get('message', '')}"]
-    if "amplitude" in g and g["amplitude"].shape[0]:
-        lines += backbone_rows(g["amplitude"][()], g["frequency_hz"][()],
-                               g["damping_ratio"][()])
-    return "\n".join(lines)
+    return backbone_section(h5, "epmc", "EPMC")
 
 
 PLOTTERS["hbm"] = plot_frc

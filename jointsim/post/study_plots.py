@@ -9,7 +9,7 @@ import numpy as np
 
 from .. import study
 from . import PLOTTERS
-from .common import backbone_rows, law_from_file, pyplot, quantity_label
+from .common import backbone_section, law_from_file, pyplot, quantity_label
 from .tables import SECTIONS
 
 log = logging.getLogger(__name__)
@@ -152,14 +152,7 @@ def study_section(h5) -> str:
 
 
 def qsma_section(h5) -> str:
-    g = h5["qsma"]
-    lines = [f"  QSMA mode {g.attrs.get('mode', '?')}: linear "
-             f"{float(g.attrs.get('linear_frequency_hz', np.nan)):.6g} Hz; "
-             f"{g.attrs.get('message', '')}"]
-    if "amplitude" in g and g["amplitude"].shape[0]:
-        lines += backbone_rows(g["amplitude"][()], g["frequency_hz"][()],
-                               g["damping_ratio"][()])
-    return "\n".join(lines)
+    return backbone_section(h5, "qsma", "QSMA")
 
 
 PLOTTERS["qsma"] = plot_backbones
