@@ -1179,7 +1179,13 @@ def _can_fork() -> bool:
 
 
 def _branch_process(job, job_args, queue) -> None:
-    """Body of a worker process: compute a branch, send its points to the parent."""
+    """Body of a worker process: compute a branch, send its points to the parent.
+
+    The workers are the parallelism: their AFT kernels stay on one thread (no
+    numba thread pool is started in a forked process, and the cores are not
+    oversubscribed).
+    """
+    AK.PARALLEL_MIN = np.iinfo(np.int64).max
     try:
         conv = _run_branch(job, on_record=lambda rec: queue.put(("point", job.ib, rec)),
                            progress=False, **job_args)
