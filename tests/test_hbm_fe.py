@@ -317,10 +317,12 @@ def test_default_scenes_run_through_on_the_coarse_mesh(tmp_path, path):
         assert h["epmc"].attrs["branch_status"] == "complete"
         for b in range(3):
             assert h["hbm"].attrs[f"branch{b}_status"] == "complete"
-        for name in ("hbm/X", "epmc/X", "loops/f", "masing/dev_manifold"):
+        for name in ("hbm/X", "epmc/X", "hbm/loops/f", "hbm/masing/dev_manifold",
+                     "epmc/loops/f"):
             assert np.all(np.isfinite(h[name][()]))
-        assert h["loops/point"].shape == (3,)
+        assert h["hbm/loops/point"].shape == (3,)  # one loop set at each branch's peak
         peaks = h["hbm/peak_amplitude"][()]
         assert np.all(np.diff(peaks) > 0)
         if path == FIXED:
-            assert h["masing/on_manifold"][()].all() and h["masing/on_masing"][()].all()
+            hm = h["hbm/masing"]
+            assert hm["on_manifold"][()].all() and hm["on_masing"][()].all()
