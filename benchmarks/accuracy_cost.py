@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jointsim.contact import make_tangential_law
+from jointsim.contact import tangential_law
 from jointsim.model import build_model
 from jointsim.scene import Joint, TransientAnalysis, load_scene
 from jointsim.solvers.hbm import HarmonicBasis, HBMSystem, solve_point
@@ -92,7 +92,7 @@ def prescribed_table(quick: bool):
     beta = np.arccos(1 - 2 * Fs / (kt * A))
     c1 = kt * A / np.pi * (beta - np.sin(2 * beta) / 2)
     s1 = -4 * Fs / np.pi * (1 - Fs / (kt * A))
-    law = make_tangential_law("bank_anchor", "jenkins", Joint(mu=mu, kt=kt), [1.0])
+    law = tangential_law("jenkins", "anchor", Joint(mu=mu, kt=kt), [1.0])
     rows = []
     for ns in ([64, 256, 1024] if quick else [64, 128, 256, 512, 1024, 2048, 4096, 8192]):
         th = 2 * np.pi * np.arange(3 * ns) / ns

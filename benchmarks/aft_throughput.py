@@ -21,18 +21,17 @@ import scipy.sparse as sp
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from aft_numpy import anchor_aft_numpy  # noqa: E402
 
-from jointsim.contact.laws import TangentialLaw  # noqa: E402
-from jointsim.contact.select import KernelChoice  # noqa: E402
+from jointsim.contact import AnchoredBank, UnilateralPenalty  # noqa: E402
 from jointsim.model import ContactSet  # noqa: E402
 from jointsim.solvers.hbm import AFT, HarmonicBasis  # noqa: E402
 
 
 def contact_set(ne):
-    law = TangentialLaw("bank_anchor", np.full((ne, 1), 1.0), np.full((ne, 1), 0.3),
+    law = AnchoredBank( np.full((ne, 1), 1.0), np.full((ne, 1), 0.3),
                         np.full(ne, 0.3))
     eye = sp.identity(ne, format="csr")
-    return ContactSet(eye, eye, np.full(ne, -0.5), np.ones(ne), np.ones(ne), np.ones(ne), law,
-                      KernelChoice("bank_anchor", "unilateral", "jenkins"), np.zeros((ne, 2)))
+    return ContactSet(eye, eye, np.full(ne, -0.5), np.ones(ne), np.ones(ne), law,
+                      UnilateralPenalty(np.ones(ne)), np.zeros((ne, 2)))
 
 
 def best_of(fn, repeat, min_time=0.2):

@@ -26,7 +26,7 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
-from .contact import KernelChoice, TangentialLaw, make_tangential_law
+from .contact import NormalLaw, TangentialLaw
 
 log = logging.getLogger(__name__)
 
@@ -48,10 +48,10 @@ class ContactSet:
         Normal load used when the normal load is fixed [N].
     area : ndarray, shape (n_e,)
         Element areas [m^2].
-    kn : ndarray, shape (n_e,)
-        Normal stiffness of each element, ``kn A`` [N/m].
     law : TangentialLaw
-    kernels : KernelChoice
+        Tangential law of every element.
+    normal : NormalLaw
+        Normal law of every element (holds ``kn A`` [N/m]).
     position : ndarray, shape (n_e, 2)
         Element position for plots [m] (index along the interface for lumped models).
     """
@@ -61,32 +61,23 @@ class ContactSet:
     gap0: np.ndarray
     N0: np.ndarray
     area: np.ndarray
-    kn: np.ndarray
     law: TangentialLaw
-    kernels: KernelChoice
+    normal: NormalLaw
     position: np.ndarray
 
     @property
     def n_elements(self) -> int:
         return self.Tt.shape[0]
 
-    def normal_load(self, g):
-        """Normal load and its derivative from gaps, for coupled scenes.
+    @property
+    def kn(self) -> np.ndarray:
+        """Normal stiffness of each element, ``kn A`` [N/m], shape (n_e,)."""
+        return self.normal.kn
 
-        Parameters
-        ----------
-        g : ndarray, shape (n_e, n_t)
-            Gaps [m].
-
-        Returns
-        -------
-        N, dNdg : ndarray, shape (n_e, n_t)
-        """
-        from .contact._kernels import normal_penalty
-        if not self.kernels.coupled:
-            raise RuntimeError("normal load is fixed in this scene; no gap is evaluated")
-        return normal_penalty(np.ascontiguousarray(g, dtype=float), self.kn,
-                              self.kernels.normal == "unilateral")
+    @property
+    def coupled(self) -> bool:
+        """True when the normal load is computed from the gap."""
+        return self.normal.coupled
 
 
 @dataclass(frozen=True)
@@ -205,10 +196,10 @@ def make_contact_set(scene, Tt, Tn, gap0, N0, area, position) -> ContactSet:
     """Contact set with the scene's law and kernels (shared by all model kinds)."""
     kernels = scene.kernels()
     area = np.asarray(area, dtype=float)
-    law = make_tangential_law(kernels.tangential, kernels.law, scene.joint, area)
     return ContactSet(Tt=sp.csr_matrix(Tt), Tn=sp.csr_matrix(Tn),
                       gap0=np.asarray(gap0, dtype=float), N0=np.asarray(N0, dtype=float),
-                      area=area, kn=scene.joint.kn * area, law=law, kernels=kernels,
+                      area=area, law=kernels.tangential_law(scene.joint, area),
+                      normal=kernels.normal_law(scene.joint, area),
                       position=np.asarray(position, dtype=float))
 
 
@@ -225,7 +216,7 @@ def fixed_normal_stiffness(contacts: ContactSet) -> np.ndarray:
 
 def with_fixed_normal_springs(K, contacts: ContactSet):
     """``K`` plus the linear normal springs used when the normal load is fixed."""
-    if contacts.kernels.coupled or contacts.Tn.nnz == 0:
+    if contacts.coupled or contacts.Tn.nnz == 0:
         return sp.csr_matrix(K)
     Tn = contacts.Tn
     return sp.csr_matrix(K + Tn.T @ sp.diags(fixed_normal_stiffness(contacts)) @ Tn)
@@ -277,8 +268,8 @@ def build_model(scene) -> StructuralModel:
         raise NotImplementedError(f"no structural model builder for model.kind = {kind!r}")
     model = BUILDERS[kind](scene)
     log.info("model %s: %d DOFs, %d contact elements (%s / %s kernels)", kind, model.n_dof,
-             model.contacts.n_elements, model.contacts.kernels.tangential,
-             model.contacts.kernels.normal)
+             model.contacts.n_elements, model.contacts.law.name,
+             model.contacts.normal.name)
     return model
 
 

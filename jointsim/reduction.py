@@ -304,6 +304,7 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
         The tangent of the preloaded stuck joint is
         :func:`jointsim.solvers.static.stuck_linearisation` of the model.
     """
+    from .contact.select import NORMAL_TABLE
     from .solvers.static import solve_static, stuck_mode, tangent_stiffness
     t0 = time.perf_counter()
     n = rom.n_dof
@@ -319,7 +320,8 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
     else:
         K_bolt, f_clamp = sp.csr_matrix((n, n)), np.zeros(n)
     f_pre = rom.f_static + f_clamp
-    normal = "unilateral" if scene.effects.separation else "bilateral"
+    # the preload is solved with the gap law even when the scene fixes N afterwards
+    normal = NORMAL_TABLE[("coupled", scene.effects.separation)](contacts.kn)
     if not np.any(f_pre):
         log.warning("no preload (no bolts, no static load): every N0 is 0")
     pre = solve_static(K - K_bolt, f_pre, contacts, tangential=preload_tangential,
@@ -336,7 +338,7 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
         log.warning("preload: %d of %d contact elements carry a tangential force above "
                     "mu N0 in the stuck preload state", int(np.sum(slip & (N0 > 0))), ne)
     K_model = with_fixed_normal_springs(K, contacts)  # springs where N0 > 0 (fixed N)
-    if not contacts.kernels.coupled:
+    if not contacts.coupled:
         k_fixed = fixed_normal_stiffness(contacts)
         f_static = f_static + Tn.T @ (N0 + k_fixed * (contacts.gap0 + Tn @ x0))
     K_stuck = tangent_stiffness(K_model, contacts, x0, tangential=stuck_mode(contacts))

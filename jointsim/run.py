@@ -23,12 +23,11 @@ log = logging.getLogger(__name__)
 
 def run_prescribed_scene(scene, writer: ResultWriter) -> None:
     """Prescribed-motion model: march, check the loop, write it."""
-    from .contact import make_tangential_law
     from .solvers.prescribed import run_prescribed
 
     m = scene.model
     kernels = scene.kernels()
-    law = make_tangential_law(kernels.tangential, kernels.law, scene.joint, [m.area])
+    law = kernels.tangential_law(scene.joint, [m.area])
     res = run_prescribed(scene, law)
     units = m.units
     d, F = unit("displacement", units), unit("force", units)

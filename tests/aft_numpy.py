@@ -1,7 +1,7 @@
 """Plain-NumPy reference of the AFT anchor-bank evaluation (dense forward mode).
 
 Used by the tests as an independent implementation of
-:func:`jointsim.solvers._aft_kernels.anchor_aft` + the diagonal products, and
+:func:`jointsim.contact._aft_kernels.anchor_aft` + the diagonal products, and
 by ``benchmarks/aft_throughput.py`` as the NumPy baseline.  Vectorised over
 elements and sliders; a Python loop over samples; the derivative of every
 anchor with respect to all 2 n_c coefficients (U, G) is carried densely.

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import jointsim.contact._kernels as kernels
+from jointsim.contact import NoFriction
 from jointsim.model import build_model
 from jointsim.scene import load_scene
 from jointsim.solvers._march import ContactMap
@@ -22,9 +23,9 @@ def forbid_normal_contact(monkeypatch):
 
 def test_fixed_normal_load_never_evaluates_a_gap(monkeypatch):
     model = build_model(load_scene(CHAIN))
-    assert not model.contacts.kernels.coupled
+    assert not model.contacts.coupled
     with pytest.raises(RuntimeError, match="no gap is evaluated"):
-        model.contacts.normal_load(np.zeros((1, 4)))
+        model.contacts.normal.load(np.zeros((1, 4)))
     forbid_normal_contact(monkeypatch)
     hbm = HBMSystem(model, (0, 1, 2, 3), 32)
     assert hbm.n_r == model.contacts.n_elements  # slips only, no gap coordinates
@@ -37,7 +38,7 @@ def test_fixed_normal_load_never_evaluates_a_gap(monkeypatch):
 def test_coupled_normal_load_adds_gap_coordinates(tmp_path):
     scene = load_scene(ROOT / "models" / "hbm" / "chain2_friction_fold.toml")
     model = build_model(scene)
-    assert model.contacts.kernels.coupled
+    assert model.contacts.coupled
     hbm = HBMSystem(model, (0, 1), 64)
     assert hbm.n_r == 2 * model.contacts.n_elements
 
@@ -45,6 +46,6 @@ def test_coupled_normal_load_adds_gap_coordinates(tmp_path):
 def test_frictionless_scene_has_no_tangential_law():
     scene = load_scene(ROOT / "models" / "hbm" / "sdof_clearance_fold.toml")
     model = build_model(scene)
-    assert model.contacts.law.kind == "none"
+    assert isinstance(model.contacts.law, NoFriction) and not model.contacts.law.has_force
     hbm = HBMSystem(model, (0, 1), 64)
     assert not hbm.friction and hbm.n_r == model.contacts.n_elements  # gaps only

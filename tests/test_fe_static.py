@@ -12,7 +12,10 @@ from jointsim.fem.assembly import build_structure
 from jointsim.model import build_model, make_contact_set
 from jointsim.results import SUCCESS
 from jointsim.scene import load_scene, parse_scene
+from jointsim.contact import BilateralPenalty, GivenNormal, UnilateralPenalty
 from jointsim.solvers.static import _Problem, residual, solve_static
+
+NORMALS = {"unilateral": UnilateralPenalty, "bilateral": BilateralPenalty, "fixed": GivenNormal}
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "models" / "lap_joint.toml"
@@ -110,7 +113,7 @@ def test_reduced_preload_equals_full_model_preload(coarse_parts, coarse_model):
     c = make_contact_set(scene, Tt, Tn, np.zeros(ne), np.zeros(ne), st.interface.area,
                          st.interface.position)
     full = solve_static(st.K - st.K_bolt, st.f_clamp, c, tangential="stuck",
-                        normal="unilateral", tol=1e-11)
+                        normal=UnilateralPenalty(c.kn), tol=1e-11)
     assert full.convergence.success
     np.testing.assert_allclose(full.N, coarse_model.contacts.N0, rtol=0,
                                atol=1e-7 * full.N.max())
@@ -134,7 +137,7 @@ def test_preload_state_is_the_equilibrium_of_the_model(normal):
 
 
 def _fd_check(K, f, contacts, x, tangential, normal, state=None, seed=0):
-    prob = _Problem(K, contacts, normal, tangential,
+    prob = _Problem(K, contacts, NORMALS[normal](contacts.kn), tangential,
                     state if state is not None else np.zeros(contacts.n_elements)
                     if tangential != "law" else contacts.law.rest_state(contacts.N0))
     J = prob.evaluate(x, f)["J"]
@@ -158,7 +161,7 @@ def test_static_jacobian_matches_finite_differences(coarse_model, tangential, no
     x0 = m.extra["x0"]
     rng = np.random.default_rng(1)
     x = x0 + 0.01 * np.abs(x0).max() * rng.standard_normal(x0.size)
-    prob = _Problem(m.K, c, normal, tangential, c.law.rest_state(c.N0)
+    prob = _Problem(m.K, c, NORMALS[normal](c.kn), tangential, c.law.rest_state(c.N0)
                     if tangential == "law" else np.zeros(c.n_elements))
     ev = prob.evaluate(x, m.f_static)
     if tangential == "law":  # the point mixes sticking, slipping and open elements
@@ -175,7 +178,7 @@ def test_static_tangent_of_the_solution_matches_fd(coarse_model):
     rom = m.extra["rom"]
     K = sp.csr_matrix(rom.K) - m.extra["K_bolt"]
     f = m.extra["f_clamp"]
-    prob = _Problem(K, m.contacts, "unilateral", "stuck", np.zeros(m.contacts.n_elements))
+    prob = _Problem(K, m.contacts, UnilateralPenalty(m.contacts.kn), "stuck", np.zeros(m.contacts.n_elements))
     np.testing.assert_allclose(pre.K_t.toarray(), prob.evaluate(pre.x, f)["J"])
     _fd_check(K, f, m.contacts, pre.x, "stuck", "unilateral")
 
@@ -185,7 +188,7 @@ def test_failed_solve_reports_and_keeps_its_state(coarse_parts, coarse_model):
     m = coarse_model
     K = sp.csr_matrix(rom.K) - m.extra["K_bolt"]
     res = solve_static(K, m.extra["f_clamp"], m.contacts, tangential="stuck",
-                       normal="unilateral", max_iter=1, min_increment=0.3)
+                       normal=UnilateralPenalty(m.contacts.kn), max_iter=1, min_increment=0.3)
     assert not res.convergence.success
     assert res.convergence.status != SUCCESS
     assert "load factor" in res.convergence.message
@@ -198,9 +201,9 @@ def test_sparse_and_dense_assembly_agree(monkeypatch):
     m = build_model(load_scene(SCENE, COARSE))
     x = m.extra["x0"] * 1.3
     state = m.contacts.law.rest_state(m.contacts.N0)
-    dense = static._Problem(m.K, m.contacts, "unilateral", "law", state).evaluate(x, m.f_static)
+    dense = static._Problem(m.K, m.contacts, UnilateralPenalty(m.contacts.kn), "law", state).evaluate(x, m.f_static)
     monkeypatch.setattr(static, "DENSE_MAX_DOF", 0)
-    sparse = static._Problem(m.K, m.contacts, "unilateral", "law", state).evaluate(x, m.f_static)
+    sparse = static._Problem(m.K, m.contacts, UnilateralPenalty(m.contacts.kn), "law", state).evaluate(x, m.f_static)
     assert sp.issparse(sparse["J"]) and not sp.issparse(dense["J"])
     np.testing.assert_allclose(sparse["J"].toarray(), dense["J"], rtol=1e-12,
                                atol=1e-12 * np.abs(dense["J"]).max())

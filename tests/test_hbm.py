@@ -80,8 +80,9 @@ def test_aft_kernels_match_numpy_reference(normal, n_sliders):
     dense forward-mode NumPy reference."""
     import scipy.sparse as sp
 
-    from jointsim.contact.laws import TangentialLaw, iwan4_sliders
-    from jointsim.contact.select import KernelChoice
+    from jointsim.contact.laws import AnchoredBank, iwan4_sliders
+    from jointsim.contact.select import NORMAL_TABLE
+    NORMAL_LAWS = {c.name: c for c in NORMAL_TABLE.values()}
     from jointsim.model import ContactSet
     ne = 5
     b = HarmonicBasis((0, 1, 2, 3, 5), 96)
@@ -91,10 +92,10 @@ def test_aft_kernels_match_numpy_reference(normal, n_sliders):
         k, g = np.empty((ne, n_sliders)), np.empty((ne, n_sliders))
         for e in range(ne):
             k[e], g[e] = iwan4_sliders(1.0, 0.3, -0.5, 0.1, n_sliders)
-    law = TangentialLaw("bank_anchor", k, g, np.full(ne, 0.3))
+    law = AnchoredBank(k, g, np.full(ne, 0.3))
     eye = sp.identity(ne, format="csr")
-    cs = ContactSet(eye, eye, np.full(ne, -0.5), np.ones(ne), np.ones(ne), np.ones(ne), law,
-                    KernelChoice("bank_anchor", normal, "jenkins"), np.zeros((ne, 2)))
+    cs = ContactSet(eye, eye, np.full(ne, -0.5), np.ones(ne), np.ones(ne), law,
+                    NORMAL_LAWS[normal](np.ones(ne)), np.zeros((ne, 2)))
     rng = np.random.default_rng(3)
     U = rng.normal(size=(b.n_coeff, ne)) * 0.5
     G = rng.normal(size=(b.n_coeff, ne)) * 0.3

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from jointsim.contact import iwan4_constants, make_tangential_law
+from jointsim.contact import iwan4_constants, tangential_law
 from jointsim.scene import Joint
 from jointsim.solvers.prescribed import march_prescribed
 
@@ -29,8 +29,7 @@ def dft_first(theta, f):
 
 def jenkins(kt=1.0, mu=0.1, reversal="anchor"):
     j = Joint(law="jenkins", reversal=reversal, mu=mu, kt=kt)
-    return make_tangential_law("bank_anchor" if reversal == "anchor" else "bank_scaled",
-                               "jenkins", j, [1.0])
+    return tangential_law("jenkins", reversal, j, [1.0])
 
 
 def _jenkins_dft_error(law, A, N, ns, exact):
@@ -90,7 +89,7 @@ def test_iwan4_microslip_dissipation(chi, beta):
     ns_list = [100, 200, 400]
     for n in ns_list:
         j = Joint(law="iwan4", mu=mu, kt=KT, chi=chi, beta=beta, n_sliders=n)
-        law = make_tangential_law("bank_anchor", "iwan4", j, [1.0])
+        law = tangential_law("iwan4", "anchor", j, [1.0])
         _, u, f, _ = march_cos(law, A, N, 4096)
         D = ref.loop_dissipation(u, f)
         h = phimax / (n - 1)
@@ -105,7 +104,7 @@ def test_iwan4_microslip_dissipation(chi, beta):
 def test_masing_dissipation_formula(law_name):
     """Marched loop area equals 8 int_0^A f_bb - 4 A f_bb(A) at constant N."""
     j = Joint(law=law_name, mu=0.15, kt=2.0, chi=-0.3, beta=0.5, n_sliders=30)
-    law = make_tangential_law("bank_anchor", law_name, j, [1.0])
+    law = tangential_law(law_name, "anchor", j, [1.0])
     A, N = 0.7, 2.0
     _, u, f, _ = march_cos(law, A, N, 4096)
     x = np.linspace(0, A, 200001)

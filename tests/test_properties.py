@@ -4,7 +4,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from jointsim.contact import make_tangential_law
+from jointsim.contact import tangential_law
 from jointsim.masing import check_loops
 from jointsim.scene import Joint
 from jointsim.solvers.prescribed import march_prescribed
@@ -20,8 +20,7 @@ LAWS = [("jenkins", "anchor"), ("jenkins", "scaled"), ("iwan4", "anchor"), ("iwa
 def make_law(name, reversal, kt=1.0, mu=0.2, n_sliders=12):
     j = Joint(law=name, reversal=reversal, mu=mu, kt=kt, chi=-0.4, beta=0.3,
               n_sliders=n_sliders)
-    return make_tangential_law("bank_anchor" if reversal == "anchor" else "bank_scaled",
-                               name, j, [1.0])
+    return tangential_law(name, reversal, j, [1.0])
 
 
 @st.composite

@@ -1,6 +1,9 @@
-"""Contact laws: numba kernels, parameter objects and kernel selection."""
-from .laws import TangentialLaw, iwan4_constants, iwan4_sliders, make_tangential_law
-from .select import KernelChoice, select_kernels
+"""Contact laws: numba kernels, law classes and their selection from a scene."""
+from .laws import (AnchoredBank, LinearSpring, NoFriction, ScaledBank, TangentialLaw,
+                   iwan4_constants, iwan4_sliders)
+from .normal import BilateralPenalty, GivenNormal, NormalLaw, UnilateralPenalty
+from .select import KernelChoice, select_kernels, tangential_law
 
-__all__ = ["TangentialLaw", "iwan4_constants", "iwan4_sliders", "make_tangential_law",
-           "KernelChoice", "select_kernels"]
+__all__ = ["TangentialLaw", "AnchoredBank", "ScaledBank", "LinearSpring", "NoFriction",
+           "NormalLaw", "GivenNormal", "UnilateralPenalty", "BilateralPenalty",
+           "iwan4_constants", "iwan4_sliders", "KernelChoice", "select_kernels", "tangential_law"]

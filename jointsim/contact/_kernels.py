@@ -288,16 +288,20 @@ def linear_spring(u, k):
 
 
 @njit(cache=True, inline="always")
-def _normal_point(g, kn, unilateral):
-    """One sample of the normal penalty law: ``(N, dN/dg)``."""
-    if unilateral and g >= 0.0:
+def normal_point(g, kn, can_open, closed_at_zero):
+    """One sample of the normal penalty law: ``(N, dN/dg)``.
+
+    ``N = kn max(0, -g)`` when the gap can open, else ``-kn g``; at ``g = 0``
+    the derivative is the closed side's when ``closed_at_zero``, else 0.
+    """
+    if can_open and (g > 0.0 or (g == 0.0 and not closed_at_zero)):
         return 0.0, 0.0
     return -kn * g, -kn
 
 
 @njit(cache=True)
-def normal_penalty(g, kn, unilateral):
-    """Normal load from the gap: ``N = kn max(0, -g)`` (unilateral) or ``-kn g``.
+def normal_penalty(g, kn, can_open, closed_at_zero):
+    """Normal load from the gap: ``N = kn max(0, -g)`` (can open) or ``-kn g``.
 
     Parameters
     ----------
@@ -305,8 +309,10 @@ def normal_penalty(g, kn, unilateral):
         Normal gap [m]; negative means interpenetration.
     kn : ndarray, shape (n_e,)
         Normal stiffness of the element (kn per area times area) [N/m].
-    unilateral : bool
+    can_open : bool
         Allow separation (N = 0 for an open gap).
+    closed_at_zero : bool
+        Take the closed side's derivative at ``g = 0`` exactly.
 
     Returns
     -------
@@ -318,5 +324,5 @@ def normal_penalty(g, kn, unilateral):
     dNdg = np.empty((ne, nt))
     for e in range(ne):
         for t in range(nt):
-            N[e, t], dNdg[e, t] = _normal_point(g[e, t], kn[e], unilateral)
+            N[e, t], dNdg[e, t] = normal_point(g[e, t], kn[e], can_open, closed_at_zero)
     return N, dNdg

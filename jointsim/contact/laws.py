@@ -1,20 +1,30 @@
-"""Contact-law parameters, state, backbones, and the call into the kernels.
+"""Tangential contact laws: one class per law family, one protocol for all.
 
-A :class:`TangentialLaw` holds per-element parameter arrays (plain NumPy) and
-knows which kernel marches it.  It is built once, before any loop, from the
-joint parameters and the element areas (see :mod:`jointsim.contact.select`).
+A law holds per-element parameter arrays (plain NumPy) and knows its kernels.
+Every solver talks to a law only through the methods of
+:class:`TangentialLaw`, so a new law is its class, its kernels, one row of
+the selection table (:mod:`jointsim.contact.select`) and its scene
+parameters; nothing in ``solvers/`` changes.
+
+Every law is a *slider bank* (see :mod:`jointsim.contact._kernels`): slider
+``i`` of element ``e`` has stiffness ``k[e, i]`` [N/m] and slip force
+``g[e, i] N`` [N].  The families:
+
+* :class:`AnchoredBank` -- physical elastic dry friction (Jenkins, Iwan);
+* :class:`ScaledBank` -- the seed's Eq. 7 reversal law;
+* :class:`LinearSpring` -- a tangential spring that never slips (``stuck``);
+* :class:`NoFriction` -- no tangential force (``effects.friction = false``).
 """
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
+from . import _aft_kernels as AK
 from . import _kernels as K
-
-TANGENTIAL_KINDS = ("bank_anchor", "bank_scaled", "linear", "none")
-NORMAL_KINDS = ("given", "unilateral", "bilateral")
 
 
 def iwan4_sliders(KT: float, Fs: float, chi: float, beta: float, n: int):
@@ -71,30 +81,48 @@ def iwan4_constants(KT: float, Fs: float, chi: float, beta: float):
     return c, phimax, R, S
 
 
+#: Codes of the tangential laws in the fused time-marching kernel
+#: (:func:`jointsim.solvers._transient_kernels.march_dense`).
+FUSED_NONE, FUSED_LINEAR, FUSED_ANCHOR = 0, 1, 2
+
+
 @dataclass(frozen=True)
 class TangentialLaw:
-    """Tangential contact law of ``n_e`` elements.
+    """Tangential contact law of ``n_e`` elements (the protocol of every law).
 
     Attributes
     ----------
-    kind : str
-        Kernel: ``bank_anchor``, ``bank_scaled``, ``linear`` or ``none``.
     k : ndarray, shape (n_e, n_s)
-        Slider stiffnesses [N/m] (``linear``: one column, the spring).
+        Slider stiffnesses [N/m] (``LinearSpring``: one column, the spring).
     g : ndarray, shape (n_e, n_s)
-        Slip force per unit normal load of each slider [-] (0 for ``linear``).
+        Slip force per unit normal load of each slider [-] (0 for laws that
+        cannot slip).
     mu : ndarray, shape (n_e,)
         Friction coefficient; the macroslip force is ``mu N``.
+
+    Class attributes
+    ----------------
+    name : str
+        The kernel's name, for logs and result files (never switched on).
+    has_force : bool
+        False when the tangential force is identically zero.
+    can_slip : bool
+        True for friction laws (the element may slip; its state is history).
+    fused_code : int or None
+        Code of the law in the fused time-marching kernel; None when the
+        fused kernel does not support it (the Python stepper is used).
     """
 
-    kind: str
+    name: ClassVar[str] = ""
+    has_force: ClassVar[bool] = True
+    can_slip: ClassVar[bool] = True
+    fused_code: ClassVar[int | None] = None
+
     k: np.ndarray
     g: np.ndarray
     mu: np.ndarray
 
     def __post_init__(self):
-        if self.kind not in TANGENTIAL_KINDS:
-            raise ValueError(f"unknown tangential kernel {self.kind!r}")
         for name in ("k", "g"):
             a = np.ascontiguousarray(getattr(self, name), dtype=float)
             if a.ndim != 2:
@@ -115,12 +143,9 @@ class TangentialLaw:
         """Initial (stuck) tangential stiffness of each element [N/m], shape (n_e,)."""
         return self.k.sum(axis=1)
 
+    # -- state ----------------------------------------------------------------
     def state_size(self) -> int:
         """Number of state entries per element."""
-        if self.kind == "bank_anchor":
-            return self.n_sliders
-        if self.kind == "bank_scaled":
-            return K.SC_SHARED + 2 * self.n_sliders
         return 0
 
     def rest_state(self, N0) -> np.ndarray:
@@ -135,14 +160,23 @@ class TangentialLaw:
         -------
         ndarray, shape (n_e, state_size)
         """
-        ne = self.n_elements
-        s = np.zeros((ne, self.state_size()))
-        if self.kind == "bank_scaled":
-            N0 = np.broadcast_to(np.asarray(N0, dtype=float), (ne,))
-            s[:, K.SC_N_PREV] = N0
-            s[:, K.SC_N_R] = N0
-        return s
+        return np.zeros((self.n_elements, self.state_size()))
 
+    def state_at(self, u0, N0) -> np.ndarray:
+        """State of unloaded elements resting at slip ``u0`` under load ``N0``.
+
+        Parameters
+        ----------
+        u0, N0 : array_like, shape (n_e,)
+            Slip [m] and normal load [N].
+
+        Returns
+        -------
+        ndarray, shape (n_e, state_size)
+        """
+        return self.rest_state(N0)
+
+    # -- marching -------------------------------------------------------------
     def march(self, u, N, state):
         """March all elements over the samples of ``u`` and ``N``.
 
@@ -159,18 +193,41 @@ class TangentialLaw:
         state : ndarray
             State after the last sample (a new array).
         """
-        u = np.ascontiguousarray(u, dtype=float)
-        N = np.ascontiguousarray(N, dtype=float)
-        if self.kind == "bank_anchor":
-            return K.bank_anchor_march(u, N, self.k, self.g, np.ascontiguousarray(state))
-        if self.kind == "bank_scaled":
-            return K.bank_scaled_march(u, N, self.k, self.g, np.ascontiguousarray(state))
-        if self.kind == "linear":
-            f, dfdu = K.linear_spring(u, np.ascontiguousarray(self.k[:, 0]))
-            return f, dfdu, np.zeros_like(f), state
-        z = np.zeros_like(u)
-        return z, z.copy(), z.copy(), state
+        raise NotImplementedError(f"{type(self).__name__} has no march kernel")
 
+    def aft(self, u, N, dNdg, basis, min_periods: int, max_periods: int, tol: float,
+            coupled: bool):
+        """Periodic march over one period of samples, with history derivatives.
+
+        Parameters
+        ----------
+        u, N, dNdg : ndarray, shape (n_e, n_t)
+            Slip [m], normal load [N] and ``dN/dg`` [N/m] at the samples.
+        basis : jointsim.harmonics.HarmonicBasis
+            Supplies ``Gam`` (n_t, n_c), ``P`` (n_c, n_t) and ``CP`` (prefix sums of
+            ``P``'s columns, n_c x (n_t + 1)).
+        min_periods, max_periods : int
+            Periods marched at least / at most until the state repeats.
+        tol : float
+            Periodicity tolerance.
+        coupled : bool
+            Derivatives with respect to the gap coefficients are wanted.
+
+        Returns
+        -------
+        f, au, ag : ndarray, shape (n_e, n_t) (``au``/``ag`` may be None)
+            Force [N] over the last period and its instantaneous tangents
+            ``df/du`` and ``df/dN dN/dg`` [N/m] (None where identically zero).
+        Juu, Jug : ndarray, shape (n_e, n_c, n_c), or None
+            History part of ``dF/dU`` and ``dF/dG`` (None when the law has no
+            history).
+        periods : ndarray of int, shape (n_e,)
+        change : ndarray, shape (n_e,)
+            Relative state change over the last period.
+        """
+        raise NotImplementedError(f"{type(self).__name__} has no AFT kernel")
+
+    # -- closed forms ---------------------------------------------------------
     def backbone(self, x, N):
         """Initial loading curve from rest at constant normal load.
 
@@ -189,12 +246,7 @@ class TangentialLaw:
         """
         x = np.asarray(x, dtype=float)
         N = np.asarray(N, dtype=float)
-        if self.kind == "none":
-            return np.zeros(np.broadcast(x, N).shape)
         extra = (1,) * (max(x.ndim, N.ndim) - 1)
-        if self.kind == "linear":
-            k = self.k[:, 0].reshape((-1,) + extra)
-            return k * x + 0.0 * N
         out = np.zeros(np.broadcast(x, N).shape)
         Np = np.maximum(N, 0.0)
         for i in range(self.n_sliders):
@@ -214,37 +266,148 @@ class TangentialLaw:
         return dataclasses.replace(self, k=self.k[index], g=self.g[index], mu=self.mu[index])
 
 
-def make_tangential_law(kind: str, law: str, joint, area) -> TangentialLaw:
-    """Per-element parameter arrays of a tangential law.
+def _no_history(u):
+    ne = u.shape[0]
+    return np.ones(ne, dtype=np.int64), np.zeros(ne)
 
-    Parameters
-    ----------
-    kind : str
-        Kernel kind (from the selection table).
-    law : str
-        ``jenkins``, ``iwan4`` or ``stuck``.
-    joint : jointsim.scene.Joint
-        Joint parameters (stiffness per unit area).
-    area : array_like, shape (n_e,)
-        Element areas [m^2].
+
+@dataclass(frozen=True)
+class AnchoredBank(TangentialLaw):
+    """Physical elastic dry friction (seed Eq. 1/3): anchored Jenkins sliders.
+
+    State per element: the anchor ``w`` of every slider [m].
     """
-    area = np.atleast_1d(np.asarray(area, dtype=float))
-    ne = area.size
-    mu = np.full(ne, joint.mu)
-    KT = joint.kt * area
-    if kind == "none":
-        return TangentialLaw("none", np.zeros((ne, 1)), np.zeros((ne, 1)), mu)
-    if kind == "linear":
-        return TangentialLaw("linear", KT[:, None], np.zeros((ne, 1)), mu)
-    if law == "jenkins":
-        return TangentialLaw(kind, KT[:, None], mu[:, None], mu)
-    if law == "iwan4":
-        # The slider stiffnesses do not depend on N; the slip forces scale with
-        # it.  Discretise at N = 1 to get slip forces per unit normal load.
-        k = np.empty((ne, joint.n_sliders))
-        g = np.empty((ne, joint.n_sliders))
-        for e in range(ne):
-            k[e], g[e] = iwan4_sliders(KT[e], joint.mu, joint.chi, joint.beta,
-                                       joint.n_sliders)
-        return TangentialLaw(kind, k, g, mu)
-    raise ValueError(f"no tangential law {law!r} for kernel {kind!r}")
+
+    name: ClassVar[str] = "bank_anchor"
+    fused_code: ClassVar[int | None] = FUSED_ANCHOR
+
+    def state_size(self) -> int:
+        return self.n_sliders
+
+    def state_at(self, u0, N0) -> np.ndarray:
+        s = self.rest_state(N0)
+        s[:] = np.asarray(u0, dtype=float)[:, None]
+        return s
+
+    def march(self, u, N, state):
+        return K.bank_anchor_march(np.ascontiguousarray(u, dtype=float),
+                                   np.ascontiguousarray(N, dtype=float), self.k, self.g,
+                                   np.ascontiguousarray(state))
+
+    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled):
+        return AK.anchor_aft(u, N, dNdg, self.k, self.g, basis.CP, basis.Gam, min_periods,
+                             max_periods, tol, coupled)
+
+
+@dataclass(frozen=True)
+class ScaledBank(TangentialLaw):
+    """The seed's Eq. 7 reversal law: reversal force scaled by ``N / N_r``.
+
+    State per element: the shared reversal memory (``SC_SHARED`` entries) and,
+    per slider, the previous force and the force at the last reversal.
+    """
+
+    name: ClassVar[str] = "bank_scaled"
+
+    def state_size(self) -> int:
+        return K.SC_SHARED + 2 * self.n_sliders
+
+    def rest_state(self, N0) -> np.ndarray:
+        ne = self.n_elements
+        s = np.zeros((ne, self.state_size()))
+        N0 = np.broadcast_to(np.asarray(N0, dtype=float), (ne,))
+        s[:, K.SC_N_PREV] = N0
+        s[:, K.SC_N_R] = N0
+        return s
+
+    def state_at(self, u0, N0) -> np.ndarray:
+        s = self.rest_state(N0)
+        s[:, K.SC_U_PREV] = u0
+        s[:, K.SC_U_R] = u0
+        return s
+
+    def march(self, u, N, state):
+        return K.bank_scaled_march(np.ascontiguousarray(u, dtype=float),
+                                   np.ascontiguousarray(N, dtype=float), self.k, self.g,
+                                   np.ascontiguousarray(state))
+
+    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled):
+        return AK.scaled_aft(u, N, dNdg, self.k, self.g, np.ascontiguousarray(N[:, 0]),
+                             basis.P, basis.Gam, min_periods, max_periods, tol, coupled)
+
+
+@dataclass(frozen=True)
+class LinearSpring(TangentialLaw):
+    """A tangential spring that never slips (the ``stuck`` law): ``f = k u``."""
+
+    name: ClassVar[str] = "linear"
+    can_slip: ClassVar[bool] = False
+    fused_code: ClassVar[int | None] = FUSED_LINEAR
+
+    def march(self, u, N, state):
+        f, dfdu = K.linear_spring(np.ascontiguousarray(u, dtype=float),
+                                  np.ascontiguousarray(self.k[:, 0]))
+        return f, dfdu, np.zeros_like(f), state
+
+    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled):
+        k = self.k[:, 0]
+        periods, change = _no_history(u)
+        return (k[:, None] * u, np.broadcast_to(k[:, None], u.shape), None, None, None,
+                periods, change)
+
+    def backbone(self, x, N):
+        x = np.asarray(x, dtype=float)
+        N = np.asarray(N, dtype=float)
+        k = self.k[:, 0].reshape((-1,) + (1,) * (max(x.ndim, N.ndim) - 1))
+        return k * x + 0.0 * N
+
+
+@dataclass(frozen=True)
+class NoFriction(TangentialLaw):
+    """No tangential force (``effects.friction = false``)."""
+
+    name: ClassVar[str] = "none"
+    has_force: ClassVar[bool] = False
+    can_slip: ClassVar[bool] = False
+    fused_code: ClassVar[int | None] = FUSED_NONE
+
+    def march(self, u, N, state):
+        z = np.zeros(np.shape(u))
+        return z, z.copy(), z.copy(), state
+
+    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled):
+        periods, change = _no_history(u)
+        return np.zeros_like(u), None, None, None, None, periods, change
+
+    def backbone(self, x, N):
+        return np.zeros(np.broadcast(np.asarray(x, dtype=float),
+                                     np.asarray(N, dtype=float)).shape)
+
+
+def jenkins_parameters(joint, KT, mu):
+    """Slider arrays of a Jenkins element: one slider ``(kt A, mu)`` per element."""
+    return KT[:, None], mu[:, None]
+
+
+def iwan4_parameters(joint, KT, mu):
+    """Slider arrays of the discretised 4-parameter Iwan element.
+
+    The slider stiffnesses do not depend on N; the slip forces scale with it,
+    so the element is discretised at N = 1 (slip forces per unit normal load).
+    """
+    ne = KT.size
+    k = np.empty((ne, joint.n_sliders))
+    g = np.empty((ne, joint.n_sliders))
+    for e in range(ne):
+        k[e], g[e] = iwan4_sliders(KT[e], joint.mu, joint.chi, joint.beta, joint.n_sliders)
+    return k, g
+
+
+def spring_parameters(joint, KT, mu):
+    """The spring of a law that never slips: stiffness ``kt A``, no slip force."""
+    return KT[:, None], np.zeros((KT.size, 1))
+
+
+def no_parameters(joint, KT, mu):
+    """No slider (a frictionless element)."""
+    return np.zeros((KT.size, 1)), np.zeros((KT.size, 1))

@@ -37,7 +37,6 @@ def law_from_file(h5, n_elements: int | None = None):
     """
     import numpy as np
 
-    from ..contact import make_tangential_law
     scene = scene_from_file(h5)
     k = scene.kernels()
     if "contacts/area" in h5:
@@ -46,7 +45,7 @@ def law_from_file(h5, n_elements: int | None = None):
         area = np.array([scene.model.area])
     else:
         area = np.ones(n_elements or h5["loops/u"].shape[1])
-    return make_tangential_law(k.tangential, k.law, scene.joint, area)
+    return k.tangential_law(scene.joint, area)
 
 
 def backbone_rows(a, f, z, n_rows: int = 8, indent: str = "    ") -> list[str]:

@@ -76,7 +76,6 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..contact import _kernels as CK
 from ._transient_kernels import single_threaded
 
 log = logging.getLogger(__name__)
@@ -168,8 +167,8 @@ class ContactMap:
     def __init__(self, contacts, friction: bool = True, dense: bool = False):
         self.contacts = contacts
         self.law = contacts.law
-        self.coupled = bool(contacts.kernels.coupled)
-        self.friction = bool(friction) and self.law.kind != "none"
+        self.coupled = bool(contacts.coupled)
+        self.friction = bool(friction) and self.law.has_force
         self.n_e = contacts.n_elements
         if self.coupled:
             self.B = sp.csr_matrix(sp.vstack([contacts.Tt, contacts.Tn]))
@@ -178,7 +177,7 @@ class ContactMap:
         self.n_c = self.B.shape[0]
         #: the gap can open and close: the averaged normal force needs the
         #: energy-consistent correction (see ``_transient_kernels.gap_correction``)
-        self.unilateral = self.coupled and contacts.kernels.normal == "unilateral"
+        self.unilateral = self.coupled and contacts.normal.can_open
         if dense:  # small models: dense products are faster than sparse ones
             self.B = self.B.toarray()
             self.Bt = np.ascontiguousarray(self.B.T)
@@ -197,7 +196,7 @@ class ContactMap:
         if not self.coupled:
             return self.N0, self._zeros
         g = self.contacts.gap0 + y[self.n_e:]
-        N, dNdg = self.contacts.normal_load(g[:, None])
+        N, dNdg = self.contacts.normal.load(g[:, None])
         return N[:, 0], dNdg[:, 0]
 
     def evaluate(self, y, state) -> ContactEval:
@@ -273,14 +272,7 @@ class ContactMap:
         ----------
         u0, N0 : ndarray, shape (n_e,)
         """
-        law = self.law
-        s = law.rest_state(N0)
-        if law.kind == "bank_anchor":
-            s[:] = np.asarray(u0, dtype=float)[:, None]
-        elif law.kind == "bank_scaled":
-            s[:, CK.SC_U_PREV] = u0
-            s[:, CK.SC_U_R] = u0
-        return s
+        return self.law.state_at(u0, N0)
 
 
 # --------------------------------------------------------------------------
@@ -484,13 +476,11 @@ class GeneralizedAlpha:
         self._mass_solver = None
         self.stats = StepStats()
         self.scale = 0.0  # displacement scale for the Newton tolerance, raised as we go
-        kinds = model.contacts.kernels
         #: March blocks of steps with the fused numba kernel (dense models, anchored or
         #: linear tangential laws, harmonic loads); otherwise step by step in Python.
         self.fused = bool(fused and self.dense and isinstance(force, LoadFunction)
                           and not force.sampled
-                          and model.contacts.law.kind in ("bank_anchor", "linear", "none")
-                          and kinds.normal in ("given", "unilateral", "bilateral"))
+                          and model.contacts.law.fused_code is not None)
 
     # -- linear algebra per step size ---------------------------------------
     def snap(self, h: float) -> float:
@@ -740,9 +730,7 @@ class GeneralizedAlpha:
         fac = self._factor(h)
         c = self.model.contacts
         law = c.law
-        tkind = {"bank_anchor": TK.T_ANCHOR, "linear": TK.T_LINEAR}.get(law.kind, TK.T_NONE)
-        nkind = {"given": TK.N_GIVEN, "unilateral": TK.N_UNILATERAL,
-                 "bilateral": TK.N_BILATERAL}[c.kernels.normal]
+        tkind, nkind = law.fused_code, c.normal.fused_code
         if not hasattr(fac, "Sinv"):
             fac.Sinv = np.ascontiguousarray(fac.solver.inv)
         state = np.ascontiguousarray(s.contact.state, dtype=float)
@@ -771,7 +759,7 @@ class GeneralizedAlpha:
             N[:, 1:done + 1] = NN[:, 1:done + 1]
             self.scale = max(self.scale, float(np.max(np.abs(U[:, :done + 1]))))
         e = np.zeros(self.cmap.n_e)
-        ev = ContactEval(PHI[done].copy(), e, e, e, st.copy() if law.kind != "none"
+        ev = ContactEval(PHI[done].copy(), e, e, e, st.copy() if law.has_force
                          else s.contact.state, U[:, done].copy(), F[:, done].copy(),
                          NN[:, done].copy())
         return MarchState(float(times[done]), X[done].copy(), V[done].copy(),

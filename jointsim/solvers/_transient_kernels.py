@@ -20,7 +20,11 @@ import numba
 import numpy as np
 from numba import njit
 
-from ..contact._kernels import slider_anchor_step
+from ..contact._kernels import normal_point, slider_anchor_step
+from ..contact.laws import FUSED_ANCHOR as T_ANCHOR
+from ..contact.laws import FUSED_LINEAR as T_LINEAR
+from ..contact.normal import FUSED_GIVEN as N_GIVEN
+from ..contact.normal import FUSED_UNILATERAL as N_UNILATERAL
 
 
 @contextlib.contextmanager
@@ -37,10 +41,8 @@ def single_threaded():
 # --------------------------------------------------------------------------
 # Fused march of dense models
 # --------------------------------------------------------------------------
-#: Tangential kinds the fused march supports (codes of ``tkind``).
-T_NONE, T_LINEAR, T_ANCHOR = 0, 1, 2
-#: Normal kinds (codes of ``nkind``).
-N_GIVEN, N_UNILATERAL, N_BILATERAL = 0, 1, 2
+# The codes of ``tkind`` and ``nkind`` are the laws' ``fused_code``
+# (jointsim.contact.laws and jointsim.contact.normal).
 
 
 @njit(cache=True)
@@ -62,13 +64,7 @@ def _contact_sample(y, state, tkind, nkind, k, g, gap0, kn, N0, phi, duu, dug, d
             Ne = N0[e]
             dNdg = 0.0
         else:
-            ge = gap0[e] + y[ne + e]
-            if nkind == N_UNILATERAL and ge >= 0.0:
-                Ne = 0.0
-                dNdg = 0.0
-            else:
-                Ne = -kn[e] * ge
-                dNdg = -kn[e]
+            Ne, dNdg = normal_point(gap0[e] + y[ne + e], kn[e], nkind == N_UNILATERAL, False)
         fe = 0.0
         de = 0.0
         dn = 0.0

@@ -127,7 +127,7 @@ def memory_elements(f, N, law) -> np.ndarray:
     """
     f = np.atleast_2d(f)
     N = np.atleast_2d(N)
-    if law.kind not in ("bank_anchor", "bank_scaled"):
+    if not law.can_slip:
         return np.zeros(f.shape[0], dtype=bool)
     slip = law.slip_force(N)
     loaded = N > 0.0
@@ -161,14 +161,14 @@ def explain_dc(d0, model):
         nrm = np.linalg.norm(rhs)
         return np.zeros(0), np.zeros(0), (1.0 if nrm > 0 else 0.0)
     cols = [sp.csr_matrix(c.Tt).T.toarray()]
-    if c.kernels.coupled:
+    if c.coupled:
         cols.append(-sp.csr_matrix(c.Tn).T.toarray())
     A = np.hstack(cols)
     sol, *_ = np.linalg.lstsq(A, rhs, rcond=None)
     nrm = np.linalg.norm(rhs)
     res = np.linalg.norm(A @ sol - rhs) / nrm if nrm > 0 else 0.0
     df = sol[:ne]
-    dN = sol[ne:] if c.kernels.coupled else np.zeros(ne)
+    dN = sol[ne:] if c.coupled else np.zeros(ne)
     return df, dN, float(res)
 
 

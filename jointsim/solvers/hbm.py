@@ -43,7 +43,7 @@ formulation is exact (the linear FRF is reproduced to round-off).
 period after period, until their state repeats (at least two periods), and
 the last period's forces are transformed back (``F = P f``).  The Jacobian is
 analytic: the instantaneous tangents plus the history terms carried
-forward through the march (see :mod:`jointsim.solvers._aft_kernels`).  With
+forward through the march (see :mod:`jointsim.contact._aft_kernels`).  With
 ``effects.normal = "fixed"`` the normal load is ``N0`` and no gap is
 evaluated; with ``"coupled"``, ``N = kn A max(0, -g)`` (or bilateral).
 
@@ -60,7 +60,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..signals import coefficient_harmonics
-from . import _aft_kernels as AK
+from ..contact import _aft_kernels as AK
 
 log = logging.getLogger(__name__)
 
@@ -201,9 +201,7 @@ class AFT:
         self.contacts = contacts
         self.basis = basis
         self.law = contacts.law
-        self.kind = contacts.law.kind
-        self.coupled = bool(contacts.kernels.coupled)
-        self.unilateral = contacts.kernels.normal == "unilateral"
+        self.coupled = bool(contacts.coupled)
         self.min_periods = int(min_periods)
         self.max_periods = int(max(max_periods, min_periods))
         self.periodic_tol = float(periodic_tol)
@@ -228,30 +226,12 @@ class AFT:
         u = np.ascontiguousarray((b.Gam @ U).T)
         if self.coupled:
             g = c.gap0[:, None] + (b.Gam @ G).T
-            N, dNdg = c.normal_load(g)
+            N, dNdg = c.normal.load(g)
         else:
             N = np.ascontiguousarray(np.broadcast_to(c.N0[:, None], (ne, nt)), dtype=float)
             dNdg = np.zeros((ne, nt))
-        kind = self.kind
-        periods = np.ones(ne, dtype=np.int64)
-        change = np.zeros(ne)
-        Juu = Jug = None
-        if kind == "bank_anchor":
-            f, au, ag, Juu, Jug, periods, change = AK.anchor_aft(
-                u, N, dNdg, self.law.k, self.law.g, b.CP, b.Gam, self.min_periods,
-                self.max_periods, self.periodic_tol, self.coupled)
-        elif kind == "bank_scaled":
-            f, au, ag, Juu, Jug, periods, change = AK.scaled_aft(
-                u, N, dNdg, self.law.k, self.law.g, np.ascontiguousarray(N[:, 0]), b.P, b.Gam,
-                self.min_periods, self.max_periods, self.periodic_tol, self.coupled)
-        elif kind == "linear":
-            k = self.law.k[:, 0]
-            f = k[:, None] * u
-            au = np.broadcast_to(k[:, None], u.shape)
-            ag = None
-        else:  # "none": frictionless
-            f = np.zeros_like(u)
-            au = ag = None
+        f, au, ag, Juu, Jug, periods, change = self.law.aft(
+            u, N, dNdg, b, self.min_periods, self.max_periods, self.periodic_tol, self.coupled)
         Ft = f @ b.P.T
         Nc = N @ b.P.T
         JNN = None
@@ -524,8 +504,8 @@ class HBMSystem:
         self.aft = AFT(c, self.basis, min_periods, max_periods)
         ne = c.n_elements
         self.n_e = ne
-        self.friction = c.law.kind != "none"
-        self.coupled = bool(c.kernels.coupled)
+        self.friction = c.law.has_force
+        self.coupled = bool(c.coupled)
         rows = []
         self.t_row = np.full(ne, -1, dtype=np.int64)
         self.n_row = np.full(ne, -1, dtype=np.int64)

@@ -348,7 +348,7 @@ def write_model_tables(scene, model, writer) -> None:
                  "normal stiffness kn A of each element")
     g = writer.group("model", kind=scene.model.kind, n_dof=model.n_dof,
                      n_contacts=c.n_elements,
-                     normal_kernel=c.kernels.normal, tangential_kernel=c.kernels.tangential)
+                     normal_kernel=c.normal.name, tangential_kernel=c.law.name)
     for key in ("n_full_dof", "build_time_s", "reduce_time_s", "preload_time_s"):
         if key in ex:
             g.attrs[key] = ex[key]

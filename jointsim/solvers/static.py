@@ -7,13 +7,15 @@ load stepping: the load goes from ``f_start`` to ``f`` in increments; a
 failed increment is halved and retried, and a solve that gives up returns the
 last converged state with the reason.
 
-Normal contact (``normal``):
+Normal contact (``normal``, a :class:`~jointsim.contact.normal.NormalLaw`;
+default the contact set's own):
 
-* ``"unilateral"``: ``N = kn A max(0, -g)``, ``g = gap0 + Tn x``;
-* ``"bilateral"``: ``N = -kn A g``;
-* ``"fixed"``: ``N = N0`` is the slip limit only; the normal force is the
-  linear spring already in ``K`` (:func:`jointsim.model.with_fixed_normal_springs`),
-  so the ``Tn^T N`` term is left out.
+* a coupled law (unilateral or bilateral penalty): ``N(g)``, ``g = gap0 + Tn x``,
+  with the closed side's derivative at ``g = 0``;
+* :class:`~jointsim.contact.normal.GivenNormal`: ``N = N0`` is the slip limit
+  only; the normal force is the linear spring already in ``K``
+  (:func:`jointsim.model.with_fixed_normal_springs`), so the ``Tn^T N`` term
+  is left out.
 
 Tangential contact (``tangential``):
 
@@ -44,7 +46,6 @@ from ..results import NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS, Conver
 
 log = logging.getLogger(__name__)
 
-NORMAL_MODES = ("unilateral", "bilateral", "fixed")
 TANGENTIAL_MODES = ("stuck", "linear", "frictionless", "law")
 
 
@@ -128,14 +129,9 @@ class _Problem:
         # Jacobian): starting from touching surfaces, the first Newton step
         # sees the contact stiffness, so bodies held only by the contact are
         # not singular
-        if self.normal == "unilateral":
-            N = c.kn * np.maximum(0.0, -g)
-            closed = g <= 0.0
-            dNdg = np.where(closed, -c.kn, 0.0)
-        elif self.normal == "bilateral":
-            N = -c.kn * g
-            closed = g <= 0.0
-            dNdg = -c.kn.copy()
+        if self.normal.coupled:
+            N, dNdg = self.normal.load(g, closed_at_zero=True)
+            closed = self.normal.closed(g)
         else:
             N = np.asarray(c.N0, dtype=float).copy()
             closed = N > 0.0
@@ -157,7 +153,7 @@ class _Problem:
         fc_t = self.TtT @ ft
         fc_n = self.TnT @ N
         fint = self.K @ x + fc_t
-        if self.normal != "fixed":  # a fixed normal load is a linear spring in K
+        if self.normal.coupled:  # a fixed normal load is a linear spring in K
             fint = fint - fc_n
         R = fint - f
         scale = max(np.linalg.norm(f), np.linalg.norm(fc_n), np.linalg.norm(fc_t), 1e-300)
@@ -176,18 +172,15 @@ class _Problem:
 
 
 def _default_modes(contacts, normal, tangential):
-    k = contacts.kernels
+    law = contacts.law
     if normal is None:
-        normal = {"given": "fixed", "unilateral": "unilateral",
-                  "bilateral": "bilateral"}[k.normal]
+        normal = contacts.normal
     if tangential is None:
         tangential = "law"
-    if tangential == "law" and k.tangential == "none":
+    if tangential == "law" and not law.has_force:
         tangential = "frictionless"
-    if tangential == "law" and k.tangential == "linear":
+    elif tangential == "law" and not law.can_slip:
         tangential = "linear"
-    if normal not in NORMAL_MODES:
-        raise ValueError(f"normal must be one of {NORMAL_MODES}, got {normal!r}")
     if tangential not in TANGENTIAL_MODES:
         raise ValueError(f"tangential must be one of {TANGENTIAL_MODES}, got {tangential!r}")
     return normal, tangential
@@ -209,8 +202,10 @@ def stuck_mode(contacts) -> str:
     friction, else ``"stuck"`` (sticks where the element is in contact, like
     the friction laws at small amplitude).
     """
-    k = contacts.kernels.tangential
-    return {"linear": "linear", "none": "frictionless"}.get(k, "stuck")
+    law = contacts.law
+    if not law.has_force:
+        return "frictionless"
+    return "stuck" if law.can_slip else "linear"
 
 
 def tangent_stiffness(K, contacts, x, *, tangential=None, normal=None, state=None):
@@ -221,9 +216,11 @@ def tangent_stiffness(K, contacts, x, *, tangential=None, normal=None, state=Non
     K : sparse matrix, shape (n_dof, n_dof)
     contacts : jointsim.model.ContactSet
     x : ndarray, shape (n_dof,)
-    tangential, normal : str, optional
-        Modes as in :func:`solve_static`; ``tangential`` defaults to the stuck
-        interface (:func:`stuck_mode`), ``normal`` to the scene's kernel.
+    tangential : str, optional
+        Mode as in :func:`solve_static`; defaults to the stuck interface
+        (:func:`stuck_mode`).
+    normal : jointsim.contact.normal.NormalLaw, optional
+        Normal law (default: the contact set's).
     state : ndarray, optional
 
     Returns
@@ -298,9 +295,8 @@ def solve_static(K, f, contacts, *, tangential=None, normal=None, state=None,
     tangential : str, optional
         ``stuck``, ``linear``, ``frictionless`` or ``law`` (default ``law``;
         see the module docstring).
-    normal : str, optional
-        ``unilateral``, ``bilateral`` or ``fixed`` (default: the scene's
-        normal kernel).
+    normal : jointsim.contact.normal.NormalLaw, optional
+        Normal law (default: the contact set's; see the module docstring).
     state : ndarray, optional
         Tangential state at the start (anchors of shape (n_e,) for
         ``stuck``/``linear``; the law's state for ``law``; default rest).

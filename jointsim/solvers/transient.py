@@ -517,7 +517,7 @@ def static_start(model, frictionless: bool = False, tol: float = 1e-10) -> Start
         return StartState(lin.x0, empty_eval(c.law.rest_state(np.zeros(0))),
                           lin.convergence.iterations, lin.source)
     rest = c.law.rest_state(lin.N)
-    if c.law.kind not in ("bank_anchor", "bank_scaled"):   # linear or no friction: cannot slip
+    if not c.law.can_slip:   # linear or no friction: no history to solve for
         return StartState(lin.x0, cmap.evaluate(cmap.B @ lin.x0, rest),
                           lin.convergence.iterations, lin.source)
     res = solve_static(model.K, f0, c, tangential="law", state=rest, tol=tol,
@@ -1064,8 +1064,7 @@ def run_transient(scene, model, writer) -> None:
     g = writer.group("transient", kind="steady" if tr.omega > 0 else "free_decay",
                      rho_inf=tr.rho_inf, steps_per_period=tr.steps_per_period,
                      integrator="generalized-alpha (Chung-Hulbert), force-averaged",
-                     kernels=f"{model.contacts.kernels.tangential}/"
-                             f"{model.contacts.kernels.normal}")
+                     kernels=f"{model.contacts.law.name}/{model.contacts.normal.name}")
     writer.write("transient/dofs", dofs, "1", "DOF index of each column of transient/x")
     g.attrs["dof_labels"] = ",".join(labels)
     if model.contacts.n_elements and "contacts/area" not in writer.h5:

@@ -48,7 +48,7 @@ from numba import njit, prange
 #: and barrier waits cost more than the work, badly so on a loaded machine).
 PARALLEL_MIN = 64
 
-from ..contact._kernels import (SC_DIR, SC_N_PREV, SC_N_R, SC_SHARED, SC_U_PREV, SC_U_R,
+from ._kernels import (SC_DIR, SC_N_PREV, SC_N_R, SC_SHARED, SC_U_PREV, SC_U_R,
                                 slider_anchor_step, slider_scaled_force)
 
 
