@@ -208,4 +208,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
+    from jointsim.blas import limit_blas_threads
+    limit_blas_threads()
     raise SystemExit(main())

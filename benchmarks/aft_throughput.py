@@ -81,4 +81,6 @@ def main():
 
 
 if __name__ == "__main__":
+    from jointsim.blas import limit_blas_threads
+    limit_blas_threads()
     main()

@@ -82,4 +82,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from jointsim.blas import limit_blas_threads
+    limit_blas_threads()
     main()

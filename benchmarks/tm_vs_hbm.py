@@ -225,4 +225,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
+    from jointsim.blas import limit_blas_threads
+    limit_blas_threads()
     main()

@@ -84,4 +84,6 @@ def main():
 
 
 if __name__ == "__main__":
+    from jointsim.blas import limit_blas_threads
+    limit_blas_threads()
     main()

@@ -83,6 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger("numba").setLevel(logging.WARNING)
     logging.getLogger("matplotlib").setLevel(logging.WARNING)
     logging.getLogger("skfem").setLevel(logging.WARNING)
+    from .blas import limit_blas_threads
+    limit_blas_threads()
     try:
         if args.command in ("run", "check"):
             scene = load_scene(args.scene, args.overrides)

@@ -90,8 +90,13 @@ def plan(scene_path, vary: list[str], outdir, common: list[str] = ()) -> list[Va
 
 
 def run_variant(scene_path: str, variant: Variant) -> dict:
-    """Run one variant (on a worker).  Never raises: failures are reported."""
+    """Run one variant (on a worker).  Never raises: failures are reported.
+
+    Sets the worker's BLAS threads first (:func:`jointsim.blas.limit_blas_threads`).
+    """
+    from .blas import limit_blas_threads
     from .run import run_scene
+    limit_blas_threads()
     try:
         scene = load_scene(scene_path, list(variant.overrides))
         run_scene(scene, variant.output)

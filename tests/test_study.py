@@ -10,7 +10,8 @@ import h5py
 import numpy as np
 import pytest
 
-from jointsim import _toml, study
+from jointsim import _toml
+from jointsim.post import study
 from jointsim.run import run_scene
 from jointsim.scene import apply_overrides, parse_scene
 

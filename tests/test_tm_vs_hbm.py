@@ -17,6 +17,7 @@ import h5py
 import numpy as np
 import pytest
 
+from jointsim.analyses.crosscheck import cross_check_file
 from jointsim.model import build_model
 from jointsim.post.tables import info_text
 from jointsim.run import run_scene
@@ -176,7 +177,7 @@ def test_failed_hbm_solve_is_reported_not_compared(crosscheck_run, tmp_path, mon
                        progress=False)
     with h5py.File(out) as src, ResultWriter(tmp_path / "f.h5", sc) as wr:
         src.copy("hbm", wr.h5)
-        assert CC.cross_check_file(wr, sc, m, res) is None
+        assert cross_check_file(wr, sc, m, res) is None
         g = wr.h5["crosscheck"]
         assert not g.attrs["agree"] and not g.attrs["hbm_success"]
         assert "no HBM solution" in g.attrs["verdict"] and "forced failure" in g.attrs["verdict"]

@@ -6,10 +6,11 @@ import h5py
 import numpy as np
 import pytest
 
+from jointsim.analyses.crosscheck import cross_check_file
 from jointsim.io.hdf5 import ResultWriter
 from jointsim.model import build_model
-from jointsim.solvers.crosscheck import (cross_check, cross_check_file, explain_dc,
-                                         hbm_reference, hbm_solution_at, memory_elements)
+from jointsim.solvers.crosscheck import (cross_check, explain_dc, hbm_reference, hbm_solution_at,
+                                         memory_elements)
 from jointsim.solvers.transient import march_steady
 
 from ._transient_scenes import lumped, two_dof_jenkins

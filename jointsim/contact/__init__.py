@@ -2,8 +2,8 @@
 from .laws import (AnchoredBank, LinearSpring, NoFriction, ScaledBank, TangentialLaw,
                    iwan4_constants, iwan4_sliders)
 from .normal import BilateralPenalty, GivenNormal, NormalLaw, UnilateralPenalty
-from .select import KernelChoice, select_kernels, tangential_law
+from .select import KernelChoice, law_class, select_kernels, tangential_law
 
 __all__ = ["TangentialLaw", "AnchoredBank", "ScaledBank", "LinearSpring", "NoFriction",
            "NormalLaw", "GivenNormal", "UnilateralPenalty", "BilateralPenalty",
-           "iwan4_constants", "iwan4_sliders", "KernelChoice", "select_kernels", "tangential_law"]
+           "iwan4_constants", "iwan4_sliders", "KernelChoice", "law_class", "select_kernels", "tangential_law"]

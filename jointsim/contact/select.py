@@ -128,6 +128,11 @@ def select_kernels(scene) -> KernelChoice:
                         normal_class=normal_class, law=j.law)
 
 
+def law_class(law: str, reversal: str, friction: bool = True) -> type[TangentialLaw]:
+    """The law class of scene keys ``joint.law``/``joint.reversal``/``effects.friction``."""
+    return TANGENTIAL_TABLE[(law, reversal)][0] if friction else FRICTIONLESS[0]
+
+
 def tangential_law(law: str, reversal: str, joint, area, friction: bool = True) -> TangentialLaw:
     """The tangential law of scene keys ``joint.law``/``joint.reversal`` (table lookup).
 

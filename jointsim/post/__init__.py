@@ -2,8 +2,9 @@
 
 Plot modules import matplotlib lazily (only when figures are made), with the
 non-interactive Agg backend.  Each plotter looks at the groups present in a
-result file and draws what applies; analyses add their plotters to
-:data:`PLOTTERS`.
+result file and draws what applies; :func:`plotters` is the one ordered table
+of group name -> plotter (``jointsim info``'s sections are
+:func:`jointsim.post.tables.sections`).
 """
 from __future__ import annotations
 
@@ -15,10 +16,6 @@ import h5py
 
 log = logging.getLogger(__name__)
 
-#: group name -> plotter(h5, outdir) -> list of written figure paths
-PLOTTERS: dict[str, Callable] = {}
-
-
 def figure_dir(result, outdir=None) -> Path:
     """Folder for a result file's figures (``<stem>_figures`` beside it by default)."""
     result = Path(result)
@@ -27,11 +24,19 @@ def figure_dir(result, outdir=None) -> Path:
     return d
 
 
-def _register() -> None:
-    from .._plugins import import_available
-    from . import plots  # noqa: F401  (registers the built-in plotters)
-    import_available(("jointsim.post.fe_plots", "jointsim.post.hbm_plots",
-                      "jointsim.post.transient_plots", "jointsim.post.study_plots"))
+def plotters() -> dict[str, Callable]:
+    """group name -> plotter(h5, outdir) -> list of written figure paths, in drawing order."""
+    from . import fe_plots, hbm_plots, plots, study_plots, transient_plots
+    return {
+        "prescribed": plots.plot_prescribed,
+        "static": fe_plots.pressure_plot,
+        "modes": fe_plots.modes_figures,
+        "hbm": hbm_plots.plot_frc,
+        "epmc": hbm_plots.plot_epmc,
+        "transient": transient_plots.plot_transient,
+        "qsma": study_plots.plot_backbones,
+        "contacts": study_plots.plot_masing_study,
+    }
 
 
 def make_figures(result, outdir=None) -> list[Path]:
@@ -49,11 +54,10 @@ def make_figures(result, outdir=None) -> list[Path]:
     list of Path
         The figure files written.
     """
-    _register()
     d = figure_dir(result, outdir)
     written: list[Path] = []
     with h5py.File(result, "r") as h5:
-        for group, plotter in PLOTTERS.items():
+        for group, plotter in plotters().items():
             if group in h5:
                 written.extend(plotter(h5, d))
     if not written:
@@ -63,7 +67,6 @@ def make_figures(result, outdir=None) -> list[Path]:
 
 def combined_figures(results, outdir=None) -> list[Path]:
     """Figures that compare several result files (e.g. the seed's Fig. 3 grid)."""
-    _register()
     from .plots import fig3_grid
     files = [Path(r) for r in results]
     with_prescribed = []

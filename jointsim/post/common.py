@@ -31,12 +31,21 @@ def scene_from_file(h5):
 def law_from_file(h5, n_elements: int | None = None):
     """The tangential law of the elements of a result file.
 
-    The law is rebuilt from the stored scene and the element areas stored in
-    ``/contacts/area`` (area 1 per element when absent: prescribed and lumped
-    scenes with default areas).
+    From ``/contacts/mu``, ``/contacts/k``, ``/contacts/g`` and the ``law``,
+    ``reversal`` and ``friction`` attributes of ``/contacts`` when the file has them (written by
+    :func:`jointsim.analyses.modes.write_model_tables`).  Older files (and
+    prescribed-motion ones): rebuilt from the stored scene and the element
+    areas in ``/contacts/area`` (area 1 per element when absent: prescribed
+    and lumped scenes with default areas).
     """
     import numpy as np
 
+    from ..contact import law_class
+    if all(f"contacts/{k}" in h5 for k in ("mu", "k", "g")) \
+            and "friction" in h5["contacts"].attrs:
+        a = h5["contacts"].attrs
+        cls = law_class(str(a["law"]), str(a["reversal"]), bool(a["friction"]))
+        return cls(h5["contacts/k"][()], h5["contacts/g"][()], h5["contacts/mu"][()])
     scene = scene_from_file(h5)
     k = scene.kernels()
     if "contacts/area" in h5:

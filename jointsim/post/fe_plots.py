@@ -6,9 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import PLOTTERS
 from .common import pyplot
-from .tables import SECTIONS
 
 log = logging.getLogger(__name__)
 
@@ -143,9 +141,3 @@ def static_table(h5) -> str:
     if "static/pressure" in h5:
         s += f"; peak pressure {h5['static/pressure'][()].max() / 1e6:.3g} MPa"
     return s
-
-
-PLOTTERS["static"] = pressure_plot
-PLOTTERS["modes"] = modes_figures
-SECTIONS["static"] = static_table
-SECTIONS["modes"] = modes_table

@@ -7,9 +7,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from . import PLOTTERS
 from .common import backbone_section, pyplot, quantity_label
-from .tables import SECTIONS
 
 log = logging.getLogger(__name__)
 
@@ -90,9 +88,3 @@ def hbm_section(h5) -> str:
 
 def epmc_section(h5) -> str:
     return backbone_section(h5, "epmc", "EPMC")
-
-
-PLOTTERS["hbm"] = plot_frc
-PLOTTERS["epmc"] = plot_epmc
-SECTIONS["hbm"] = hbm_section
-SECTIONS["epmc"] = epmc_section

@@ -7,7 +7,6 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from . import PLOTTERS
 from .common import law_from_file, pyplot, quantity_label
 
 log = logging.getLogger(__name__)
@@ -139,6 +138,3 @@ def fig3_grid(results, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
-
-
-PLOTTERS["prescribed"] = plot_prescribed

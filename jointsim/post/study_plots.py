@@ -7,10 +7,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .. import study
-from . import PLOTTERS
+from . import study
 from .common import backbone_section, law_from_file, pyplot, quantity_label
-from .tables import SECTIONS
 
 log = logging.getLogger(__name__)
 
@@ -153,9 +151,3 @@ def study_section(h5) -> str:
 
 def qsma_section(h5) -> str:
     return backbone_section(h5, "qsma", "QSMA")
-
-
-PLOTTERS["qsma"] = plot_backbones
-PLOTTERS["contacts"] = plot_masing_study
-SECTIONS["qsma"] = qsma_section
-SECTIONS["contacts"] = study_section

@@ -37,8 +37,19 @@ def masing_table(h5, point: int = -1, max_rows: int = 40) -> str:
     return "\n".join(lines)
 
 
-#: group name -> function(h5) -> str, the sections of ``jointsim info``
-SECTIONS: dict = {}
+def sections() -> dict:
+    """group name -> function(h5) -> str: the sections of ``jointsim info``, in order."""
+    from . import fe_plots, hbm_plots, study_plots, transient_plots
+    return {
+        "static": fe_plots.static_table,
+        "modes": fe_plots.modes_table,
+        "hbm": hbm_plots.hbm_section,
+        "epmc": hbm_plots.epmc_section,
+        "transient": transient_plots.transient_table,
+        "crosscheck": transient_plots.crosscheck_table,
+        "qsma": study_plots.qsma_section,
+        "contacts": study_plots.study_section,
+    }
 
 
 def info_text(path) -> str:
@@ -60,9 +71,7 @@ def info_text(path) -> str:
                          f"reversal), omega = {g.attrs['omega']:g} rad/s, "
                          f"{g.attrs['n_periods']} periods x {g.attrs['n_samples']} samples; "
                          f"{g.attrs['message']}")
-        from . import _register
-        _register()
-        for name, fn in SECTIONS.items():
+        for name, fn in sections().items():
             if name in h5:
                 text = fn(h5)
                 if text:
@@ -72,4 +81,4 @@ def info_text(path) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["info_text", "masing_table", "SECTIONS"]
+__all__ = ["info_text", "masing_table", "sections"]

@@ -15,9 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import PLOTTERS
 from .common import pyplot, quantity_label
-from .tables import SECTIONS
 
 log = logging.getLogger(__name__)
 
@@ -296,8 +294,3 @@ def crosscheck_table(h5) -> str:
                          f"{ra[j]:.3e} (DOF {j}: {at[j]:.6g} vs {ah[j]:.6g})")
     lines.append(f"  {a.get('verdict', '')}")
     return "\n".join(lines)
-
-
-PLOTTERS["transient"] = plot_transient
-SECTIONS["transient"] = transient_table
-SECTIONS["crosscheck"] = crosscheck_table

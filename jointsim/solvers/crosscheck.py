@@ -2,6 +2,7 @@
 
 Both methods describe the same periodic response by coefficients in the order
 ``[0, 1c, 1s, 2c, 2s, ...]`` (``/transient/harmonics`` and ``/hbm/X``).  The
+comparison is pure; :mod:`jointsim.analyses.crosscheck` writes ``/crosscheck``.  The
 check reports, for every harmonic both keep, the norm of the difference
 
 * relative to the norm of the first harmonic (``rel_diff``: how much the
@@ -249,8 +250,73 @@ def cross_check(Xa, harmonics_a, Xb, harmonics_b, *, model=None, loops=None,
 
 
 # --------------------------------------------------------------------------
-# Against the /hbm group of a result file
+# Against harmonic-balance solution points (in memory, or the /hbm group of a file)
 # --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class HBMSolutions:
+    """The solution points of a harmonic-balance FRC, as the cross-check uses them.
+
+    The HBM runner returns this object (the points it wrote to ``/hbm``, in the
+    same order), so later analyses compare with it in memory;
+    :meth:`from_h5` reads the same from a finished file.
+
+    Attributes
+    ----------
+    omega : ndarray, shape (n_points,)
+        Frequency of each point [rad/s].
+    X : ndarray, shape (n_points, n_coeff, n_dof)
+        Harmonic coefficients ``[0, 1c, 1s, ...]`` [m].
+    harmonics : tuple of int
+    n_samples : int or None
+        AFT samples per period of the FRC (None: unknown).
+    q : ndarray, shape (n_points, n_z), optional
+        Contact-coordinate coefficients (the Newton unknowns) [m].
+    branch : ndarray of int, shape (n_points,), optional
+        Branch of each point (index into ``force_scale``).
+    force_scale : ndarray, shape (n_branches,), optional
+        Excitation multiplier of each branch.
+    """
+
+    omega: np.ndarray
+    X: np.ndarray
+    harmonics: tuple
+    n_samples: int | None = None
+    q: np.ndarray | None = None
+    branch: np.ndarray | None = None
+    force_scale: np.ndarray | None = None
+
+    @property
+    def n_points(self) -> int:
+        return int(self.omega.size)
+
+    @classmethod
+    def from_h5(cls, h5) -> "HBMSolutions | None":
+        """The points stored in the ``/hbm`` group of a result file (None without them).
+
+        Uses ``/hbm/omega``, ``/hbm/X``, ``/hbm/harmonics`` and, when present,
+        ``/hbm/q``, ``/hbm/branch``, ``/hbm/force_scale`` and the ``n_samples``
+        attribute of ``/hbm`` (DESIGN §4 paths).
+        """
+        if "hbm/omega" not in h5 or "hbm/X" not in h5:
+            return None
+
+        def opt(name):
+            return h5[name][()] if name in h5 else None
+
+        n_samples = h5["hbm"].attrs.get("n_samples")
+        return cls(omega=h5["hbm/omega"][()], X=h5["hbm/X"][()],
+                   harmonics=tuple(int(h) for h in h5["hbm/harmonics"][()]),
+                   n_samples=None if n_samples is None else int(n_samples),
+                   q=opt("hbm/q"), branch=opt("hbm/branch"),
+                   force_scale=None if "hbm/force_scale" not in h5
+                   else np.atleast_1d(h5["hbm/force_scale"][()]))
+
+
+def _solutions(src) -> HBMSolutions | None:
+    """``src`` itself, or the points of the result file (h5py File or Group) ``src``."""
+    return src if isinstance(src, HBMSolutions) or src is None else HBMSolutions.from_h5(src)
+
+
 @dataclass(frozen=True)
 class HBMPoint:
     """A stored HBM solution near a requested frequency, read from a result file.
@@ -276,14 +342,14 @@ class HBMPoint:
     interpolated: bool
 
 
-def hbm_solution_at(h5, omega: float, force_scale: float | None = None, X_near=None,
+def hbm_solution_at(solutions, omega: float, force_scale: float | None = None, X_near=None,
                     rtol: float = 1e-9) -> HBMPoint | None:
-    """The stored HBM solution at (or around) ``omega`` from ``/hbm`` (DESIGN §4 paths).
+    """The HBM solution at (or around) ``omega`` among stored solution points.
 
-    Uses ``/hbm/omega`` [n_points], ``/hbm/X`` [n_points, n_coeff, n_dof] and
-    ``/hbm/harmonics``; with ``/hbm/branch`` [n_points] (the branch of each
-    point) brackets never span two branches, and with ``/hbm/force_scale``
-    (one entry per branch, indexed by ``/hbm/branch``) only branches of the
+    ``solutions`` is an :class:`HBMSolutions` (or a result file, whose
+    ``/hbm`` points are read by :meth:`HBMSolutions.from_h5`).  With
+    ``branch`` (the branch of each point) brackets never span two branches,
+    and with ``force_scale`` (one entry per branch) only branches of the
     requested force scale are used.  Where a branch passes ``omega`` several
     times (turning points), the solution nearest ``X_near`` is taken.  Between
     stored points the coefficients are interpolated linearly (flagged
@@ -295,14 +361,15 @@ def hbm_solution_at(h5, omega: float, force_scale: float | None = None, X_near=N
     HBMPoint or None
         None when no stored branch reaches ``omega``.
     """
-    if "hbm/omega" not in h5 or "hbm/X" not in h5:
+    sols = _solutions(solutions)
+    if sols is None:
         return None
-    w = h5["hbm/omega"][()]
-    X = h5["hbm/X"]
-    hs = tuple(int(h) for h in h5["hbm/harmonics"][()])
+    w = sols.omega
+    X = sols.X
+    hs = sols.harmonics
     n = w.size
-    ok = _scale_mask(h5, n, force_scale)
-    branch = h5["hbm/branch"][()] if "hbm/branch" in h5 else np.zeros(n, dtype=int)
+    ok = _scale_mask(sols, force_scale)
+    branch = sols.branch if sols.branch is not None else np.zeros(n, dtype=int)
     cands = []
     for i in np.flatnonzero(ok & np.isclose(w, omega, rtol=rtol, atol=0.0)):
         cands.append(HBMPoint(X[i], hs, float(w[i]), (int(i),), False))
@@ -324,12 +391,13 @@ def hbm_solution_at(h5, omega: float, force_scale: float | None = None, X_near=N
     return min(pool, key=lambda c: np.linalg.norm(c.X[rows] - np.asarray(X_near)[rows]))
 
 
-def _scale_mask(h5, n: int, force_scale) -> np.ndarray:
+def _scale_mask(sols: HBMSolutions, force_scale) -> np.ndarray:
     """Stored points that belong to a branch of ``force_scale`` (all when None)."""
+    n = sols.n_points
     ok = np.ones(n, dtype=bool)
-    if force_scale is not None and "hbm/force_scale" in h5:
-        branch = h5["hbm/branch"][()] if "hbm/branch" in h5 else np.zeros(n, dtype=int)
-        scales = np.atleast_1d(h5["hbm/force_scale"][()])
+    if force_scale is not None and sols.force_scale is not None:
+        branch = sols.branch if sols.branch is not None else np.zeros(n, dtype=int)
+        scales = np.atleast_1d(sols.force_scale)
         ok &= np.isclose(scales[branch], force_scale, rtol=1e-12)
     return ok
 
@@ -370,12 +438,12 @@ class HBMReference:
     convergence: object
 
 
-def hbm_reference(h5, scene, model, omega: float, force_scale: float, X_near=None,
+def hbm_reference(solutions, scene, model, omega: float, force_scale: float, X_near=None,
                   harmonics_near=None) -> HBMReference:
-    """Solve the harmonic balance at exactly ``omega`` with the settings of ``/hbm``.
+    """Solve the harmonic balance at exactly ``omega`` with the settings of an FRC.
 
-    The harmonics and AFT samples are those the file's HBM used
-    (``/hbm/harmonics``, attribute ``n_samples``); the AFT march limits and
+    The harmonics and AFT samples are those the FRC used (``harmonics``,
+    ``n_samples`` of ``solutions``); the AFT march limits and
     the tolerance come from ``scene.analysis.hbm`` when the scene has one.  A
     stored point at ``omega`` (same force scale) is taken as it is.
     Otherwise Newton (:func:`jointsim.solvers.hbm.solve_point`) is seeded, in
@@ -392,8 +460,8 @@ def hbm_reference(h5, scene, model, omega: float, force_scale: float, X_near=Non
 
     Parameters
     ----------
-    h5 : h5py.File
-        A file with ``/hbm``.
+    solutions : HBMSolutions or h5py.File
+        The FRC's solution points (or a result file with ``/hbm``).
     scene : jointsim.scene.Scene
     model : jointsim.model.StructuralModel
     omega : float
@@ -416,7 +484,8 @@ def hbm_reference(h5, scene, model, omega: float, force_scale: float, X_near=Non
     from ..results import NOT_CONVERGED, SUCCESS, Convergence
     from .hbm import HBMSystem, solve_point
     t0 = time.perf_counter()
-    hs = tuple(int(h) for h in h5["hbm/harmonics"][()])
+    sols = _solutions(solutions)
+    hs = sols.harmonics
     rows = _rows(hs)
     near = None
     if X_near is not None and harmonics_near is not None:
@@ -426,8 +495,9 @@ def hbm_reference(h5, scene, model, omega: float, force_scale: float, X_near=Non
             if h in rn:
                 near[sl] = np.asarray(X_near)[rn[h]]
     settings = scene.analysis.hbm if scene is not None else None
-    n_samples = int(h5["hbm"].attrs.get("n_samples", getattr(settings, "n_samples", 128)))
-    pt = hbm_solution_at(h5, omega, force_scale, near)
+    n_samples = int(sols.n_samples if sols.n_samples is not None
+                    else getattr(settings, "n_samples", 128))
+    pt = hbm_solution_at(sols, omega, force_scale, near)
     if pt is not None and not pt.interpolated:
         i = pt.points[0]
         return HBMReference(pt.X, hs, pt.omega, f"stored point {i}", pt.points, n_samples,
@@ -439,18 +509,18 @@ def hbm_reference(h5, scene, model, omega: float, force_scale: float, X_near=Non
     tol = min(float(getattr(settings, "tol", 1e-10)), 1e-10)
     max_iter = max(int(getattr(settings, "max_iter", 20)), 30)
     seeds = []
+    w = sols.omega
+
+    def stored_seed(i):
+        z = sols.q[i] if sols.q is not None else system.contact_coordinates(sols.X[i])
+        return (f"stored point {i} (omega = {w[i]:.8g})", (i,), z)
+
     if pt is not None:   # a branch passes omega: the nearer end of its bracket
-        w = h5["hbm/omega"][()]
-        i = min(pt.points, key=lambda j: abs(w[j] - omega))
-        seeds.append((f"stored point {i} (omega = {w[i]:.8g})", (i,), h5["hbm/q"][i]
-                      if "hbm/q" in h5 else system.contact_coordinates(h5["hbm/X"][i])))
-    elif "hbm/omega" in h5 and h5["hbm/omega"].shape[0]:
-        w = h5["hbm/omega"][()]
-        ok = np.flatnonzero(_scale_mask(h5, w.size, force_scale))
+        seeds.append(stored_seed(min(pt.points, key=lambda j: abs(w[j] - omega))))
+    elif sols.n_points:
+        ok = np.flatnonzero(_scale_mask(sols, force_scale))
         if ok.size:
-            i = int(ok[np.argmin(np.abs(w[ok] - omega))])
-            seeds.append((f"stored point {i} (omega = {w[i]:.8g})", (i,), h5["hbm/q"][i]
-                          if "hbm/q" in h5 else system.contact_coordinates(h5["hbm/X"][i])))
+            seeds.append(stored_seed(int(ok[np.argmin(np.abs(w[ok] - omega))])))
     seeds.append(("the stuck linear response", (), np.zeros(system.n_z)))
     if near is not None:
         seeds.append(("the time-marching solution", (), system.contact_coordinates(near)))
@@ -470,81 +540,3 @@ def hbm_reference(h5, scene, model, omega: float, force_scale: float, X_near=Non
     return HBMReference(sol.X, hs, float(omega), source, used[1], n_samples,
                         sol.residual / max(float(np.abs(F).max(initial=0.0)), 1e-300),
                         time.perf_counter() - t0, conv)
-
-
-def cross_check_file(writer, scene, model, result, tol: float = 1e-3) -> CrossCheck | None:
-    """Cross-check a steady time-marching result against harmonic balance at its frequency.
-
-    The HBM solution is solved at exactly the frequency and force scale of
-    the march, with the harmonics and samples of the file's ``/hbm``
-    (:func:`hbm_reference`).  Writes ``/crosscheck/*``: ``harmonics``,
-    ``rel_diff``, ``rel_own``, ``amplitude_transient``, ``amplitude_hbm``,
-    ``X_transient``, ``X_hbm``, ``df``, ``dN``, ``memory`` and attributes
-    ``omega``, ``force_scale``, ``dc_diff``, ``dc_history``, ``agree``,
-    ``tol``, ``verdict``, ``hbm_source``, ``hbm_points``, ``hbm_success``,
-    ``hbm_message``, ``hbm_n_samples``, ``hbm_time_s``.
-
-    Parameters
-    ----------
-    writer : jointsim.io.hdf5.ResultWriter
-    scene : jointsim.scene.Scene
-    model : jointsim.model.StructuralModel
-    result : jointsim.solvers.transient.SteadyResult
-    tol : float
-        Agreement tolerance on ``rel_diff``.
-
-    Returns
-    -------
-    CrossCheck or None
-        None (and a warning, and ``verdict`` saying why) when the HBM solve
-        at the frequency did not converge.
-    """
-    from ..io.hdf5 import unit
-    ht = result.harmonics
-    ref = hbm_reference(writer.h5, scene, model, result.omega, result.force_scale,
-                        result.X, ht)
-    common = dict(omega=result.omega, force_scale=result.force_scale, tol=float(tol),
-                  hbm_source=ref.source, hbm_points=np.asarray(ref.points, dtype=np.int64),
-                  hbm_success=bool(ref.convergence.success),
-                  hbm_message=ref.convergence.message, hbm_n_samples=ref.n_samples,
-                  hbm_time_s=ref.wall_time)
-    if not ref.convergence.success:
-        msg = f"no HBM solution at omega = {result.omega:g}: {ref.convergence.message}"
-        log.warning("cross-check: %s; nothing compared", msg)
-        writer.group("crosscheck", agree=False, verdict=msg, **common)
-        return None
-    n = result.last.f.shape[1] - 1
-    loops = (result.last.f[:, :n], result.last.N[:, :n])
-    cc = cross_check(result.X, ht, ref.X, ref.harmonics, model=model, loops=loops, tol=tol)
-    verdict = cc.verdict
-    if not result.convergence.success:
-        verdict += (f" (the march is not steady: {result.convergence.message})")
-    writer.group("crosscheck", dc_diff=cc.dc_diff, dc_history=cc.dc_history, agree=cc.agree,
-                 verdict=verdict, transient_steady=bool(result.convergence.success),
-                 error_estimate=float(result.error_estimate), **common)
-    units = model.units
-    one = unit("dimensionless", units)
-    writer.write("crosscheck/harmonics", np.asarray(cc.harmonics, dtype=np.int64), "1",
-                 "harmonics compared")
-    writer.write("crosscheck/rel_diff", cc.rel_diff, one,
-                 "||X_tm,h - X_hbm,h|| / ||X_hbm,1|| per harmonic")
-    writer.write("crosscheck/rel_own", cc.rel_own, one,
-                 "||X_tm,h - X_hbm,h|| / ||X_hbm,h|| per harmonic")
-    d = unit("displacement", units)
-    writer.write("crosscheck/amplitude_transient", cc.amplitude_a, d,
-                 "first-harmonic amplitude per DOF, time marching")
-    writer.write("crosscheck/amplitude_hbm", cc.amplitude_b, d,
-                 "first-harmonic amplitude per DOF, harmonic balance")
-    writer.write("crosscheck/X_transient", result.X, d, "coefficients of the time-marching "
-                 "period [0, 1c, 1s, ...] of its harmonics", harmonics=np.asarray(ht))
-    writer.write("crosscheck/X_hbm", ref.X, d, "coefficients of the HBM solution at the "
-                 "same frequency", harmonics=np.asarray(ref.harmonics))
-    F = unit("force", units)
-    writer.write("crosscheck/df", cc.df, F, "mean tangential force differences that hold "
-                 "the DC difference")
-    writer.write("crosscheck/dN", cc.dN, F, "mean normal load differences")
-    writer.write("crosscheck/memory", cc.memory, "1",
-                 "elements that stick all period (keep their history)")
-    (log.info if cc.agree else log.warning)("cross-check at omega = %g (HBM %s): %s",
-                                            result.omega, ref.source, verdict)
-    return cc

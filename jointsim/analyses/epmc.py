@@ -1,0 +1,195 @@
+"""Runner of ``[analysis.epmc]``: the EPMC backbone of one mode, written point by point.
+
+The formulation is in :mod:`jointsim.solvers.epmc`.  Datasets (per point):
+``/epmc/amplitude`` (modal amplitude ``a``), ``/epmc/frequency_hz``,
+``/epmc/omega``, ``/epmc/damping_ratio`` (``xi / (2 omega)``), ``/epmc/xi``,
+``/epmc/X`` [n_points, n_coeff, n_dof] (coefficients of ``x``, not
+normalised), ``/epmc/iterations``, ``/epmc/residual``, ``/epmc/step``,
+``/epmc/y`` and ``/epmc/tangent`` (for ``--resume``); once:
+``/epmc/harmonics``, ``/epmc/mode_shape``.  Loops and Masing checks go to
+``/epmc/loops`` and ``/epmc/masing``.
+"""
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from ..io.hdf5 import unit, write_loops
+from ..masing import check_loops
+from ..solvers.continuation import continue_branch
+from ..solvers.epmc import EPMCSystem
+from ..solvers.hbm import HBMSystem, _dense
+from ..solvers.modes import elastic_mode
+
+log = logging.getLogger(__name__)
+
+
+class _LoopSelection:
+    """Which EPMC points keep their element loops.
+
+    With target amplitudes, the first point at or past each target (in the
+    direction of the continuation); otherwise the indices of
+    ``analysis.masing.points`` (every point when empty).  On resume, targets
+    already passed by the stored points are done.
+    """
+
+    def __init__(self, amplitudes, points, lam0, lam1, stored):
+        self.up = lam1 >= lam0
+        targets = sorted(amplitudes, reverse=not self.up)
+        if stored.size:
+            reached = stored.max() if self.up else stored.min()
+            targets = [t for t in targets if (t > reached if self.up else t < reached)]
+        self.targets = targets
+        self.by_amplitude = bool(amplitudes)
+        self.points = set(points)
+
+    def __call__(self, p: int, amp: float) -> bool:
+        if not self.by_amplitude:
+            return not self.points or p in self.points
+        hit = False
+        while self.targets and (amp >= self.targets[0] if self.up else amp <= self.targets[0]):
+            self.targets.pop(0)
+            hit = True
+        return hit
+
+
+def run_epmc_analysis(scene, model, writer, results=None) -> None:
+    """Runner of ``[analysis.epmc]``: the backbone of one mode, written point by point.
+
+    Parameters
+    ----------
+    scene : jointsim.scene.Scene
+    model : jointsim.model.StructuralModel
+    writer : jointsim.io.hdf5.ResultWriter
+    results : dict, optional
+        Results of the analyses run before (unused).
+
+    Raises
+    ------
+    RuntimeError
+        After writing what was computed, when the branch gave up.
+    """
+    t_start = time.perf_counter()
+    a = scene.analysis.epmc
+    system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods)
+    em = elastic_mode(model, a.mode, a.rigid_cutoff_hz)
+    F = system.force_coefficients(0.0)
+    ep = EPMCSystem(system, em.phi, F)
+    xi0 = float(em.phi @ _dense(model.C) @ em.phi)
+    g = _write_header(writer, a, model, em, xi0)
+    if g.attrs.get("branch_status", "") in ("complete", "gave up"):
+        log.info("epmc already %s; skipped", g.attrs["branch_status"])
+        return
+    y0, t0, h0, solve_first, max_pts = _start(writer, a, system, em, xi0)
+    scale, rscale = _scales(ep, y0, em.omega)
+    on_point = _point_writer(writer, scene, model, system, ep, F, solve_first)
+    br = continue_branch(ep.fun, y0, a.log10_amplitude_end, scale=scale, rscale=rscale,
+                         step=h0, step_min=a.step_min, step_max=a.step_max,
+                         max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
+                         solve_first=solve_first, tangent0=t0, on_point=on_point,
+                         desc=f"epmc mode {a.mode}")
+    conv = br.convergence
+    g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
+    g.attrs["n_points"] = writer.rows("epmc/omega")
+    g.attrs["branch_status"] = "complete" if conv.success else "gave up"
+    for k, v in conv.as_attrs().items():
+        g.attrs[k] = v
+    log.info("epmc mode %d: %s", a.mode, conv.message)
+    if not conv.success:
+        raise RuntimeError(f"epmc: {conv.message}")
+
+
+def _write_header(writer, a, model, em, xi0):
+    """The ``/epmc`` group, its attributes and the datasets written once."""
+    units = model.units
+    w0 = em.omega
+    g = writer.group("epmc", mode=a.mode, linear_frequency_hz=w0 / (2 * np.pi),
+                     linear_damping_ratio=xi0 / (2 * w0), n_samples=a.n_samples,
+                     mode_index=em.index, n_rigid_below=em.n_rigid,
+                     amplitude_definition="modal amplitude of the fundamental harmonic, "
+                     "|phi^T M (X_1c - i X_1s)|, phi the mass-normalised mode of the "
+                     "structure linearised at its static state with the joint stuck")
+    if "epmc/harmonics" not in writer.h5:
+        writer.write("epmc/harmonics", np.array(a.harmonics, dtype=np.int64), "1",
+                     "harmonics kept; coefficient order [0, 1c, 1s, ...]")
+        writer.write("epmc/mode_shape", em.phi, "1/sqrt(kg)" if units == "SI" else "1",
+                     "mass-normalised stuck mode at the static state (phi^T M phi = 1)")
+    if "contacts/area" not in writer.h5 and model.contacts.n_elements:
+        writer.write("contacts/area", model.contacts.area, "m^2" if units == "SI" else "length^2",
+                     "contact area of each element")
+    return g
+
+
+def _start(writer, a, system, em, xi0):
+    """Start of the continuation: the linear mode, or the last stored point on resume.
+
+    Returns
+    -------
+    y0, tangent0, step, solve_first, max_points
+    """
+    if writer.rows("epmc/y"):
+        y0 = writer.h5["epmc/y"][-1]
+        t0 = writer.h5["epmc/tangent"][-1]
+        h0 = float(writer.h5["epmc/step"][-1]) or a.step
+        return y0, t0, h0, False, a.max_points - writer.rows("epmc/y") + 1
+    Q = np.zeros((system.n_c, system.n_r))
+    ic, _ = system.basis.index[1]
+    Q[ic] = system.T @ em.phi
+    y0 = np.concatenate([Q.ravel(), [em.omega, xi0, a.log10_amplitude_start]])
+    return y0, None, a.step, True, a.max_points
+
+
+def _scales(ep, y0, w0):
+    """Variable scales (shape coefficients, omega, xi, log10 a) and the residual scale."""
+    nz = ep.s.n_z
+    zscale = max(float(np.abs(y0[:nz]).max(initial=0.0)), 1e-300) if nz else 1.0
+    scale = np.concatenate([np.full(nz, zscale), [w0, w0, 1.0]])
+    R0, J0, _ = ep.fun(y0)
+    rscale = max(float(np.abs(J0[:nz, :nz]).max(initial=0.0)) * zscale, 1e-300) if nz else 1.0
+    return scale, rscale
+
+
+def _point_writer(writer, scene, model, system, ep, F, solve_first):
+    """``on_point(i, y, info)`` of the continuation: append one point (and its loops)."""
+    a = scene.analysis.epmc
+    units = model.units
+    nz = system.n_z
+    masing = scene.analysis.masing
+    keep = _LoopSelection(a.loop_amplitudes, masing.points, a.log10_amplitude_start,
+                          a.log10_amplitude_end,
+                          writer.h5["epmc/amplitude"][()] if "epmc/amplitude" in writer.h5
+                          else np.zeros(0))
+    d_u = unit("displacement", units)
+    amp_unit = "m kg^0.5" if units == "SI" else "length mass^0.5"
+    law = model.contacts.law
+
+    def on_point(i, y, info):
+        if not solve_first and i == 0:
+            return
+        omega, xi, lam = float(y[nz]), float(y[nz + 1]), float(y[nz + 2])
+        amp = 10.0 ** lam
+        X = system.reconstruct(ep.z0 + amp * y[:nz], omega, F, xi=xi)
+        p = writer.rows("epmc/omega")
+        writer.append("epmc/amplitude", amp, amp_unit, "modal amplitude of the fundamental")
+        writer.append("epmc/omega", omega, unit("angular_frequency", units), "angular frequency")
+        writer.append("epmc/frequency_hz", omega / (2 * np.pi), unit("frequency", units),
+                      "frequency of the nonlinear mode")
+        writer.append("epmc/damping_ratio", xi / (2 * omega), "1", "xi / (2 omega)")
+        writer.append("epmc/xi", xi, unit("angular_frequency", units),
+                      "self-excitation (negative mass-proportional damping)")
+        writer.append("epmc/X", X, d_u, "harmonic coefficients [n_coeff, n_dof]")
+        writer.append("epmc/iterations", np.int64(info.iterations), "1", "Newton iterations")
+        writer.append("epmc/residual", info.residual, "1", "max |R| / residual scale")
+        writer.append("epmc/step", info.step, "1", "scaled arclength step")
+        writer.append("epmc/y", y, "1", "unknowns (shape, omega, xi, log10 a), for --resume")
+        writer.append("epmc/tangent", info.tangent, "1", "unit tangent (scaled)")
+        ev = info.extra
+        if ev is not None and ev.aft is not None and keep(p, amp):
+            u = system.slips(X)
+            report = check_loops(u, ev.aft.f, ev.aft.N, law, masing.tol)
+            write_loops(writer, p, u, ev.aft.f, ev.aft.N, report, units, prefix="epmc")
+            writer.h5["epmc/loops"].attrs["analysis"] = "epmc"
+
+    return on_point

@@ -1,0 +1,402 @@
+"""Runner of ``[analysis.hbm]``: one FRC branch per force scale, written point by point.
+
+File layout (all per solution point unless said otherwise):
+
+* ``/hbm/omega`` [rad/s], ``/hbm/X`` [n_points, n_coeff, n_dof],
+  ``/hbm/q`` (contact coordinates, used by ``--resume``), ``/hbm/branch``
+  (index into ``/hbm/force_scale``), ``/hbm/amplitude`` (fundamental
+  amplitude at the response DOF), ``/hbm/max_abs`` (``max_t |x(t)|`` there),
+  ``/hbm/iterations``, ``/hbm/residual``, ``/hbm/step``,
+  ``/hbm/aft_periods`` (largest number of periods the laws were marched),
+  ``/hbm/tangent``;
+* once: ``/hbm/harmonics``, ``/hbm/force_scale`` [n_branches], and per
+  branch ``/hbm/peak_omega``, ``/hbm/peak_amplitude``, ``/hbm/peak_refined``;
+  group attributes ``branch<b>_status`` / ``branch<b>_message``;
+* ``/hbm/loops/*``, ``/hbm/masing/*`` for every point (or those listed in
+  ``analysis.masing.points``, global point indices; or, with
+  ``analysis.hbm.loops = "peaks"``, each branch's largest-amplitude point).
+
+Branches run in forked worker processes when there are several (the parent
+writes every point as it arrives).  The runner returns the solution points
+(:class:`~jointsim.solvers.crosscheck.HBMSolutions`) for later analyses.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._schema import SceneError
+from ..io.hdf5 import unit, write_loops
+from ..masing import check_loops
+from ..contact import _aft_kernels as AK
+from ..solvers.continuation import continue_branch
+from ..solvers.crosscheck import HBMSolutions
+from ..solvers.hbm import HBMSystem, frc_scales, harmonic_amplitude, refine_peak
+
+log = logging.getLogger(__name__)
+
+
+def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
+    """Runner of ``[analysis.hbm]``: one FRC branch per force scale, written point by point.
+
+    Parameters
+    ----------
+    scene : jointsim.scene.Scene
+    model : jointsim.model.StructuralModel
+    writer : jointsim.io.hdf5.ResultWriter
+    results : dict, optional
+        Results of the analyses run before (unused).
+
+    Returns
+    -------
+    HBMSolutions
+        Every solution point of the file's ``/hbm`` (stored ones on resume
+        included), in file order.
+
+    Raises
+    ------
+    RuntimeError
+        After writing what was computed, when a branch gave up.
+    """
+    t_start = time.perf_counter()
+    a = scene.analysis.hbm
+    system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods)
+    dof = _response_dof(scene, model)
+    g = _write_header(writer, a, model, system, dof)
+    out = _Output(writer, scene, model, system, dof)
+    todo = _branches_to_run(writer, a, g)
+    job_args = dict(system=system, a=a, dof=dof, want_aft=a.loops == "masing.points",
+                    n_branches=len(a.force_scale))
+    n_workers = a.workers or min(len(todo), os.cpu_count() or 1)
+    if n_workers > 1 and len(todo) > 1 and _can_fork():
+        failures = _run_branches_forked(todo, job_args, min(n_workers, len(todo)),
+                                        out.write_point, out.finish_branch)
+    else:
+        failures = []
+        for job in todo:
+            conv = _run_branch(job, on_record=out.write_point, progress=True, **job_args)
+            fail = out.finish_branch(job.ib, job.fs, conv.success, conv.message)
+            if fail:
+                failures.append(fail)
+    g.attrs["workers"] = n_workers if len(todo) > 1 else 1
+    g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
+    g.attrs["n_points"] = writer.rows("hbm/omega")
+    if failures:
+        raise RuntimeError("hbm: " + "; ".join(failures))
+    return out.solutions()
+
+
+def _response_dof(scene, model) -> int:
+    """The response DOF of the FRC (``response_point`` or ``response_dof``)."""
+    a = scene.analysis.hbm
+    if a.response_point:
+        if a.response_point not in model.points:
+            raise SceneError(str(scene.path), "analysis.hbm.response_point",
+                             f"{a.response_point!r} is not a named point of the model "
+                             f"(named: {sorted(model.points)})")
+        return int(model.points[a.response_point])
+    if not 0 <= a.response_dof < model.n_dof:
+        raise SceneError(str(scene.path), "analysis.hbm.response_dof",
+                         f"= {a.response_dof} is out of range (the model has {model.n_dof} "
+                         f"DOFs)")
+    return a.response_dof
+
+
+def _write_header(writer, a, model, system, dof):
+    """The ``/hbm`` group, its attributes and the datasets written once."""
+    units = model.units
+    g = writer.group("hbm", n_samples=a.n_samples, response_dof=dof,
+                     response_label=str(model.dof_labels[dof]) if model.dof_labels else "",
+                     omega_start=a.omega_start, omega_end=a.omega_end,
+                     n_contact_coordinates=system.n_r, condensation=system.lin.kind,
+                     amplitude_definition="fundamental harmonic amplitude "
+                     "sqrt(X_1c^2 + X_1s^2) at the response DOF")
+    if "hbm/harmonics" not in writer.h5:
+        writer.write("hbm/harmonics", np.array(a.harmonics, dtype=np.int64), "1",
+                     "harmonics kept; coefficient order [0, 1c, 1s, 2c, 2s, ...]")
+        writer.write("hbm/force_scale", np.array(a.force_scale, dtype=float), "1",
+                     "multiplier of the excitation of each branch")
+        writer.write("hbm/coefficient_harmonic", system.basis.hk, "1",
+                     "harmonic of each coefficient")
+    if "contacts/area" not in writer.h5 and model.contacts.n_elements:
+        writer.write("contacts/area", model.contacts.area, "m^2" if units == "SI" else "length^2",
+                     "contact area of each element")
+    return g
+
+
+class _Output:
+    """Writes the points and branch summaries of ``/hbm`` and keeps the points in memory.
+
+    On resume the points already stored are loaded first, so that
+    :meth:`solutions` holds every point of the file, in file order.
+    """
+
+    def __init__(self, writer, scene, model, system, dof):
+        a = scene.analysis.hbm
+        self.writer, self.scene, self.model, self.system, self.dof = \
+            writer, scene, model, system, dof
+        self.a = a
+        self.units = model.units
+        self.masing_points = set(scene.analysis.masing.points)
+        n_br = len(a.force_scale)
+        self.peaks = {k: np.full(n_br, np.nan) for k in ("omega", "amplitude")}
+        self.refined = np.zeros(n_br, dtype=bool)
+        h5 = writer.h5
+        for name in ("omega", "amplitude"):
+            if f"hbm/peak_{name}" in h5:
+                self.peaks[name][:] = h5[f"hbm/peak_{name}"][()]
+        if "hbm/peak_refined" in h5:
+            self.refined[:] = h5["hbm/peak_refined"][()]
+        # the points, in memory (stored ones first when resuming)
+        self.points = {k: [] for k in ("omega", "X", "q", "branch", "amplitude")}
+        if "hbm/omega" in h5:
+            for k in self.points:
+                self.points[k] = list(h5[f"hbm/{k}"][()])
+
+    def write_point(self, rec) -> None:
+        """Append one solution point (a record from :func:`_point_record`)."""
+        writer, units = self.writer, self.units
+        d_u, w_u = unit("displacement", units), unit("angular_frequency", units)
+        p = writer.rows("hbm/omega")
+        writer.append("hbm/omega", rec["omega"], w_u, "angular frequency of the point")
+        writer.append("hbm/X", rec["X"], d_u, "harmonic coefficients [n_coeff, n_dof]")
+        writer.append("hbm/q", rec["q"], d_u, "coefficients of the contact coordinates")
+        writer.append("hbm/branch", np.int64(rec["branch"]), "1",
+                      "branch (force level) of the point")
+        writer.append("hbm/amplitude", rec["amplitude"], d_u,
+                      "fundamental amplitude at the response DOF")
+        writer.append("hbm/max_abs", rec["max_abs"], d_u,
+                      "max |x(t)| at the response DOF over the AFT samples")
+        writer.append("hbm/iterations", np.int64(rec["iterations"]), "1",
+                      "Newton iterations of the corrector")
+        writer.append("hbm/residual", rec["residual"], "1",
+                      "max |R| / residual scale at the point")
+        writer.append("hbm/step", rec["step"], "1", "scaled arclength step to the point")
+        writer.append("hbm/tangent", rec["tangent"], "1", "unit tangent (scaled variables)")
+        writer.append("hbm/aft_periods", np.int64(rec["aft_periods"]), "1",
+                      "largest number of periods the laws were marched")
+        for k in self.points:
+            self.points[k].append(rec[k])
+        if rec.get("f") is not None and (not self.masing_points or p in self.masing_points):
+            self._write_loops(p, rec["X"], rec["f"], rec["N"])
+
+    def _write_loops(self, p, X, f, N) -> None:
+        """Element loops of point ``p`` and their Masing check."""
+        u = self.system.slips(X)
+        report = check_loops(u, f, N, self.model.contacts.law, self.scene.analysis.masing.tol)
+        write_loops(self.writer, p, u, f, N, report, self.units, prefix="hbm")
+        self.writer.h5["hbm/loops"].attrs["analysis"] = "hbm"
+
+    def finish_branch(self, ib, fs, success, message) -> str | None:
+        """Status, peak and peak loops of a finished branch; the failure, if any."""
+        a, system, writer, units = self.a, self.system, self.writer, self.units
+        g = writer.h5["hbm"]
+        g.attrs[f"branch{ib}_status"] = "complete" if success else "gave up"
+        g.attrs[f"branch{ib}_message"] = message
+        F = system.force_coefficients(fs)
+        rows = np.flatnonzero(np.asarray(self.points["branch"]) == ib) \
+            if self.points["branch"] else np.zeros(0, dtype=np.int64)
+        if rows.size:
+            om = np.asarray(self.points["omega"])[rows]
+            amp = np.asarray(self.points["amplitude"])[rows]
+            Z = np.asarray(self.points["q"])[rows]
+            if a.refine_peak:
+                pw, pa, ok = refine_peak(system, F, om, Z, amp, self.dof, min(a.tol, 1e-10))
+            else:
+                i = int(np.argmax(amp))
+                pw, pa, ok = float(om[i]), float(amp[i]), False
+            self.peaks["omega"][ib], self.peaks["amplitude"][ib], self.refined[ib] = pw, pa, ok
+            if a.loops == "peaks":
+                # the element loops and Masing checks of the branch's largest point
+                i = int(np.argmax(amp))
+                ev = system.evaluate(Z[i], float(om[i]), F, jacobian=False)
+                X = system.reconstruct(Z[i], float(om[i]), F)
+                self._write_loops(int(rows[i]), X, ev.aft.f, ev.aft.N)
+            d_u, w_u = unit("displacement", units), unit("angular_frequency", units)
+            writer.write("hbm/peak_omega", self.peaks["omega"], w_u, "frequency of the largest "
+                         "amplitude of each branch")
+            writer.write("hbm/peak_amplitude", self.peaks["amplitude"], d_u,
+                         "largest fundamental amplitude of each branch")
+            writer.write("hbm/peak_refined", self.refined, "1", "peak refined by maximising "
+                         "over frequency (false: largest computed point, e.g. at a fold)")
+        log.info("hbm branch %d (force scale %g): %s; peak %.6g at omega = %.6g", ib, fs,
+                 message, self.peaks["amplitude"][ib], self.peaks["omega"][ib])
+        return None if success else f"branch {ib} (force scale {fs:g}): {message}"
+
+    def solutions(self) -> HBMSolutions:
+        """Every point written (and stored before, on resume), in file order."""
+        s = self.system
+        pts = self.points
+        n = len(pts["omega"])
+        return HBMSolutions(
+            omega=np.asarray(pts["omega"], dtype=float),
+            X=np.asarray(pts["X"], dtype=float).reshape(n, s.n_c, s.model.n_dof),
+            harmonics=tuple(int(h) for h in self.a.harmonics), n_samples=int(self.a.n_samples),
+            q=np.asarray(pts["q"], dtype=float).reshape(n, s.n_z),
+            branch=np.asarray(pts["branch"], dtype=np.int64),
+            force_scale=np.array(self.a.force_scale, dtype=float))
+
+
+def _branches_to_run(writer, a, g) -> list:
+    """The branches still to compute, with their resume points."""
+    todo = []
+    for ib, fs in enumerate(a.force_scale):
+        status = g.attrs.get(f"branch{ib}_status", "")
+        if status in ("complete", "gave up"):
+            log.info("hbm branch %d (force scale %g) already %s; skipped", ib, fs, status)
+            continue
+        rows = np.flatnonzero(writer.h5["hbm/branch"][()] == ib) \
+            if "hbm/branch" in writer.h5 else np.zeros(0, dtype=np.int64)
+        start = None
+        if rows.size:
+            last = int(rows[-1])
+            start = (np.append(writer.h5["hbm/q"][last], writer.h5["hbm/omega"][last]),
+                     writer.h5["hbm/tangent"][last],
+                     float(writer.h5["hbm/step"][last]) or a.step, int(rows.size))
+            log.info("hbm branch %d: resuming from point %d (omega = %g)", ib, last,
+                     start[0][-1])
+        todo.append(_BranchJob(ib, fs, start))
+    return todo
+
+
+@dataclass(frozen=True)
+class _BranchJob:
+    """One FRC branch to compute: its index, force scale and resume point."""
+
+    ib: int
+    fs: float
+    start: tuple | None  # (y0, tangent, step, rows already stored) when resuming
+
+
+def _point_record(system, F, y, info, ib, dof, want_aft) -> dict:
+    """Everything written for one solution point (plain arrays, picklable)."""
+    b = system.basis
+    w = float(y[-1])
+    X = system.reconstruct(y[:-1], w, F)
+    aft = info.extra.aft if info.extra is not None else None
+    return dict(omega=w, X=X, q=np.array(y[:-1]), branch=ib,
+                amplitude=float(harmonic_amplitude(b, X[:, dof])),
+                max_abs=float(np.abs(b.samples(X[:, dof])).max()),
+                iterations=int(info.iterations), residual=float(info.residual),
+                step=float(info.step), tangent=np.array(info.tangent),
+                aft_periods=int(aft.periods.max()) if aft is not None else 0,
+                f=np.array(aft.f) if (want_aft and aft is not None) else None,
+                N=np.array(aft.N) if (want_aft and aft is not None) else None)
+
+
+def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progress):
+    """Follow one FRC branch; every accepted point goes to ``on_record(record)``.
+
+    Returns
+    -------
+    Convergence
+    """
+    F = system.force_coefficients(job.fs)
+    scale, rscale = frc_scales(system, F, a.omega_start, a.omega_end)
+    if job.start is not None:
+        y0, t0, h0, n_stored = job.start
+        solve_first, max_pts = False, a.max_points - n_stored + 1
+    else:
+        y0 = np.append(system.static_coordinates(), a.omega_start)
+        t0, h0, solve_first, max_pts = None, a.step, True, a.max_points
+    nz = system.n_z
+
+    def fun(y):
+        J = np.zeros((nz, nz + 1))
+        ev = system.evaluate(y[:-1], y[-1], F, J_out=J[:, :nz])
+        J[:, nz] = ev.dR["omega"]
+        return ev.R, J, ev
+
+    def on_point(i, y, info):
+        if not solve_first and i == 0:
+            return
+        on_record(_point_record(system, F, y, info, job.ib, dof, want_aft))
+
+    br = continue_branch(
+        fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,
+        step_max=a.step_max, max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
+        solve_first=solve_first, tangent0=t0, on_point=on_point, progress=progress,
+        desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})")
+    return br.convergence
+
+
+def _can_fork() -> bool:
+    import multiprocessing as mp
+    return "fork" in mp.get_all_start_methods()
+
+
+def _branch_process(job, job_args, queue) -> None:
+    """Body of a worker process: compute a branch, send its points to the parent.
+
+    The workers are the parallelism: their AFT kernels stay on one thread (no
+    numba thread pool is started in a forked process, and the cores are not
+    oversubscribed).
+    """
+    AK.PARALLEL_MIN = np.iinfo(np.int64).max
+    try:
+        conv = _run_branch(job, on_record=lambda rec: queue.put(("point", job.ib, rec)),
+                           progress=False, **job_args)
+        queue.put(("done", job.ib, (conv.success, conv.message)))
+    except BaseException as exc:  # reported to the parent, which keeps the file valid
+        queue.put(("done", job.ib, (False, f"worker failed: {type(exc).__name__}: {exc}")))
+
+
+def _run_branches_forked(todo, job_args, n_workers, write_point, finish_branch):
+    """Compute branches in forked worker processes; the parent writes every point.
+
+    Points arrive through a queue and are written as they come, so the file
+    grows point by point as in a serial run (rows of different branches
+    interleave; ``/hbm/branch`` tells them apart).  A worker that dies without
+    a word is reported as a failed branch.
+    """
+    import multiprocessing as mp
+    import queue as queue_mod
+
+    from tqdm import tqdm
+    ctx = mp.get_context("fork")
+    q = ctx.Queue()
+    pending = list(todo)
+    running: dict[int, tuple] = {}
+    failures: list[str] = []
+    bar = tqdm(desc=f"hbm ({n_workers} workers)", unit="pt", disable=None, leave=False)
+    log.info("hbm: %d branches on %d worker processes", len(todo), n_workers)
+    try:
+        while pending or running:
+            while pending and len(running) < n_workers:
+                job = pending.pop(0)
+                proc = ctx.Process(target=_branch_process, args=(job, job_args, q),
+                                   daemon=True)
+                proc.start()
+                running[job.ib] = (job, proc)
+            try:
+                kind, ib, payload = q.get(timeout=1.0)
+            except queue_mod.Empty:
+                for ib, (job, proc) in list(running.items()):
+                    if not proc.is_alive() and q.empty():
+                        del running[ib]
+                        failures.append(finish_branch(
+                            ib, job.fs, False, f"worker process ended (exit code "
+                                               f"{proc.exitcode}) without finishing"))
+                continue
+            if kind == "point":
+                write_point(payload)
+                bar.update(1)
+            else:
+                job, proc = running.pop(ib)
+                proc.join()
+                fail = finish_branch(ib, job.fs, *payload)
+                if fail:
+                    failures.append(fail)
+    finally:
+        bar.close()
+        for job, proc in running.values():
+            proc.terminate()
+        for job, proc in running.values():
+            # a forked worker shares the result file's descriptor (and its lock)
+            # until it is gone
+            proc.join(timeout=10)
+    return [f for f in failures if f]

@@ -1,0 +1,241 @@
+"""Runner of ``[analysis.transient]``: time marching, written to ``/transient``.
+
+A forced steady state (``omega > 0``, :func:`jointsim.solvers.transient.march_steady`)
+writes its last period, harmonics, loops and their Masing check, and, when the
+scene also ran harmonic balance, the cross-check against it
+(:mod:`jointsim.analyses.crosscheck`, with the HBM result in memory); a free
+decay (:func:`jointsim.solvers.transient.free_decay`) writes the
+amplitude-dependent frequency and damping.  The time history of chosen DOFs is
+written as the march goes (:class:`_History`).
+"""
+from __future__ import annotations
+
+import collections
+import logging
+
+import numpy as np
+
+from ..io.hdf5 import unit, write_loops
+from ..masing import check_loops
+from ..results import INTERRUPTED, Convergence
+from ..solvers.transient import PeriodData, free_decay, march_steady
+from .crosscheck import write_cross_check
+
+log = logging.getLogger(__name__)
+
+
+def output_dofs(scene, model, settings):
+    """DOFs whose time history is stored, with their labels.
+
+    ``output_dofs`` plus the DOFs of ``output_points``; by default the loaded
+    DOFs and the model's named points, or every DOF of a model with at most
+    16 DOFs when there is neither.
+
+    Returns
+    -------
+    dofs : ndarray of int, shape (n_out,)
+    labels : list of str
+    """
+    dofs = [int(d) for d in settings.output_dofs]
+    for i, name in enumerate(settings.output_points):
+        if name not in model.points:
+            known = ", ".join(sorted(model.points)) or "none"
+            raise ValueError(f"{scene.path if scene is not None else '<scene>'}: "
+                             f"analysis.transient.output_points[{i}] = {name!r} is not a "
+                             f"point of the model (known: {known})")
+        dofs.append(int(model.points[name]))
+    for i, d in enumerate(dofs):
+        if not 0 <= d < model.n_dof:
+            raise ValueError(f"analysis.transient.output_dofs[{i}] = {d} is not a DOF of the "
+                             f"model ({model.n_dof} DOFs)")
+    if not dofs:
+        dofs = [int(d) for d in model.load_dofs] + [int(d) for d in model.points.values()]
+    if not dofs and model.n_dof <= 16:
+        dofs = list(range(model.n_dof))
+    dofs = list(dict.fromkeys(dofs))  # unique, in order
+    labels = [model.dof_labels[d] if d < len(model.dof_labels) else f"x{d}" for d in dofs]
+    return np.asarray(dofs, dtype=np.int64), labels
+
+
+class _History:
+    """Decimated time history of chosen DOFs, written period by period.
+
+    With ``keep_periods > 0`` only the last periods are kept, in memory, and
+    written by :meth:`close`.
+    """
+
+    def __init__(self, writer, dofs, decimate: int, keep_periods: int, units: str):
+        self.writer, self.dofs, self.decimate = writer, dofs, decimate
+        self.keep = keep_periods
+        self.blocks = collections.deque(maxlen=keep_periods if keep_periods else None)
+        self.units = {"t": unit("time", units), "x": unit("displacement", units)}
+        self.step = 0
+
+    def add(self, t, x, extra=None):
+        """Rows of ``n`` new steps: ``t`` (n,), ``x`` (n, n_dof), ``extra`` (n,) or None."""
+        idx = (self.step + np.arange(t.size)) % self.decimate == 0
+        self.step += t.size
+        block = (t[idx], x[idx][:, self.dofs], None if extra is None else extra[idx])
+        if self.keep:
+            self.blocks.append(block)
+        else:
+            self._write(block)
+
+    def _write(self, block):
+        t, x, extra = block
+        if t.size == 0:
+            return
+        w = self.writer
+        w.append_rows("transient/x", np.asarray(x, dtype=float), self.units["x"],
+                      "time history of the output DOFs (transient/dofs)")
+        if extra is not None:
+            w.append_rows("transient/q", np.asarray(extra, dtype=float),
+                          "m kg^0.5" if self.units["t"] == "s" else "length mass^0.5",
+                          "modal coordinate phi^T M (x - x_static)")
+        w.append_rows("transient/t", np.asarray(t, dtype=float), self.units["t"],
+                      "time of each history sample")
+
+    def close(self):
+        for block in self.blocks:
+            self._write(block)
+        self.blocks.clear()
+
+
+def run_transient(scene, model, writer, results=None) -> None:
+    """The ``transient`` analysis of a scene: march, extract, write ``/transient``.
+
+    Parameters
+    ----------
+    scene : jointsim.scene.Scene
+    model : jointsim.model.StructuralModel
+    writer : jointsim.io.hdf5.ResultWriter
+    results : dict, optional
+        Results of the analyses run before; with ``"hbm"`` (an
+        :class:`~jointsim.solvers.crosscheck.HBMSolutions`) a steady march is
+        cross-checked against harmonic balance at its frequency.
+
+    Raises
+    ------
+    RuntimeError
+        After writing what was computed, when the march did not succeed.
+    KeyboardInterrupt
+        After writing what was computed, when interrupted.
+    """
+    tr = scene.analysis.transient
+    units = model.units
+    dofs, labels = output_dofs(scene, model, tr)
+    g = writer.group("transient", kind="steady" if tr.omega > 0 else "free_decay",
+                     rho_inf=tr.rho_inf, steps_per_period=tr.steps_per_period,
+                     integrator="generalized-alpha (Chung-Hulbert), force-averaged",
+                     kernels=f"{model.contacts.law.name}/{model.contacts.normal.name}")
+    writer.write("transient/dofs", dofs, "1", "DOF index of each column of transient/x")
+    g.attrs["dof_labels"] = ",".join(labels)
+    if model.contacts.n_elements and "contacts/area" not in writer.h5:
+        writer.write("contacts/area", model.contacts.area, "m^2" if units == "SI"
+                     else "length^2", "contact area of each element")
+    history = _History(writer, dofs, tr.decimate, tr.history_periods, units)
+    if tr.omega > 0.0:
+        conv = _run_steady(scene, model, writer, tr, history,
+                           (results or {}).get("hbm"))
+    else:
+        conv = _run_free_decay(scene, model, writer, tr, history)
+    history.close()
+    for k, v in conv.as_attrs().items():
+        writer.h5["transient"].attrs[k] = v
+    log.info("transient: %s", conv.message)
+    if conv.status == INTERRUPTED:
+        raise KeyboardInterrupt
+    if not conv.success:
+        raise RuntimeError(f"transient: {conv.message}")
+
+
+def _run_steady(scene, model, writer, tr, history, hbm=None) -> Convergence:
+    """March to a steady state and write it; cross-check it against ``hbm`` if given."""
+    units = model.units
+    g = writer.h5["transient"]
+    g.attrs["omega"] = tr.omega
+    g.attrs["force_scale"] = tr.force_scale
+    g.attrs["steady_tol"] = tr.steady_tol
+    one = unit("dimensionless", units)
+
+    def on_period(p: PeriodData, change: float):
+        if p.index == 0:
+            history.add(p.t, p.x)
+        else:
+            history.add(p.t[1:], p.x[1:])
+        writer.append("transient/period_change", np.float64(change), one,
+                      "largest displacement change between consecutive periods / amplitude")
+
+    res = march_steady(model, tr, scene=scene, on_period=on_period)
+    for k, v in res.stats.items():
+        g.attrs[k] = v
+    g.attrs["wall_time_s"] = res.wall_time
+    g.attrs["error_estimate"] = res.error_estimate
+    d = unit("displacement", units)
+    writer.write("transient/static_x", res.static_x, d, "static equilibrium the march "
+                 "started from")
+    if res.last is None:
+        return res.convergence
+    writer.write("transient/harmonics", res.X, d,
+                 "harmonic coefficients of the last period, rows [0, 1c, 1s, 2c, 2s, ...] "
+                 "(the order of /hbm/X)", harmonics=np.asarray(res.harmonics),
+                 omega=res.omega)
+    writer.write("transient/harmonic_numbers", np.asarray(res.harmonics, dtype=np.int64), "1",
+                 "harmonics of the rows of transient/harmonics")
+    n = tr.steps_per_period
+    writer.write("transient/period_t", res.last.t[:n], unit("time", units),
+                 "times of the last (steady) period")
+    writer.write("transient/period_x", res.last.x[:n][:, history.dofs], d,
+                 "output DOFs over the last (steady) period")
+    if res.energy is not None:
+        for k, v in res.energy.as_attrs().items():
+            g.attrs[k] = v
+    if model.contacts.n_elements:
+        last = res.last
+        u, f, N = last.u[:, :n], last.f[:, :n], last.N[:, :n]
+        report = check_loops(u, f, N, model.contacts.law, scene.analysis.masing.tol)
+        write_loops(writer, 0, u, f, N, report, units, prefix="transient")
+        loops = writer.h5["transient/loops"]
+        loops.attrs["omega"] = res.omega
+        loops.attrs["source"] = "transient"
+        g.attrs["loops_group"] = "/transient/loops"
+        log.info("transient: dev_manifold max %.3e, dev_masing max %.3e",
+                 report.dev_manifold.max(), report.dev_masing.max())
+    if hbm is not None:
+        write_cross_check(writer, scene, model, res, hbm, tol=tr.crosscheck_tol)
+    return res.convergence
+
+
+def _run_free_decay(scene, model, writer, tr, history) -> Convergence:
+    """Ring down from a modal deflection and write the estimates."""
+    units = model.units
+    g = writer.h5["transient"]
+    amp_unit = "m kg^0.5" if units == "SI" else "length mass^0.5"
+    fu = unit("frequency", units)
+    one = unit("dimensionless", units)
+
+    def on_block(t, x, q):
+        history.add(t, x, q)
+
+    def on_estimate(tc, a, f, z):
+        writer.append("transient/time", np.float64(tc), unit("time", units),
+                      "centre time of each estimate")
+        writer.append("transient/amplitude", np.float64(a), amp_unit,
+                      "modal amplitude: half peak-to-peak swing of q = phi^T M (x - x_s)")
+        writer.append("transient/frequency_hz", np.float64(f), fu,
+                      "damped frequency from the time between extrema")
+        writer.append("transient/damping_ratio", np.float64(z), one,
+                      "from the logarithmic decrement over one cycle")
+
+    res = free_decay(model, tr, scene=scene, on_block=on_block, on_estimate=on_estimate)
+    g.attrs.update({"mode": res.mode, "omega_linear": res.omega_linear,
+                    "frequency_linear_hz": res.omega_linear / (2.0 * np.pi),
+                    "q0": res.q0, "method": "peaks (half swings between extrema)",
+                    "wall_time_s": res.wall_time})
+    for k, v in res.stats.items():
+        g.attrs[k] = v
+    d = unit("displacement", units)
+    writer.write("transient/phi", res.phi, "kg^-0.5" if units == "SI" else "mass^-0.5",
+                 "mass-normalised linear mode of the stuck joint")
+    writer.write("transient/static_x", res.static_x, d, "static equilibrium")
+    return res.convergence
