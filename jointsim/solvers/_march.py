@@ -77,6 +77,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..contact import _kernels as CK
+from ..loads import LoadFunction
 from ._transient_kernels import single_threaded
 
 log = logging.getLogger(__name__)
@@ -776,99 +777,3 @@ class GeneralizedAlpha:
                          NN[:, done].copy())
         return MarchState(float(times[done]), X[done].copy(), V[done].copy(),
                           A[done].copy(), ev), done
-
-
-# --------------------------------------------------------------------------
-# External force
-# --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class LoadFunction:
-    """External force ``f(t) = f_static + sum_loads`` as a callable.
-
-    Harmonic load signals are kept as coefficients and evaluated as
-    ``F0 + sum_h (Fc_h cos h w t + Fs_h sin h w t)``; file and clipped signals
-    are sampled (and may not be scaled).
-
-    Parameters
-    ----------
-    model : jointsim.model.StructuralModel
-    omega : float
-        Base angular frequency [rad/s]; 0 keeps only the static parts.
-    scale : float
-        Multiplier of the harmonic parts of the loads.
-    base_dir : Path, optional
-        Folder of file signals.
-    """
-
-    model: object
-    omega: float
-    scale: float = 1.0
-    base_dir: object = None
-    _coef: np.ndarray = field(init=False, repr=False)
-    _h: np.ndarray = field(init=False, repr=False)
-    _sampled: tuple = field(init=False, repr=False)
-
-    def __post_init__(self):
-        from ..signals import coefficient_harmonics
-        m = self.model
-        harmonic, sampled = [], []
-        for dof, sig in zip(m.load_dofs, m.load_signals):
-            (sampled if (sig.file is not None or sig.clip_at_zero) else harmonic).append(
-                (int(dof), sig))
-        hmax = max((s.max_harmonic for _d, s in harmonic), default=0)
-        hs = tuple(range(hmax + 1))
-        ch = coefficient_harmonics(hs)
-        coef = np.zeros((ch.size, m.n_dof))
-        coef[0] = m.f_static
-        for dof, sig in harmonic:
-            coef[0, dof] += sig.constant
-            for hh in sig.harmonics:
-                i = 2 * hh.h - 1
-                coef[i, dof] += self.scale * hh.cos
-                coef[i + 1, dof] += self.scale * hh.sin
-        if self.omega == 0.0:
-            coef = coef[:1]
-            ch = ch[:1]
-        if sampled and self.scale != 1.0 and self.omega > 0.0:
-            raise NotImplementedError("force_scale != 1 with a file or clipped load signal: "
-                                      "scale the signal itself in the scene")
-        if sampled and self.omega == 0.0:
-            raise NotImplementedError("free decay with a file or clipped load signal: only "
-                                      "constant loads can be held during a free decay")
-        object.__setattr__(self, "_coef", coef)
-        object.__setattr__(self, "_h", ch)
-        object.__setattr__(self, "_sampled", tuple(sampled))
-
-    @property
-    def harmonic_rows(self) -> np.ndarray:
-        """Harmonic number of each row of :attr:`coefficients`, shape (n_coeff,)."""
-        return self._h
-
-    @property
-    def coefficients(self) -> np.ndarray:
-        """Force coefficients ``[0, 1c, 1s, ...]`` [N], shape (n_coeff, n_dof)."""
-        return self._coef
-
-    @property
-    def sampled(self) -> bool:
-        """True when some load is a file or clipped signal (sampled, not harmonic)."""
-        return bool(self._sampled)
-
-    def static(self) -> np.ndarray:
-        """The constant part ``f_static + load constants`` [N], shape (n_dof,)."""
-        return self._coef[0].copy()
-
-    def __call__(self, t: float) -> np.ndarray:
-        wt = self.omega * t
-        basis = np.empty(self._h.size)
-        basis[0] = 1.0
-        if self._h.size > 1:
-            hw = self._h[1::2] * wt
-            basis[1::2] = np.cos(hw)
-            basis[2::2] = np.sin(hw)
-        out = basis @ self._coef
-        if self._sampled:
-            from ..signals import sample
-            for dof, sig in self._sampled:
-                out[dof] += float(sample(sig, np.array([t]), self.omega, self.base_dir)[0])
-        return out

@@ -59,94 +59,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 
-from ..signals import coefficient_harmonics
+from ..harmonics import HarmonicBasis, harmonic_amplitude
 from . import _aft_kernels as AK
 
 log = logging.getLogger(__name__)
 
 #: Above this many structural DOFs the dense condensation is refused.
 MAX_DENSE_DOF = 6000
-
-
-# --------------------------------------------------------------------------
-# Harmonic bases
-# --------------------------------------------------------------------------
-class HarmonicBasis:
-    """Sampling and DFT matrices of a harmonic set.
-
-    Parameters
-    ----------
-    harmonics : sequence of int
-        Harmonics kept, each at most once.
-    n_samples : int
-        AFT samples per period, ``>= 2 max(h) + 1``.
-
-    Attributes
-    ----------
-    hk : ndarray of int, shape (n_c,)
-        Harmonic of each coefficient (order ``[0, 1c, 1s, ...]``).
-    sk : ndarray of int, shape (n_c,)
-        1 for sine coefficients.
-    Gam : ndarray, shape (n_t, n_c)
-        Samples from coefficients, ``x(t_j) = Gam[j] @ X``.
-    P : ndarray, shape (n_c, n_t)
-        Coefficients from samples (exact for the kept harmonics).
-    CP : ndarray, shape (n_c, n_t + 1)
-        Prefix sums of the columns of ``P``.
-    cosm, sinm : ndarray, shape (n_t, 2 max(h) + 1)
-        ``cos(m theta_j)``, ``sin(m theta_j)``.
-    """
-
-    def __init__(self, harmonics, n_samples: int):
-        harmonics = tuple(int(h) for h in harmonics)
-        if len(set(harmonics)) != len(harmonics) or min(harmonics) < 0:
-            raise ValueError(f"harmonics must be distinct and >= 0, got {harmonics}")
-        hmax = max(harmonics)
-        if n_samples < 2 * hmax + 1:
-            raise ValueError(f"n_samples must be >= 2*max(h)+1 = {2 * hmax + 1}")
-        self.harmonics = harmonics
-        self.n_samples = int(n_samples)
-        self.hk = coefficient_harmonics(harmonics)
-        sk = []
-        for h in harmonics:
-            sk.extend([0] if h == 0 else [0, 1])
-        self.sk = np.array(sk, dtype=np.int64)
-        self.n_coeff = self.hk.size
-        theta = 2.0 * np.pi * np.arange(n_samples) / n_samples
-        self.theta = theta
-        arg = np.outer(theta, self.hk)
-        self.Gam = np.where(self.sk[None, :] == 1, np.sin(arg), np.cos(arg))
-        self.wk = np.where(self.hk == 0, 1.0 / n_samples, 2.0 / n_samples)
-        self.P = np.ascontiguousarray((self.Gam * self.wk[None, :]).T)
-        self.CP = np.zeros((self.n_coeff, n_samples + 1))
-        np.cumsum(self.P, axis=1, out=self.CP[:, 1:])
-        m = np.arange(2 * hmax + 1)
-        self.cosm = np.cos(np.outer(theta, m))
-        self.sinm = np.sin(np.outer(theta, m))
-        # coefficient index of (harmonic, cos) and (harmonic, sin)
-        self.index = {}
-        i = 0
-        for h in harmonics:
-            if h == 0:
-                self.index[h] = (i, -1)
-                i += 1
-            else:
-                self.index[h] = (i, i + 1)
-                i += 2
-
-    def samples(self, X):
-        """Samples over one period of coefficient arrays ``X`` (n_c, ...) -> (n_t, ...)."""
-        return np.tensordot(self.Gam, X, axes=(1, 0))
-
-    def diag_product(self, alpha):
-        """``P diag(alpha_e) Gam`` for every row of ``alpha`` (n_e, n_t) -> (n_e, n_c, n_c)."""
-        J = np.zeros((alpha.shape[0], self.n_coeff, self.n_coeff))
-        self.add_diag_product(J, alpha)
-        return J
-
-    def add_diag_product(self, J, alpha):
-        alpha = np.ascontiguousarray(alpha)
-        AK.add_diag_products(J, alpha @ self.cosm, alpha @ self.sinm, self.hk, self.sk, self.wk)
 
 
 # --------------------------------------------------------------------------
@@ -820,26 +739,6 @@ def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
                        f"(residual {rn / rscale:.1e} of the force scale)", it)
     return PointSolution(z=z, X=system.reconstruct(z, omega, F), omega=float(omega),
                          residual=rn, evaluation=ev, convergence=conv)
-
-
-def harmonic_amplitude(basis: HarmonicBasis, X, h: int = 1):
-    """Amplitude ``sqrt(X_hc^2 + X_hs^2)`` of harmonic ``h`` (``|X_0|`` for h = 0).
-
-    Parameters
-    ----------
-    basis : HarmonicBasis
-    X : ndarray, shape (n_c, ...)
-    h : int
-
-    Returns
-    -------
-    ndarray, shape X.shape[1:]
-    """
-    ic, is_ = basis.index[h]
-    X = np.asarray(X)
-    if h == 0:
-        return np.abs(X[ic])
-    return np.hypot(X[ic], X[is_])
 
 
 # --------------------------------------------------------------------------

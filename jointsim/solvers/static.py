@@ -40,6 +40,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..loads import static_load
 from ..results import NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS, Convergence
 
 log = logging.getLogger(__name__)
@@ -411,21 +412,6 @@ class StuckLinearisation:
     closed: np.ndarray
     source: str
     convergence: Convergence = field(repr=False)
-
-
-def static_load(model) -> np.ndarray:
-    """Constant load on a model: ``f_static`` plus the constant parts of its loads.
-
-    Returns
-    -------
-    ndarray, shape (n_dof,) [N]
-    """
-    from ..signals import harmonic_coefficients
-    f = np.array(model.f_static, dtype=float)
-    for dof, sig in zip(model.load_dofs, model.load_signals):
-        hs = (0,) + tuple(sorted({x.h for x in sig.harmonics}))
-        f[dof] += harmonic_coefficients(sig, hs)[0]
-    return f
 
 
 def stuck_linearisation(model, *, tol: float = 1e-10) -> StuckLinearisation:
