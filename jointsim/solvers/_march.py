@@ -79,6 +79,7 @@ import scipy.sparse.linalg as spla
 from ..contact import _kernels as CK
 from ..loads import LoadFunction
 from ._transient_kernels import single_threaded
+from .newton import NewtonOptions, newton
 
 log = logging.getLogger(__name__)
 
@@ -369,36 +370,32 @@ def condensed_newton(cmap: ContactMap, G, coef, y_p, y0, state, tol, max_iter, s
     ------
     NewtonFailure
     """
-    y = np.array(y0, dtype=float)
-    n = y.size
-    ref_p = np.abs(y_p).max() if n else 0.0
+    ref_p = np.abs(y_p).max() if np.size(y_p) else 0.0
     use_c = prev is not None and cmap.unilateral
-    c = np.zeros(n)
-    for it in range(max_iter + 1):
+
+    def fun(y):
         ev = cmap.evaluate(y, state)
         if use_c:
             c, dc = cmap.correction(prev[0], prev[1], y, ev)
-            r = y - y_p + G @ (coef * ev.phi + c)
-        else:
-            r = y - y_p + coef * (G @ ev.phi)
-        err = np.abs(r).max() if n else 0.0
-        if not np.isfinite(err):
-            raise NewtonFailure(f"non-finite residual after {it} iterations")
-        ref = max(np.abs(y).max() if n else 0.0, ref_p, scale)
-        if err <= tol * ref or err == 0.0:
-            return y, ev, it, c
-        if it == max_iter:
-            break
-        J = np.eye(n) + coef * cmap.times_D(G, ev)
-        if use_c:
+            return y - y_p + G @ (coef * ev.phi + c), (ev, c, dc)
+        return y - y_p + coef * (G @ ev.phi), (ev, np.zeros(y.size), None)
+
+    def jacobian(y, r, extra):
+        ev, _c, dc = extra
+        J = np.eye(y.size) + coef * cmap.times_D(G, ev)
+        if dc is not None:
             J += G * dc
-        try:
-            dy = np.linalg.solve(J, -r)
-        except np.linalg.LinAlgError:
-            raise NewtonFailure(f"singular step tangent after {it} iterations") from None
-        y = y + dy
-    raise NewtonFailure(f"no convergence in {max_iter} iterations (residual {err:.2e}, "
-                        f"scale {ref:.2e})")
+        return J
+
+    def threshold(y, _extra):
+        return tol * max(np.abs(y).max() if y.size else 0.0, ref_p, scale)
+
+    res = newton(fun, y0, NewtonOptions(tol, max_iter, check_start=True, line_search="none"),
+                 jacobian=jacobian, solve=np.linalg.solve, threshold=threshold)
+    if not res.success:
+        raise NewtonFailure(res.message)
+    ev, c, _dc = res.extra
+    return res.x, ev, res.iterations, c
 
 
 # --------------------------------------------------------------------------

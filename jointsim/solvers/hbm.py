@@ -61,6 +61,7 @@ import scipy.linalg as sla
 
 from ..harmonics import HarmonicBasis, harmonic_amplitude
 from . import _aft_kernels as AK
+from .newton import NewtonOptions, newton
 
 log = logging.getLogger(__name__)
 
@@ -659,51 +660,6 @@ class PointSolution:
     convergence: object
 
 
-def newton(fun, z0, tol: float, max_iter: int, rscale: float = 1.0):
-    """Newton's method with backtracking on the residual norm.
-
-    Parameters
-    ----------
-    fun : callable
-        ``fun(z) -> (R, J, extra)``.
-    z0 : ndarray
-    tol : float
-        Convergence when ``max|R| / rscale <= tol`` after at least one step.
-    max_iter : int
-    rscale : float
-        Residual scale.
-
-    Returns
-    -------
-    z, R, extra, iterations, converged : ...
-    """
-    from ..results import NON_FINITE, NOT_CONVERGED, SUCCESS, Convergence  # noqa: F401
-    z = np.array(z0, dtype=float)
-    R, J, extra = fun(z)
-    rn = np.abs(R).max(initial=0.0) / rscale
-    for it in range(1, max_iter + 1):
-        if z.size == 0:
-            return z, R, extra, it, True
-        try:
-            dz = np.linalg.solve(J, -R)
-        except np.linalg.LinAlgError:
-            dz = np.linalg.lstsq(J, -R, rcond=None)[0]
-        lam = 1.0
-        for _ in range(6):
-            zn = z + lam * dz
-            Rn, Jn, en = fun(zn)
-            rnn = np.abs(Rn).max(initial=0.0) / rscale
-            if np.isfinite(rnn) and (rnn <= rn or rnn <= tol):
-                break
-            lam *= 0.5
-        z, R, J, extra, rn = zn, Rn, Jn, en, rnn
-        if not np.isfinite(rn):
-            return z, R, extra, it, False
-        if rn <= tol:
-            return z, R, extra, it, True
-    return z, R, extra, max_iter, False
-
-
 def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
                 max_iter: int = 30, rscale: float | None = None) -> PointSolution:
     """Solve the harmonic balance at a fixed frequency by Newton's method.
@@ -732,7 +688,9 @@ def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
         ev = system.evaluate(z, omega, F, wrt=())
         return ev.R, ev.J, ev
 
-    z, R, ev, it, ok = newton(fun, z0, tol, max_iter, rscale)
+    res = newton(fun, z0, NewtonOptions(tol, max_iter, line_search="decrease", max_tries=6),
+                 measure=lambda R, _ev: np.abs(R).max(initial=0.0) / rscale)
+    z, R, ev, it, ok = res.x, res.R, res.extra, res.iterations, res.success
     rn = float(np.abs(R).max(initial=0.0))
     conv = Convergence(ok, SUCCESS if ok else NOT_CONVERGED,
                        f"Newton {'converged' if ok else 'did not converge'} in {it} iterations "
