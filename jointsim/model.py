@@ -131,21 +131,8 @@ class StructuralModel:
         return self.M.shape[0]
 
     def force_coefficients(self, harmonics, scale: float = 1.0) -> np.ndarray:
-        """External force in harmonic coefficients (:func:`jointsim.loads.force_coefficients`).
-
-        Parameters
-        ----------
-        harmonics : sequence of int
-            Harmonics kept; coefficient order ``[0, 1c, 1s, 2c, 2s, ...]``.
-        scale : float
-            Multiplier of the harmonic (not the static) loads.
-
-        Returns
-        -------
-        ndarray, shape (n_coeff, n_dof)
-            Coefficients [N].  Static parts (the loads' constants and
-            ``f_static``) sit in the harmonic-0 row, unscaled, when 0 is kept.
-        """
+        """External force coefficients, shape (n_coeff, n_dof) [N]: see
+        :func:`jointsim.loads.force_coefficients`."""
         from .loads import force_coefficients
         return force_coefficients(self, harmonics, scale)
 

@@ -69,7 +69,7 @@ and retried, recursively, up to ``max_cuts`` times.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
