@@ -34,7 +34,8 @@ import numpy as np
 from jointsim.contact import tangential_law
 from jointsim.model import build_model
 from jointsim.scene import Joint, TransientAnalysis, load_scene
-from jointsim.solvers.hbm import HarmonicBasis, HBMSystem, solve_point
+from jointsim.harmonics import HarmonicBasis
+from jointsim.solvers.hbm import HBMSystem, solve_point
 from jointsim.solvers.prescribed import march_prescribed
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -23,7 +23,8 @@ from aft_numpy import anchor_aft_numpy  # noqa: E402
 
 from jointsim.contact import AnchoredBank, UnilateralPenalty  # noqa: E402
 from jointsim.model import ContactSet  # noqa: E402
-from jointsim.solvers.hbm import AFT, HarmonicBasis  # noqa: E402
+from jointsim.harmonics import HarmonicBasis  # noqa: E402
+from jointsim.solvers.hbm import AFT  # noqa: E402
 
 
 def contact_set(ne):

@@ -47,7 +47,8 @@ from jointsim.model import build_model
 from jointsim.scene import load_scene
 from jointsim.solvers.crosscheck import first_harmonic_amplitude
 from jointsim.solvers.hbm import HBMSystem, solve_point
-from jointsim.solvers.transient import dft_matrix, march_steady
+from jointsim.harmonics import dft_matrix
+from jointsim.solvers.transient import march_steady
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -122,29 +122,10 @@ class StructuralModel:
         return self.M.shape[0]
 
     def force_coefficients(self, harmonics, scale: float = 1.0) -> np.ndarray:
-        """External force in harmonic coefficients.
-
-        Parameters
-        ----------
-        harmonics : sequence of int
-            Harmonics kept; coefficient order ``[0, 1c, 1s, 2c, 2s, ...]``.
-        scale : float
-            Multiplier of the harmonic (not the static) loads.
-
-        Returns
-        -------
-        ndarray, shape (n_coeff, n_dof)
-            Coefficients [N].  Static parts (the loads' constants and
-            ``f_static``) sit in the harmonic-0 row, unscaled, when 0 is kept.
-        """
-        from .signals import coefficient_harmonics, harmonic_coefficients
-        static = coefficient_harmonics(harmonics) == 0
-        F = np.zeros((static.size, self.n_dof))
-        for dof, sig in zip(self.load_dofs, self.load_signals):
-            c = harmonic_coefficients(sig, harmonics)
-            F[:, dof] += np.where(static, c, scale * c)
-        F[static] += self.f_static
-        return F
+        """External force coefficients, shape (n_coeff, n_dof) [N]: see
+        :func:`jointsim.loads.force_coefficients`."""
+        from .loads import force_coefficients
+        return force_coefficients(self, harmonics, scale)
 
 
 def damping_matrix(M, K, damping, C0=None):

@@ -1,4 +1,8 @@
-"""Sampling of scene :class:`~jointsim.scene.Signal` inputs."""
+"""Sampling of scene :class:`~jointsim.scene.Signal` inputs.
+
+Their harmonic coefficients are in :mod:`jointsim.harmonics`
+(:func:`~jointsim.harmonics.harmonic_coefficients`).
+"""
 from __future__ import annotations
 
 from pathlib import Path
@@ -53,52 +57,3 @@ def sample(signal, t, omega: float, base_dir: Path | None = None) -> np.ndarray:
     if signal.clip_at_zero:
         out = np.maximum(out, 0.0)
     return out
-
-
-def harmonic_coefficients(signal, harmonics) -> np.ndarray:
-    """Coefficients of a signal in the order ``[0, 1c, 1s, ...]`` of ``harmonics``.
-
-    Only for signals given by harmonics (not files, not clipped).
-
-    Parameters
-    ----------
-    signal : jointsim.scene.Signal
-    harmonics : sequence of int
-        Harmonics kept, e.g. ``(0, 1, 3)``.
-
-    Returns
-    -------
-    ndarray, shape (n_coeff,)
-        One entry for harmonic 0, two (cos, sin) for every other.
-    """
-    if signal.file is not None or signal.clip_at_zero:
-        raise NotImplementedError("harmonic coefficients of a file or clipped signal: "
-                                  "sample it and take its DFT instead")
-    coeff = []
-    for h in harmonics:
-        if h == 0:
-            coeff.append(signal.constant)
-        else:
-            c = sum(x.cos for x in signal.harmonics if x.h == h)
-            s = sum(x.sin for x in signal.harmonics if x.h == h)
-            coeff.extend([c, s])
-    missing = {x.h for x in signal.harmonics} - set(harmonics)
-    if missing:
-        raise ValueError(f"signal has harmonics {sorted(missing)} outside the kept set")
-    return np.asarray(coeff, dtype=float)
-
-
-def coefficient_harmonics(harmonics) -> np.ndarray:
-    """Harmonic number of each coefficient in the order ``[0, 1c, 1s, ...]``.
-
-    Parameters
-    ----------
-    harmonics : sequence of int
-        Harmonics kept, e.g. ``(0, 1, 3)``.
-
-    Returns
-    -------
-    ndarray of int, shape (n_coeff,)
-        ``(0, 1, 1, 3, 3)`` for the example.
-    """
-    return np.array([h for h in harmonics for _ in range(1 if h == 0 else 2)], dtype=np.int64)

@@ -19,7 +19,7 @@ def anchor_aft_numpy(U, G, gap0, kn, k, g, N0, basis, coupled, unilateral=True,
         Slip and gap-change coefficients.
     gap0, kn, N0 : ndarray, shape (n_e,)
     k, g : ndarray, shape (n_e, n_s)
-    basis : jointsim.solvers.hbm.HarmonicBasis
+    basis : jointsim.harmonics.HarmonicBasis
     coupled : bool
 
     Returns

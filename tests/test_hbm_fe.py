@@ -13,7 +13,8 @@ from jointsim.run import run_scene
 from jointsim.scene import SceneError, apply_overrides, load_scene, parse_scene
 from jointsim.solvers.continuation import continue_branch
 from jointsim.solvers.epmc import EPMCSystem
-from jointsim.solvers.hbm import HBMSystem, harmonic_amplitude, solve_point
+from jointsim.harmonics import harmonic_amplitude
+from jointsim.solvers.hbm import HBMSystem, solve_point
 from jointsim.solvers.modes import elastic_mode, eigenmodes, rigid_body_modes, stuck_modes
 from jointsim.solvers.static import residual, stuck_linearisation, tangent_stiffness
 

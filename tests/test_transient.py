@@ -12,9 +12,11 @@ from jointsim.model import build_model
 from jointsim.results import STEP_TOO_SMALL
 from jointsim.scene import SceneError
 from jointsim.solvers import _march
-from jointsim.solvers._march import GeneralizedAlpha, LoadFunction
-from jointsim.solvers.transient import (ExtremumTracker, decay_estimates, dft_matrix,
-                                        free_decay, march_steady, rigid_modes, static_start)
+from jointsim.harmonics import dft_matrix
+from jointsim.loads import LoadFunction
+from jointsim.solvers._march import GeneralizedAlpha
+from jointsim.solvers.transient import (ExtremumTracker, decay_estimates, free_decay,
+                                        march_steady, rigid_modes, static_start)
 
 from ._transient_scenes import (jenkins_backbone, jenkins_dissipation, lumped, separating,
                                 sdof_jenkins, two_dof_jenkins)

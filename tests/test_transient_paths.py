@@ -11,7 +11,8 @@ import pytest
 from jointsim.model import build_model
 from jointsim.solvers import _march
 from jointsim.solvers import _transient_kernels as TK
-from jointsim.solvers._march import GeneralizedAlpha, LoadFunction
+from jointsim.loads import LoadFunction
+from jointsim.solvers._march import GeneralizedAlpha
 from jointsim.solvers.transient import static_start
 
 from ._transient_scenes import lumped, separating, sdof_jenkins, two_dof_jenkins

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..harmonics import harmonic_amplitude
 from .common import pyplot, quantity_label
 
 log = logging.getLogger(__name__)
@@ -249,7 +250,9 @@ def transient_table(h5) -> str:
             X = h5["transient/harmonics"][()]
             dofs = h5["transient/dofs"][()]
             labels = _labels(g)
-            amp = np.hypot(X[1], X[2])
+            hs = (tuple(int(h) for h in h5["transient/harmonic_numbers"][()])
+                  if "transient/harmonic_numbers" in h5 else (0, 1))
+            amp = harmonic_amplitude(hs, X, 1)
             for j, d in enumerate(dofs[:12]):
                 name = labels[j] if j < len(labels) else f"x{d}"
                 lines.append(f"  {name}: first-harmonic amplitude {amp[d]:.6g}, DC "

@@ -69,14 +69,16 @@ and retried, recursively, up to ``max_cuts`` times.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..loads import LoadFunction
 from ._transient_kernels import single_threaded
+from .newton import NewtonOptions, newton
 
 log = logging.getLogger(__name__)
 
@@ -360,36 +362,32 @@ def condensed_newton(cmap: ContactMap, G, coef, y_p, y0, state, tol, max_iter, s
     ------
     NewtonFailure
     """
-    y = np.array(y0, dtype=float)
-    n = y.size
-    ref_p = np.abs(y_p).max() if n else 0.0
+    ref_p = np.abs(y_p).max() if np.size(y_p) else 0.0
     use_c = prev is not None and cmap.unilateral
-    c = np.zeros(n)
-    for it in range(max_iter + 1):
+
+    def fun(y):
         ev = cmap.evaluate(y, state)
         if use_c:
             c, dc = cmap.correction(prev[0], prev[1], y, ev)
-            r = y - y_p + G @ (coef * ev.phi + c)
-        else:
-            r = y - y_p + coef * (G @ ev.phi)
-        err = np.abs(r).max() if n else 0.0
-        if not np.isfinite(err):
-            raise NewtonFailure(f"non-finite residual after {it} iterations")
-        ref = max(np.abs(y).max() if n else 0.0, ref_p, scale)
-        if err <= tol * ref or err == 0.0:
-            return y, ev, it, c
-        if it == max_iter:
-            break
-        J = np.eye(n) + coef * cmap.times_D(G, ev)
-        if use_c:
+            return y - y_p + G @ (coef * ev.phi + c), (ev, c, dc)
+        return y - y_p + coef * (G @ ev.phi), (ev, np.zeros(y.size), None)
+
+    def jacobian(y, r, extra):
+        ev, _c, dc = extra
+        J = np.eye(y.size) + coef * cmap.times_D(G, ev)
+        if dc is not None:
             J += G * dc
-        try:
-            dy = np.linalg.solve(J, -r)
-        except np.linalg.LinAlgError:
-            raise NewtonFailure(f"singular step tangent after {it} iterations") from None
-        y = y + dy
-    raise NewtonFailure(f"no convergence in {max_iter} iterations (residual {err:.2e}, "
-                        f"scale {ref:.2e})")
+        return J
+
+    def threshold(y, _extra):
+        return tol * max(np.abs(y).max() if y.size else 0.0, ref_p, scale)
+
+    res = newton(fun, y0, NewtonOptions(tol, max_iter, check_start=True, line_search="none"),
+                 jacobian=jacobian, solve=np.linalg.solve, threshold=threshold)
+    if not res.success:
+        raise NewtonFailure(res.message)
+    ev, c, _dc = res.extra
+    return res.x, ev, res.iterations, c
 
 
 # --------------------------------------------------------------------------
@@ -764,99 +762,3 @@ class GeneralizedAlpha:
                          NN[:, done].copy())
         return MarchState(float(times[done]), X[done].copy(), V[done].copy(),
                           A[done].copy(), ev), done
-
-
-# --------------------------------------------------------------------------
-# External force
-# --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class LoadFunction:
-    """External force ``f(t) = f_static + sum_loads`` as a callable.
-
-    Harmonic load signals are kept as coefficients and evaluated as
-    ``F0 + sum_h (Fc_h cos h w t + Fs_h sin h w t)``; file and clipped signals
-    are sampled (and may not be scaled).
-
-    Parameters
-    ----------
-    model : jointsim.model.StructuralModel
-    omega : float
-        Base angular frequency [rad/s]; 0 keeps only the static parts.
-    scale : float
-        Multiplier of the harmonic parts of the loads.
-    base_dir : Path, optional
-        Folder of file signals.
-    """
-
-    model: object
-    omega: float
-    scale: float = 1.0
-    base_dir: object = None
-    _coef: np.ndarray = field(init=False, repr=False)
-    _h: np.ndarray = field(init=False, repr=False)
-    _sampled: tuple = field(init=False, repr=False)
-
-    def __post_init__(self):
-        from ..signals import coefficient_harmonics
-        m = self.model
-        harmonic, sampled = [], []
-        for dof, sig in zip(m.load_dofs, m.load_signals):
-            (sampled if (sig.file is not None or sig.clip_at_zero) else harmonic).append(
-                (int(dof), sig))
-        hmax = max((s.max_harmonic for _d, s in harmonic), default=0)
-        hs = tuple(range(hmax + 1))
-        ch = coefficient_harmonics(hs)
-        coef = np.zeros((ch.size, m.n_dof))
-        coef[0] = m.f_static
-        for dof, sig in harmonic:
-            coef[0, dof] += sig.constant
-            for hh in sig.harmonics:
-                i = 2 * hh.h - 1
-                coef[i, dof] += self.scale * hh.cos
-                coef[i + 1, dof] += self.scale * hh.sin
-        if self.omega == 0.0:
-            coef = coef[:1]
-            ch = ch[:1]
-        if sampled and self.scale != 1.0 and self.omega > 0.0:
-            raise NotImplementedError("force_scale != 1 with a file or clipped load signal: "
-                                      "scale the signal itself in the scene")
-        if sampled and self.omega == 0.0:
-            raise NotImplementedError("free decay with a file or clipped load signal: only "
-                                      "constant loads can be held during a free decay")
-        object.__setattr__(self, "_coef", coef)
-        object.__setattr__(self, "_h", ch)
-        object.__setattr__(self, "_sampled", tuple(sampled))
-
-    @property
-    def harmonic_rows(self) -> np.ndarray:
-        """Harmonic number of each row of :attr:`coefficients`, shape (n_coeff,)."""
-        return self._h
-
-    @property
-    def coefficients(self) -> np.ndarray:
-        """Force coefficients ``[0, 1c, 1s, ...]`` [N], shape (n_coeff, n_dof)."""
-        return self._coef
-
-    @property
-    def sampled(self) -> bool:
-        """True when some load is a file or clipped signal (sampled, not harmonic)."""
-        return bool(self._sampled)
-
-    def static(self) -> np.ndarray:
-        """The constant part ``f_static + load constants`` [N], shape (n_dof,)."""
-        return self._coef[0].copy()
-
-    def __call__(self, t: float) -> np.ndarray:
-        wt = self.omega * t
-        basis = np.empty(self._h.size)
-        basis[0] = 1.0
-        if self._h.size > 1:
-            hw = self._h[1::2] * wt
-            basis[1::2] = np.cos(hw)
-            basis[2::2] = np.sin(hw)
-        out = basis @ self._coef
-        if self._sampled:
-            from ..signals import sample
-            for dof, sig in self._sampled:
-                out[dof] += float(sample(sig, np.array([t]), self.omega, self.base_dir)[0])
-        return out

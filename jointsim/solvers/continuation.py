@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..results import (NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS, Convergence)
+from .newton import NewtonOptions, newton, solve_or_lstsq
 
 log = logging.getLogger(__name__)
 
@@ -103,13 +104,23 @@ class Branch:
     tangents: list = field(default_factory=list, repr=False)
 
 
-def _solve(A, b):
-    """``A^-1 b``; least squares if ``A`` is singular."""
-    try:
-        x = np.linalg.solve(A, b)
-    except np.linalg.LinAlgError:
-        x = np.linalg.lstsq(A, b, rcond=None)[0]
-    return x
+def _bordered(F, t, yk, h):
+    """``F`` with the hyperplane row ``t . (y - yk) - h``, for :func:`newton`.
+
+    Returns ``(fun, jacobian, measure)``: the extra of ``fun`` is ``F``'s
+    ``(R, J, extra)`` and the measure is ``max|R|`` of ``F`` alone.
+    """
+    def fun(y):
+        R, J, extra = F(y)
+        return np.concatenate([R, [t @ (y - yk) - h]]), (R, J, extra)
+
+    def jacobian(_y, _r, got):
+        return np.vstack([got[1], t[None, :]])
+
+    def measure(_r, got):
+        return np.abs(got[0]).max(initial=0.0)
+
+    return fun, jacobian, measure
 
 
 def tangent(J, t_prev):
@@ -118,7 +129,7 @@ def tangent(J, t_prev):
     A = np.vstack([J, t_prev[None, :]])
     rhs = np.zeros(n1)
     rhs[-1] = 1.0
-    t = _solve(A, rhs)
+    t = solve_or_lstsq(A, rhs)
     nt = np.linalg.norm(t)
     if not np.isfinite(nt) or nt == 0.0:
         return t_prev.copy()
@@ -140,21 +151,14 @@ def _corner(F, yk, t, h, tol, max_iter, max_jump=np.inf):
         if d @ (-t) > 0.99:  # that is the branch we came along
             continue
         yk1 = yk + h * d
-        yc = yk1.copy()
-        R, J, extra = F(yc)
-        for it in range(1, max_iter + 1):
-            A = np.vstack([J, d[None, :]])
-            b = -np.concatenate([R, [d @ (yc - yk) - h]])
-            yc = yc + _solve(A, b)
-            R, J, extra = F(yc)
-            rn = np.abs(R).max(initial=0.0)
-            if not np.isfinite(rn):
-                break
-            if rn <= tol:
-                back = (yc - yk) @ (-t) / max(np.linalg.norm(yc - yk), 1e-300) >= 0.99
-                if not back and np.linalg.norm(yc - yk1) <= max_jump * h:
-                    best = (yc, R, J, extra, it)
-                break
+        fun, jac, measure = _bordered(F, d, yk, h)
+        res = newton(fun, yk1, NewtonOptions(tol, max_iter, line_search="none"),
+                     jacobian=jac, measure=measure)
+        if res.success:
+            yc, (R, J, extra) = res.x, res.extra
+            back = (yc - yk) @ (-t) / max(np.linalg.norm(yc - yk), 1e-300) >= 0.99
+            if not back and np.linalg.norm(yc - yk1) <= max_jump * h:
+                best = (yc, R, J, extra, res.iterations)
         if best is not None:
             return best
     return None
@@ -245,21 +249,14 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
 
     def corrector_fixed(yh, lam_h):
         """Newton in z at fixed lam (scaled)."""
-        yh = yh.copy()
-        yh[-1] = lam_h
-        R, J, extra = F(yh)
-        for it in range(1, max_iter + 1):
-            if n1 == 1:
-                return yh, R, J, extra, it, True
-            dz = _solve(J[:, :-1], -R)
-            yh[:-1] += dz
-            R, J, extra = F(yh)
-            rn = np.abs(R).max(initial=0.0)
-            if not np.isfinite(rn):
-                return yh, R, J, extra, it, False
-            if rn <= tol:
-                return yh, R, J, extra, it, True
-        return yh, R, J, extra, max_iter, False
+        def fun(z):
+            R, J, extra = F(np.concatenate([z, [lam_h]]))
+            return R, J[:, :-1], (J, extra)
+
+        res = newton(fun, yh[:-1], NewtonOptions(tol, max_iter, line_search="none"))
+        J, extra = res.extra
+        return (np.concatenate([res.x, [lam_h]]), res.R, J, extra, res.iterations,
+                res.success)
 
     def finish(status, message):
         bar.close()
@@ -292,37 +289,15 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
         Returns ``(ok, y, R, J, extra, iterations)``.
         """
         pred = yk + h * t
-        yc = pred.copy()
-        R, J, extra = F(yc)
-        rn = np.abs(R).max(initial=0.0)
-        best, best_it = rn, 0
-        ok = False
-        it = 0
-        for it in range(1, max_iter + 1):
-            A = np.vstack([J, t[None, :]])
-            b = -np.concatenate([R, [t @ (yc - yk) - h]])
-            dy = _solve(A, b)
-            # backtracking: the residual is only piecewise smooth (stick/slip
-            # switches at samples) and a full step can cycle across a kink
-            lam = 1.0
-            for _ in range(backtrack):
-                yn = yc + lam * dy
-                Rn, Jn, en = F(yn)
-                rnn = np.abs(Rn).max(initial=0.0)
-                if np.isfinite(rnn) and (rnn <= rn or rnn <= tol):
-                    break
-                lam *= 0.5
-            yc, R, J, extra, rn = yn, Rn, Jn, en, rnn
-            if not np.isfinite(rn) or not np.all(np.isfinite(yc)):
-                break
-            if rn <= tol:
-                ok = True
-                break
-            if rn < 0.9 * best:
-                best, best_it = rn, it
-            elif it - best_it >= stall:
-                log.debug("%s: corrector stalled at residual %.2e (h = %.3g)", desc, rn, h)
-                break
+        # backtracking: the residual is only piecewise smooth (stick/slip
+        # switches at samples) and a full step can cycle across a kink
+        fun, jac, measure = _bordered(F, t, yk, h)
+        res = newton(fun, pred, NewtonOptions(tol, max_iter, line_search="decrease",
+                                              max_tries=backtrack, stall=stall),
+                     jacobian=jac, measure=measure)
+        yc, (R, J, extra), ok, it = res.x, res.extra, res.success, res.iterations
+        if not ok:
+            log.debug("%s: corrector failed (h = %.3g): %s", desc, h, res.message)
         if ok and np.linalg.norm(yc - pred) > jump_limit * h:
             ok = False
             log.debug("%s: corrector jumped %.3g from the predictor (h = %.3g); retrying",

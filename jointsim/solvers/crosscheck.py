@@ -31,6 +31,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from ..harmonics import harmonic_amplitude
+from ..harmonics import rows as _rows
+
 log = logging.getLogger(__name__)
 
 #: Relative closeness to the slip force that counts as macroslip.
@@ -91,23 +94,11 @@ class CrossCheck:
     verdict: str
 
 
-def _rows(harmonics):
-    """Row slices of every harmonic in the coefficient order ``[0, 1c, 1s, ...]``."""
-    out, r = {}, 0
-    for h in harmonics:
-        n = 1 if h == 0 else 2
-        out[int(h)] = slice(r, r + n)
-        r += n
-    return out
-
-
 def first_harmonic_amplitude(X, harmonics) -> np.ndarray:
     """``sqrt(X_1c^2 + X_1s^2)`` per DOF, shape (n_dof,)."""
-    rows = _rows(harmonics)
-    if 1 not in rows:
+    if 1 not in _rows(harmonics):
         raise ValueError("harmonic 1 is not among the harmonics")
-    c, s = np.asarray(X)[rows[1]]
-    return np.hypot(c, s)
+    return harmonic_amplitude(harmonics, X, 1)
 
 
 def memory_elements(f, N, law) -> np.ndarray:

@@ -58,94 +58,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 
-from ..signals import coefficient_harmonics
-from ..contact import _aft_kernels as AK
+from ..harmonics import HarmonicBasis, harmonic_amplitude
+from .newton import NewtonOptions, newton
 
 log = logging.getLogger(__name__)
 
 #: Above this many structural DOFs the dense condensation is refused.
 MAX_DENSE_DOF = 6000
-
-
-# --------------------------------------------------------------------------
-# Harmonic bases
-# --------------------------------------------------------------------------
-class HarmonicBasis:
-    """Sampling and DFT matrices of a harmonic set.
-
-    Parameters
-    ----------
-    harmonics : sequence of int
-        Harmonics kept, each at most once.
-    n_samples : int
-        AFT samples per period, ``>= 2 max(h) + 1``.
-
-    Attributes
-    ----------
-    hk : ndarray of int, shape (n_c,)
-        Harmonic of each coefficient (order ``[0, 1c, 1s, ...]``).
-    sk : ndarray of int, shape (n_c,)
-        1 for sine coefficients.
-    Gam : ndarray, shape (n_t, n_c)
-        Samples from coefficients, ``x(t_j) = Gam[j] @ X``.
-    P : ndarray, shape (n_c, n_t)
-        Coefficients from samples (exact for the kept harmonics).
-    CP : ndarray, shape (n_c, n_t + 1)
-        Prefix sums of the columns of ``P``.
-    cosm, sinm : ndarray, shape (n_t, 2 max(h) + 1)
-        ``cos(m theta_j)``, ``sin(m theta_j)``.
-    """
-
-    def __init__(self, harmonics, n_samples: int):
-        harmonics = tuple(int(h) for h in harmonics)
-        if len(set(harmonics)) != len(harmonics) or min(harmonics) < 0:
-            raise ValueError(f"harmonics must be distinct and >= 0, got {harmonics}")
-        hmax = max(harmonics)
-        if n_samples < 2 * hmax + 1:
-            raise ValueError(f"n_samples must be >= 2*max(h)+1 = {2 * hmax + 1}")
-        self.harmonics = harmonics
-        self.n_samples = int(n_samples)
-        self.hk = coefficient_harmonics(harmonics)
-        sk = []
-        for h in harmonics:
-            sk.extend([0] if h == 0 else [0, 1])
-        self.sk = np.array(sk, dtype=np.int64)
-        self.n_coeff = self.hk.size
-        theta = 2.0 * np.pi * np.arange(n_samples) / n_samples
-        self.theta = theta
-        arg = np.outer(theta, self.hk)
-        self.Gam = np.where(self.sk[None, :] == 1, np.sin(arg), np.cos(arg))
-        self.wk = np.where(self.hk == 0, 1.0 / n_samples, 2.0 / n_samples)
-        self.P = np.ascontiguousarray((self.Gam * self.wk[None, :]).T)
-        self.CP = np.zeros((self.n_coeff, n_samples + 1))
-        np.cumsum(self.P, axis=1, out=self.CP[:, 1:])
-        m = np.arange(2 * hmax + 1)
-        self.cosm = np.cos(np.outer(theta, m))
-        self.sinm = np.sin(np.outer(theta, m))
-        # coefficient index of (harmonic, cos) and (harmonic, sin)
-        self.index = {}
-        i = 0
-        for h in harmonics:
-            if h == 0:
-                self.index[h] = (i, -1)
-                i += 1
-            else:
-                self.index[h] = (i, i + 1)
-                i += 2
-
-    def samples(self, X):
-        """Samples over one period of coefficient arrays ``X`` (n_c, ...) -> (n_t, ...)."""
-        return np.tensordot(self.Gam, X, axes=(1, 0))
-
-    def diag_product(self, alpha):
-        """``P diag(alpha_e) Gam`` for every row of ``alpha`` (n_e, n_t) -> (n_e, n_c, n_c)."""
-        J = np.zeros((alpha.shape[0], self.n_coeff, self.n_coeff))
-        self.add_diag_product(J, alpha)
-        return J
-
-    def add_diag_product(self, J, alpha):
-        alpha = np.ascontiguousarray(alpha)
-        AK.add_diag_products(J, alpha @ self.cosm, alpha @ self.sinm, self.hk, self.sk, self.wk)
 
 
 # --------------------------------------------------------------------------
@@ -719,51 +638,6 @@ class PointSolution:
     convergence: object
 
 
-def newton(fun, z0, tol: float, max_iter: int, rscale: float = 1.0):
-    """Newton's method with backtracking on the residual norm.
-
-    Parameters
-    ----------
-    fun : callable
-        ``fun(z) -> (R, J, extra)``.
-    z0 : ndarray
-    tol : float
-        Convergence when ``max|R| / rscale <= tol`` after at least one step.
-    max_iter : int
-    rscale : float
-        Residual scale.
-
-    Returns
-    -------
-    z, R, extra, iterations, converged : ...
-    """
-    from ..results import NON_FINITE, NOT_CONVERGED, SUCCESS, Convergence  # noqa: F401
-    z = np.array(z0, dtype=float)
-    R, J, extra = fun(z)
-    rn = np.abs(R).max(initial=0.0) / rscale
-    for it in range(1, max_iter + 1):
-        if z.size == 0:
-            return z, R, extra, it, True
-        try:
-            dz = np.linalg.solve(J, -R)
-        except np.linalg.LinAlgError:
-            dz = np.linalg.lstsq(J, -R, rcond=None)[0]
-        lam = 1.0
-        for _ in range(6):
-            zn = z + lam * dz
-            Rn, Jn, en = fun(zn)
-            rnn = np.abs(Rn).max(initial=0.0) / rscale
-            if np.isfinite(rnn) and (rnn <= rn or rnn <= tol):
-                break
-            lam *= 0.5
-        z, R, J, extra, rn = zn, Rn, Jn, en, rnn
-        if not np.isfinite(rn):
-            return z, R, extra, it, False
-        if rn <= tol:
-            return z, R, extra, it, True
-    return z, R, extra, max_iter, False
-
-
 def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
                 max_iter: int = 30, rscale: float | None = None) -> PointSolution:
     """Solve the harmonic balance at a fixed frequency by Newton's method.
@@ -792,33 +666,15 @@ def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
         ev = system.evaluate(z, omega, F, wrt=())
         return ev.R, ev.J, ev
 
-    z, R, ev, it, ok = newton(fun, z0, tol, max_iter, rscale)
+    res = newton(fun, z0, NewtonOptions(tol, max_iter, line_search="decrease", max_tries=6),
+                 measure=lambda R, _ev: np.abs(R).max(initial=0.0) / rscale)
+    z, R, ev, it, ok = res.x, res.R, res.extra, res.iterations, res.success
     rn = float(np.abs(R).max(initial=0.0))
     conv = Convergence(ok, SUCCESS if ok else NOT_CONVERGED,
                        f"Newton {'converged' if ok else 'did not converge'} in {it} iterations "
                        f"(residual {rn / rscale:.1e} of the force scale)", it)
     return PointSolution(z=z, X=system.reconstruct(z, omega, F), omega=float(omega),
                          residual=rn, evaluation=ev, convergence=conv)
-
-
-def harmonic_amplitude(basis: HarmonicBasis, X, h: int = 1):
-    """Amplitude ``sqrt(X_hc^2 + X_hs^2)`` of harmonic ``h`` (``|X_0|`` for h = 0).
-
-    Parameters
-    ----------
-    basis : HarmonicBasis
-    X : ndarray, shape (n_c, ...)
-    h : int
-
-    Returns
-    -------
-    ndarray, shape X.shape[1:]
-    """
-    ic, is_ = basis.index[h]
-    X = np.asarray(X)
-    if h == 0:
-        return np.abs(X[ic])
-    return np.hypot(X[ic], X[is_])
 
 
 # --------------------------------------------------------------------------

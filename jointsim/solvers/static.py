@@ -42,7 +42,9 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..loads import static_load
 from ..results import NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS, Convergence
+from .newton import NewtonOptions, newton
 
 log = logging.getLogger(__name__)
 
@@ -251,33 +253,17 @@ def _factor_solve(J, b):
 
 
 def _newton(prob, x, f, tol, max_iter):
-    """Newton with backtracking line search; returns (ok, x, ev, iterations, message)."""
-    ev = prob.evaluate(x, f)
-    r = np.linalg.norm(ev["R"])
-    for it in range(1, max_iter + 1):
-        if not np.all(np.isfinite(ev["R"])):
-            return False, x, ev, it - 1, "non-finite residual"
-        if r <= tol * ev["scale"]:
-            return True, x, ev, it - 1, "converged"
-        try:
-            dx = _factor_solve(ev["J"], -ev["R"])
-        except (RuntimeError, np.linalg.LinAlgError) as exc:
-            return False, x, ev, it, f"singular tangent stiffness ({exc})"
-        if not np.all(np.isfinite(dx)):
-            return False, x, ev, it, "non-finite Newton step (singular tangent?)"
-        alpha = 1.0
-        while True:
-            x_try = x + alpha * dx
-            ev_try = prob.evaluate(x_try, f)
-            r_try = np.linalg.norm(ev_try["R"])
-            if r_try <= (1.0 - 1e-4 * alpha) * r or alpha < 1.0 / 32:
-                break
-            alpha *= 0.5
-        x, ev, r = x_try, ev_try, r_try
-    ok = r <= tol * ev["scale"]
-    return ok, x, ev, max_iter, ("converged" if ok else
-                                 f"no convergence in {max_iter} Newton iterations "
-                                 f"(residual {r / ev['scale']:.2e})")
+    """Newton with an Armijo line search at load ``f``: a :class:`NewtonResult` whose
+    ``extra`` is the evaluation at ``x``; converged when ``||R|| <= tol * scale``."""
+    def fun(x_):
+        ev = prob.evaluate(x_, f)
+        return ev["R"], ev["J"], ev
+
+    return newton(fun, x,
+                  NewtonOptions(tol, max_iter, check_start=True, line_search="armijo",
+                                max_tries=7, finite_step=True),
+                  solve=_factor_solve, measure=lambda R, _ev: np.linalg.norm(R),
+                  threshold=lambda _x, ev: tol * ev["scale"])
 
 
 def solve_static(K, f, contacts, *, tangential=None, normal=None, state=None,
@@ -332,15 +318,16 @@ def solve_static(K, f, contacts, *, tangential=None, normal=None, state=None,
         step = min(dlam, 1.0 - lam)
         prob = _Problem(K, contacts, normal, tangential, st)
         f_l = f0 + (lam + step) * (f - f0)
-        ok, x_new, ev_new, its, msg = _newton(prob, x, f_l, tol, max_iter)
-        total_it += its
-        if ok:
-            x, ev = x_new, ev_new
+        nr = _newton(prob, x, f_l, tol, max_iter)
+        total_it += nr.iterations
+        msg = nr.message
+        if nr.success:
+            x, ev = nr.x, nr.extra
             lam = 1.0 if step >= 1.0 - lam else lam + step
             st = ev["state"]
             dlam = min(2.0 * step, 1.0)
             continue
-        if msg.startswith("non-finite"):
+        if nr.status == NON_FINITE:
             status, message = NON_FINITE, msg
         dlam = 0.5 * step
         log.debug("static: increment %.3g failed (%s); retrying with %.3g", step, msg, dlam)
@@ -407,21 +394,6 @@ class StuckLinearisation:
     closed: np.ndarray
     source: str
     convergence: Convergence = field(repr=False)
-
-
-def static_load(model) -> np.ndarray:
-    """Constant load on a model: ``f_static`` plus the constant parts of its loads.
-
-    Returns
-    -------
-    ndarray, shape (n_dof,) [N]
-    """
-    from ..signals import harmonic_coefficients
-    f = np.array(model.f_static, dtype=float)
-    for dof, sig in zip(model.load_dofs, model.load_signals):
-        hs = (0,) + tuple(sorted({x.h for x in sig.harmonics}))
-        f[dof] += harmonic_coefficients(sig, hs)[0]
-    return f
 
 
 def stuck_linearisation(model, *, tol: float = 1e-10) -> StuckLinearisation:

@@ -27,8 +27,9 @@ import numpy as np
 
 from ..results import (INTERRUPTED, NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS,
                        Convergence)
-from ..signals import coefficient_harmonics
-from ._march import ContactMap, GeneralizedAlpha, LoadFunction, StepFailure, empty_eval
+from ..harmonics import coefficient_index, dft_matrix, n_coefficients
+from ..loads import LoadFunction
+from ._march import ContactMap, GeneralizedAlpha, StepFailure, empty_eval
 from ._transient_kernels import single_threaded
 
 log = logging.getLogger(__name__)
@@ -206,44 +207,6 @@ class FreeDecayResult:
 # --------------------------------------------------------------------------
 # Period analysis (pure functions)
 # --------------------------------------------------------------------------
-def dft_matrix(harmonics, n: int, omega: float, t0: float = 0.0) -> np.ndarray:
-    """Matrix taking ``n`` equispaced samples of a period to harmonic coefficients.
-
-    Parameters
-    ----------
-    harmonics : sequence of int
-        Harmonics kept (each < n/2).
-    n : int
-        Samples per period, at ``t0 + k T / n``.
-    omega : float
-        Angular frequency [rad/s].
-    t0 : float
-        Time of the first sample (a multiple of the period keeps the phase of
-        the forcing) [s].
-
-    Returns
-    -------
-    ndarray, shape (n_coeff, n)
-        Rows in the order ``[0, 1c, 1s, 2c, 2s, ...]``.
-    """
-    hs = coefficient_harmonics(harmonics)
-    if np.any(2 * hs >= n):
-        raise ValueError(f"harmonics up to {hs.max()} need more than {2 * hs.max()} samples "
-                         f"per period, got {n}")
-    t = t0 + np.arange(n) * (2.0 * np.pi / omega) / n
-    E = np.empty((hs.size, n))
-    row = 0
-    for h in harmonics:
-        if h == 0:
-            E[row] = 1.0 / n
-            row += 1
-        else:
-            E[row] = (2.0 / n) * np.cos(h * omega * t)
-            E[row + 1] = (2.0 / n) * np.sin(h * omega * t)
-            row += 2
-    return E
-
-
 def period_change(x_new, x_old) -> float:
     """Largest change between two periods relative to the vibration amplitude.
 
@@ -497,7 +460,8 @@ def static_start(model, frictionless: bool = False, tol: float = 1e-10) -> Start
     RuntimeError
         When a static solve fails (the message says why).
     """
-    from .static import solve_static, static_load, stuck_linearisation
+    from ..loads import static_load
+    from .static import solve_static, stuck_linearisation
     c = model.contacts
     cmap = ContactMap(c)
     f0 = static_load(model)
@@ -687,7 +651,7 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
         energy = energy_balance(last, force, ga.M, ga.C, ga.K,
                                 (c.gap0, c.kn) if ga.cmap.unilateral else None)
     else:
-        X = np.full((coefficient_harmonics(settings.harmonics).size, model.n_dof), np.nan)
+        X = np.full((n_coefficients(settings.harmonics), model.n_dof), np.nan)
         energy = None
     stats = ga.stats.as_attrs()
     stats["static_iterations"] = static.iterations
@@ -794,14 +758,15 @@ def linear_start(ga: GeneralizedAlpha, force: LoadFunction, static, h: float):
     M, C = sp.csr_matrix(ga.model.M), sp.csr_matrix(ga.model.C)
     n = ga.model.n_dof
     am, af, g, b = ga.am, ga.af, ga.gamma, ga.beta
-    rows, coef, w = force.harmonic_rows, force.coefficients, force.omega
+    hs, coef, w = force.harmonics, force.coefficients, force.omega
     x0 = np.array(static.x, dtype=float)
     v0, a0 = np.zeros(n), np.zeros(n)
-    for r in range(1, rows.size, 2):
-        F = coef[r] - 1j * coef[r + 1]          # f(t) = Re(F e^{i hh w t})
+    for hh in hs[1:]:
+        ic, is_ = coefficient_index(hs, hh)
+        F = coef[ic] - 1j * coef[is_]           # f(t) = Re(F e^{i hh w t})
         if not np.any(F):
             continue
-        z = np.exp(1j * rows[r] * w * h)
+        z = np.exp(1j * hh * w * h)
         q = h * ((1.0 - g) + g * z) / (z - 1.0)                      # V = q A
         p = (h * q + h * h * ((0.5 - b) + b * z)) / (z - 1.0)        # X = p A
         wf = (1.0 - af) * z + af
