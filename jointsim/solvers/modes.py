@@ -157,7 +157,8 @@ def rigid_body_modes(model, frequency_hz, shapes, cutoff_hz=None):
     f = np.asarray(frequency_hz, dtype=float)
     if cutoff_hz is not None:
         return f < cutoff_hz, f"below {cutoff_hz:g} Hz"
-    st, cb = model.extra.get("structure"), model.extra.get("cb")
+    fe = model.fe
+    st, cb = (fe.structure, fe.cb) if fe is not None else (None, None)
     if st is not None and cb is not None and hasattr(st, "basis"):
         R = _fe_rigid_fields(st)
         MR = st.M @ R
@@ -168,7 +169,7 @@ def rigid_body_modes(model, frequency_hz, shapes, cutoff_hz=None):
         share /= np.maximum(np.einsum("mi,mi->m", full, (st.M @ full.T).T), 1e-300)
         return share > RIGID_SHARE, "rigid-body share of the modal mass > 0.5"
     rigid = f <= 1e-6 * max(float(f.max(initial=0.0)), 1e-300)
-    if model.extra.get("rom") is not None and f.size > 1:
+    if model.rom is not None and f.size > 1:
         n = min(MAX_RIGID, f.size - 1)
         ratio = f[1:n + 1] / np.maximum(f[:n], 1e-300)
         big = np.flatnonzero(ratio >= GAP_RATIO)
@@ -181,8 +182,8 @@ def rigid_body_modes(model, frequency_hz, shapes, cutoff_hz=None):
 def stuck_modes(model, n_modes: int, suspension_hz=None) -> ModesResult:
     """Modes of the structure linearised at its static state with the joint stuck.
 
-    The stiffness is :func:`jointsim.solvers.static.stuck_linearisation`'s
-    (the tangent at the preload state ``x0``), the same for every solver.
+    The stiffness is ``model.linearisation.K``
+    (:func:`jointsim.solvers.static.stuck_linearisation`: the tangent at the preload state ``x0``), the same for every solver.
 
     Parameters
     ----------
@@ -192,8 +193,7 @@ def stuck_modes(model, n_modes: int, suspension_hz=None) -> ModesResult:
         Modes below this are rigid-body (suspension) modes; default: detected
         (:func:`rigid_body_modes`).
     """
-    from .static import stuck_linearisation
-    K = stuck_linearisation(model).K
+    K = model.linearisation.K
     f, phi = eigenmodes(K, model.M, n_modes)
     rigid, method = rigid_body_modes(model, f, phi, suspension_hz)
     if not np.all(np.isfinite(f)):
@@ -275,9 +275,8 @@ def full_stuck_stiffness(model):
     -------
     scipy.sparse.csr_matrix, shape (n_full_dof, n_full_dof)
     """
-    from .static import stuck_linearisation
-    st, cb = model.extra["structure"], model.extra["cb"]
-    Kc = stuck_linearisation(model).K.toarray() - cb.K
+    st, cb = model.fe.structure, model.fe.cb
+    Kc = model.linearisation.K.toarray() - cb.K
     nb = cb.n_retained
     off = np.abs(Kc[nb:, :]).max() if Kc.shape[0] > nb else 0.0
     if off > 1e-8 * np.abs(Kc).max():
@@ -297,7 +296,7 @@ def monolithic_modes(model, n_modes: int):
     frequency_hz : ndarray, shape (n_modes,)
     """
     from ..fem.assembly import merge_coincident
-    st = model.extra["structure"]
+    st = model.fe.structure
     P = merge_coincident(st.basis)
     K = sp.csr_matrix(P.T @ (st.K - st.K_bolt) @ P)
     M = sp.csr_matrix(P.T @ st.M @ P)
@@ -314,16 +313,15 @@ def write_model_tables(scene, model, writer) -> None:
     models, ``/mesh/*`` and ``/static/x0_full``.  Idempotent.
     """
     units = model.units
-    ex = model.extra
     c = model.contacts
     d, F = unit("displacement", units), unit("force", units)
-    pre = ex.get("preload")
+    pre = None if model.preload is None else model.preload.result
     attrs = {}
     if pre is not None:
         attrs.update(pre.convergence.as_attrs())
         attrs["residual"] = pre.residual
     bolt_total = 0.0
-    rom = ex.get("rom")
+    rom = model.rom
     if rom is not None and rom.bolts is not None:
         bolt_total = float(rom.bolts.preload.sum())
     writer.group("static", sum_N=float(c.N0.sum()), bolt_force_total=bolt_total,
@@ -349,10 +347,12 @@ def write_model_tables(scene, model, writer) -> None:
     g = writer.group("model", kind=scene.model.kind, n_dof=model.n_dof,
                      n_contacts=c.n_elements,
                      normal_kernel=c.kernels.normal, tangential_kernel=c.kernels.tangential)
-    for key in ("n_full_dof", "build_time_s", "reduce_time_s", "preload_time_s"):
-        if key in ex:
-            g.attrs[key] = ex[key]
-    cb = ex.get("cb")
+    if model.fe is not None:
+        for key in ("n_full_dof", "build_time_s", "reduce_time_s"):
+            g.attrs[key] = getattr(model.fe, key)
+    if model.preload is not None:
+        g.attrs["preload_time_s"] = model.preload.time_s
+    cb = None if model.fe is None else model.fe.cb
     if cb is not None:
         g.attrs["n_retained"] = cb.n_retained
         g.attrs["n_cb_modes"] = cb.n_modes
@@ -360,7 +360,7 @@ def write_model_tables(scene, model, writer) -> None:
                      "Craig-Bampton fixed-interface frequencies")
     writer.write("model/dof_labels", np.array(model.dof_labels, dtype=object), "1",
                  "name of every model DOF")
-    st = ex.get("structure")
+    st = None if model.fe is None else model.fe.structure
     if st is not None:
         _write_mesh(writer, st)
         if pre is not None:
@@ -406,17 +406,17 @@ def run_modes(scene, model, writer) -> ModesResult:
                  "suspension mode); see the group attribute rigid_method")
     writer.write("modes/shapes", res.shapes, "1/sqrt(kg)",
                  "mass-normalised mode shapes over the model DOFs")
-    cb = model.extra.get("cb")
+    cb = None if model.fe is None else model.fe.cb
     if cb is not None:
         writer.write("modes/shapes_full", res.shapes @ cb.T.T, "1/sqrt(kg)",
                      "mode shapes expanded to every FE DOF")
-    fe = "structure" in model.extra
+    fe = model.fe is not None
     if a.full_model:
         if not fe:
             log.warning("analysis.modes.full_model applies to FE models only; skipped")
         else:
             t1 = time.perf_counter()
-            st = model.extra["structure"]
+            st = model.fe.structure
             f_full, _ = eigenmodes(full_stuck_stiffness(model), st.M, a.n_modes)
             writer.write("modes/frequency_hz_full", f_full, hz,
                          "natural frequencies of the unreduced FE model (same contact springs)")
@@ -436,7 +436,7 @@ def run_modes(scene, model, writer) -> ModesResult:
         path = Path(a.export_rom)
         if not path.is_absolute():
             path = writer.path.parent / path
-        save_rom(path, model.extra["rom"])
+        save_rom(path, model.rom)
         g.attrs["rom_file"] = str(path)
     g.attrs["time_s"] = time.perf_counter() - t0
     el = res.frequency_hz[res.elastic]

@@ -184,6 +184,10 @@ def qsma(model, phi, x0, alphas, state0=None, tol: float = 1e-10,
 
 
 def _stuck_K(model, x0):
+    """Stuck tangent at ``x0``: the model's linearisation when ``x0`` is its state."""
+    lin = model.linearisation
+    if np.array_equal(x0, lin.x0):
+        return lin.K
     from .static import tangent_stiffness
     return tangent_stiffness(model.K, model.contacts, x0)
 
@@ -238,7 +242,7 @@ def run_qsma_analysis(scene, model, writer) -> QSMAResult:
     """``[analysis.qsma]``: the QSMA backbone of one mode, written to ``/qsma``."""
     from .modes import stuck_modes
     a = scene.analysis.qsma
-    x0 = np.asarray(model.extra.get("x0", np.zeros(model.n_dof)), dtype=float)
+    x0 = model.linearisation.x0
     modes = stuck_modes(model, a.mode + 10, suspension_hz=a.rigid_cutoff_hz)
     elastic = np.nonzero(modes.elastic)[0]
     if a.mode > elastic.size:
