@@ -183,7 +183,8 @@ def stuck_modes(model, n_modes: int, suspension_hz=None) -> ModesResult:
     """Modes of the structure linearised at its static state with the joint stuck.
 
     The stiffness is ``model.linearisation.K``
-    (:func:`jointsim.solvers.static.stuck_linearisation`: the tangent at the preload state ``x0``), the same for every solver.
+    (:func:`jointsim.solvers.static.stuck_linearisation`: the tangent at the
+    preload state ``x0``), the same for every solver.
 
     Parameters
     ----------
