@@ -26,6 +26,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..contact import KernelChoice, TangentialLaw, make_tangential_law
+from ..fem.assembly import FEStructure
+from ..fem.reduced import ReducedModel
+from ..fem.reduction import CraigBampton
 from ..solvers.static import StaticResult, StuckLinearisation, stuck_linearisation
 
 log = logging.getLogger(__name__)
@@ -134,8 +137,8 @@ class FEParts:
         Wall time of the reduction [s].
     """
 
-    structure: object
-    cb: object
+    structure: FEStructure
+    cb: CraigBampton
     mesh_file: str
     build_time_s: float = 0.0
     reduce_time_s: float = 0.0
@@ -197,7 +200,7 @@ class StructuralModel:
     units: str = "SI"
     preload: Preload | None = None
     fe: FEParts | None = None
-    rom: object | None = None
+    rom: ReducedModel | None = None
     source: str | None = None
     linearisation: StuckLinearisation | None = None
 
