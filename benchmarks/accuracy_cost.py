@@ -147,8 +147,8 @@ def mesh_table(quick: bool):
     rows = []
     for name, path in meshes.items():
         f, t, m = f1(path)
-        rows.append((f"{name}, {m.extra['n_full_dof']} DOFs", abs(f / f_ref - 1), t))
-    rows.append((f"reference (2.5 mm), {m_ref.extra['n_full_dof']} DOFs", 0.0, t_ref))
+        rows.append((f"{name}, {m.fe.n_full_dof} DOFs", abs(f / f_ref - 1), t))
+    rows.append((f"reference (2.5 mm), {m_ref.fe.n_full_dof} DOFs", 0.0, t_ref))
     return rows
 
 

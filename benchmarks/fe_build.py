@@ -47,15 +47,14 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         m = build_model(scene)
         total = time.perf_counter() - t0
-        ex = m.extra
         r = stuck_modes(m, 8, 20.0)
         f = r.frequency_hz[r.elastic][:3]
-        f_full, _ = eigenmodes(full_stuck_stiffness(m), ex["structure"].M, 8)
+        f_full, _ = eigenmodes(full_stuck_stiffness(m), m.fe.structure.M, 8)
         err = np.abs(r.frequency_hz[r.elastic][:5] / f_full[r.elastic][:5] - 1).max()
         N0 = m.contacts.N0
-        print(f"{name:>8} {ex['n_full_dof']:>8} {m.n_dof:>8} {N0.size:>5} {int((N0 > 0).sum()):>7} "
-              f"{ex['build_time_s']:>8.2f} {ex['reduce_time_s']:>8.2f} "
-              f"{ex['preload_time_s']:>9.2f} {np.array2string(f, precision=2):>28} "
+        print(f"{name:>8} {m.fe.n_full_dof:>8} {m.n_dof:>8} {N0.size:>5} {int((N0 > 0).sum()):>7} "
+              f"{m.fe.build_time_s:>8.2f} {m.fe.reduce_time_s:>8.2f} "
+              f"{m.preload.time_s:>9.2f} {np.array2string(f, precision=2):>28} "
               f"{err:>19.1e}   (total {total:.2f} s)")
     return 0
 

@@ -11,7 +11,7 @@ from jointsim.fem.build import reduce_structure, retained_dofs
 from jointsim.fem.mesh import read_mesh
 from jointsim.io.rom import load_rom, save_rom
 from jointsim.model import build_model
-from jointsim.reduction import craig_bampton
+from jointsim.fem.reduction import craig_bampton
 from jointsim.scene import SceneError, load_scene
 from jointsim.solvers.modes import eigenmodes, full_stuck_stiffness, stuck_modes
 
@@ -68,9 +68,9 @@ def test_craig_bampton_is_exact_for_static_loads_on_retained_dofs(coarse_structu
 def test_reduced_frequencies_match_the_full_model(mesh):
     """First 5 elastic stuck-joint frequencies within 0.1 % with the default n_modes."""
     model = build_model(scene_for(mesh))
-    assert model.extra["cb"].n_modes == 30
+    assert model.fe.cb.n_modes == 30
     red = stuck_modes(model, 12, suspension_hz=20.0)
-    f_full, _ = eigenmodes(full_stuck_stiffness(model), model.extra["structure"].M, 12)
+    f_full, _ = eigenmodes(full_stuck_stiffness(model), model.fe.structure.M, 12)
     el = red.elastic
     assert el.sum() >= 5 and not el[:3].any()  # three suspension modes first
     err = np.abs(red.frequency_hz[el][:5] / f_full[el][:5] - 1)
@@ -92,7 +92,7 @@ def test_more_fixed_interface_modes_converge(coarse_structure):
 
 @pytest.mark.parametrize("ext", [".npz", ".mat", ".h5"])
 def test_rom_export_import_round_trip(tmp_path, coarse_model, ext):
-    path = save_rom(tmp_path / f"rom{ext}", coarse_model.extra["rom"])
+    path = save_rom(tmp_path / f"rom{ext}", coarse_model.rom)
     rom_scene = load_scene(SCENE, ["model={kind='rom', file='" + str(path) + "'}",
                                    "excitation.loads.0.point=''",
                                    f"excitation.loads.0.dof={coarse_model.points['excitation']}"])
@@ -112,7 +112,7 @@ def test_rom_export_import_round_trip(tmp_path, coarse_model, ext):
 def test_one_based_mat_file_from_matlab(tmp_path, coarse_model):
     """A hand-written MATLAB-style file (1-based indices, sparse K, no frame) imports."""
     import scipy.io
-    rom = coarse_model.extra["rom"]
+    rom = coarse_model.rom
     it = rom.interface
     data = {"M": rom.M, "K": sp.csr_matrix(rom.K), "lower_dofs": it.lower_dofs + 1,
             "upper_dofs": it.upper_dofs + 1, "area": it.area, "index_base": 1,

@@ -101,7 +101,7 @@ def test_preload_equilibrium_and_symmetry(coarse_model):
     assert np.all(N0 >= 0) and 0 < np.sum(N0 > 0) < N0.size
     # the joint is point-symmetric about the lap centre: p(x) = p(-x)
     np.testing.assert_allclose(N0, N0[::-1], rtol=0, atol=1e-8 * N0.max())
-    pre = coarse_model.extra["preload"]
+    pre = coarse_model.preload.result
     assert pre.convergence.success and pre.residual < 1e-9
 
 
@@ -119,7 +119,7 @@ def test_reduced_preload_equals_full_model_preload(coarse_parts, coarse_model):
                                atol=1e-7 * full.N.max())
     # the rigid-body part of x is set by the soft suspension (1e3 N/m) under a
     # self-equilibrated load, so it is only defined to ~ tol ||f|| / k_susp
-    x0_full = cb.T @ coarse_model.extra["x0"]
+    x0_full = cb.T @ coarse_model.preload.x0
     np.testing.assert_allclose(x0_full, full.x, rtol=0, atol=1e-5 * np.abs(full.x).max())
 
 
@@ -128,7 +128,7 @@ def test_preload_state_is_the_equilibrium_of_the_model(normal):
     """x0 solves K x + f_c(x) = f_static with the model's own K and f_static."""
     scene = load_scene(SCENE, COARSE + [f"effects.normal={normal}"])
     m = build_model(scene)
-    x0 = m.extra["x0"]
+    x0 = m.preload.x0
     R = residual(m.K, m.f_static, m.contacts, x0, tangential="stuck")
     assert np.linalg.norm(R) < 1e-9 * np.linalg.norm(m.f_static)
     # and the scene's law, marched from rest, sees the same forces (no element slips)
@@ -158,7 +158,7 @@ def test_static_jacobian_matches_finite_differences(coarse_model, tangential, no
     m = coarse_model
     c = dataclasses.replace(m.contacts, law=dataclasses.replace(
         m.contacts.law, g=m.contacts.law.g * 0.05, mu=m.contacts.law.mu * 0.05))
-    x0 = m.extra["x0"]
+    x0 = m.preload.x0
     rng = np.random.default_rng(1)
     x = x0 + 0.01 * np.abs(x0).max() * rng.standard_normal(x0.size)
     prob = _Problem(m.K, c, NORMALS[normal](c.kn), tangential, c.law.rest_state(c.N0)
@@ -174,11 +174,12 @@ def test_static_jacobian_matches_finite_differences(coarse_model, tangential, no
 def test_static_tangent_of_the_solution_matches_fd(coarse_model):
     """The tangent returned with the preload solution is dR/dx there."""
     m = coarse_model
-    pre = m.extra["preload"]
-    rom = m.extra["rom"]
-    K = sp.csr_matrix(rom.K) - m.extra["K_bolt"]
-    f = m.extra["f_clamp"]
-    prob = _Problem(K, m.contacts, UnilateralPenalty(m.contacts.kn), "stuck", np.zeros(m.contacts.n_elements))
+    pre = m.preload.result
+    rom = m.rom
+    K = sp.csr_matrix(rom.K) - m.preload.K_bolt
+    f = m.preload.f_clamp
+    prob = _Problem(K, m.contacts, UnilateralPenalty(m.contacts.kn), "stuck",
+                    np.zeros(m.contacts.n_elements))
     np.testing.assert_allclose(pre.K_t.toarray(), prob.evaluate(pre.x, f)["J"])
     _fd_check(K, f, m.contacts, pre.x, "stuck", "unilateral")
 
@@ -186,8 +187,8 @@ def test_static_tangent_of_the_solution_matches_fd(coarse_model):
 def test_failed_solve_reports_and_keeps_its_state(coarse_parts, coarse_model):
     scene, st, rom, cb = coarse_parts
     m = coarse_model
-    K = sp.csr_matrix(rom.K) - m.extra["K_bolt"]
-    res = solve_static(K, m.extra["f_clamp"], m.contacts, tangential="stuck",
+    K = sp.csr_matrix(rom.K) - m.preload.K_bolt
+    res = solve_static(K, m.preload.f_clamp, m.contacts, tangential="stuck",
                        normal=UnilateralPenalty(m.contacts.kn), max_iter=1, min_increment=0.3)
     assert not res.convergence.success
     assert res.convergence.status != SUCCESS
@@ -199,7 +200,7 @@ def test_sparse_and_dense_assembly_agree(monkeypatch):
     """Large models assemble the Jacobian sparse, small ones dense: same numbers."""
     import jointsim.solvers.static as static
     m = build_model(load_scene(SCENE, COARSE))
-    x = m.extra["x0"] * 1.3
+    x = m.preload.x0 * 1.3
     state = m.contacts.law.rest_state(m.contacts.N0)
     dense = static._Problem(m.K, m.contacts, UnilateralPenalty(m.contacts.kn), "law", state).evaluate(x, m.f_static)
     monkeypatch.setattr(static, "DENSE_MAX_DOF", 0)

@@ -55,10 +55,10 @@ def fixed():
 # The static state and its stuck linearisation
 # --------------------------------------------------------------------------
 def test_stuck_linearisation_of_the_fe_model_is_the_preload(coupled):
-    lin = stuck_linearisation(coupled)
+    lin = coupled.linearisation                                      # built with the model
     assert lin.source == "model" and lin.convergence.success
-    assert np.array_equal(lin.x0, coupled.extra["x0"])
-    assert stuck_linearisation(coupled) is lin                       # cached
+    assert np.array_equal(lin.x0, coupled.preload.x0)
+    assert abs(coupled.linearisation.K - lin.K).max() == 0.0  # the one definition
     # x0 is the equilibrium of the model's own K and f_static
     r = residual(coupled.K, lin.f0, coupled.contacts, lin.x0, tangential="stuck")
     assert np.linalg.norm(r) <= 1e-9 * np.linalg.norm(lin.f0)
@@ -79,7 +79,7 @@ def test_stuck_linearisation_of_a_lumped_model_solves_the_static_state():
          "excitation": {"loads": [{"dof": 0, "force": {"constant": 0.3,
                                                        "harmonics": [{"h": 1, "cos": 1.0}]}}]}}
     m = build_model(parse_scene(d, "static.toml"))
-    lin = stuck_linearisation(m)
+    lin = m.linearisation
     K0 = np.array([[2.0, -1.0], [-1.0, 2.25]])
     assert lin.source == "solved"
     assert np.allclose(lin.x0, np.linalg.solve(K0, [0.3, 0.0]), rtol=1e-12, atol=0)
@@ -101,7 +101,7 @@ def test_hbm_starts_at_the_static_state(fixed):
     # round-off of the condensation relative to the contact forces (N0 ~ kN)
     assert np.abs(ev.R).max() <= 1e-9 * fixed.contacts.N0.max()
     X = s.reconstruct(z0, 900.0, F)
-    x0 = stuck_linearisation(fixed).x0
+    x0 = fixed.linearisation.x0
     # the welded-structure modes of the condensation resolve the near-rigid
     # (suspension) motions to ~eps |K| / w_susp^2 ~ 1e-7 relative
     assert np.abs(X[0] - x0).max() <= 1e-5 * np.abs(x0).max()
@@ -117,8 +117,8 @@ def test_fixed_normal_load_linearises_like_the_coupled_joint(coupled, fixed):
     assert np.allclose(fc[3:], ff[3:], rtol=1e-7, atol=0)
     # the suspension modes (w^2 ~ 1e-9 of the contact stiffness) to round-off
     assert np.allclose(fc[:3], ff[:3], rtol=1e-4, atol=0)
-    Kc = stuck_linearisation(coupled).K.toarray()
-    Kf = stuck_linearisation(fixed).K.toarray()
+    Kc = coupled.linearisation.K.toarray()
+    Kf = fixed.linearisation.K.toarray()
     assert np.abs(Kc - Kf).max() <= 1e-9 * np.abs(Kc).max()
 
 
@@ -142,8 +142,8 @@ def test_suspension_modes_are_detected(coupled):
 
 def test_rom_uses_the_spectral_gap_and_lumped_models_have_no_rigid_modes(coupled):
     import dataclasses
-    rom_like = dataclasses.replace(coupled, extra={"rom": coupled.extra["rom"]})
-    f, phi = eigenmodes(stuck_linearisation(coupled).K, coupled.M, 8)
+    rom_like = dataclasses.replace(coupled, fe=None)
+    f, phi = eigenmodes(coupled.linearisation.K, coupled.M, 8)
     mask, how = rigid_body_modes(rom_like, f, phi)
     assert list(mask) == [True, True, True] + [False] * 5 and "gap" in how
     lumped = build_model(four_dof())
@@ -232,7 +232,7 @@ def test_fe_frc_small_force_equals_the_linear_frf(tmp_path):
     out = tmp_path / "frc.h5"
     run_scene(sc, out)
     m = build_model(sc)
-    K0 = stuck_linearisation(m).K.toarray()
+    K0 = m.linearisation.K.toarray()
     M, C = m.M.toarray(), m.C.toarray()
     dof = m.points["response"]
     f = np.zeros(m.n_dof)

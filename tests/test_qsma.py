@@ -69,7 +69,7 @@ def fe_fixed():
 
 def test_fe_low_amplitude_is_the_stuck_mode(fe_fixed):
     model, phi, w0 = fe_fixed
-    res = qsma(model, phi, model.extra["x0"], w0 ** 2 * np.array([1e-8, 1e-7]))
+    res = qsma(model, phi, model.preload.x0, w0 ** 2 * np.array([1e-8, 1e-7]))
     np.testing.assert_allclose(2 * np.pi * res.frequency_hz, w0, rtol=1e-8)
     assert res.linear_hz == pytest.approx(w0 / (2 * np.pi), rel=1e-7)  # eigensolver accuracy
     assert np.all(np.abs(res.damping_ratio_friction) < 1e-8)
@@ -81,7 +81,7 @@ def test_fe_masing_dissipation_equals_marched_loop(fe_fixed):
     """Fixed N: the QSMA (Masing) dissipation at an amplitude equals the work over
     the static loop marched up, down and up again to the same load."""
     model, phi, w0 = fe_fixed
-    x0 = model.extra["x0"]
+    x0 = model.preload.x0
     alpha_max = w0 ** 2 * 2e-3  # well into microslip (the curve has bent by ~5 %)
     alphas = np.linspace(alpha_max / 400, alpha_max, 400)
     res = qsma(model, phi, x0, alphas)

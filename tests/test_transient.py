@@ -431,14 +431,13 @@ def test_static_start_with_coupled_normal_load(frictionless, u_expected, f_expec
 def test_static_start_below_the_slip_limit_is_the_stuck_linearisation():
     """A small pull keeps the slider stuck: the start is the stuck static state of
     every solver, 1 = x0 + kt x0 -> x0 = 1/3 with a force kt x0 = 2/3 < mu N."""
-    from jointsim.solvers.static import stuck_linearisation
     sc = lumped([[1.0]], [[1.0]], contacts=[{"t_dof": 0, "N0": 10.0}],
                 joint={"law": "jenkins", "kt": 2.0, "mu": 0.5},
                 loads=[{"dof": 0, "force": 1.0}])
     model = build_model(sc)
     st = static_start(model)
     assert st.x[0] == pytest.approx(1.0 / 3.0, rel=1e-12)
-    assert np.array_equal(st.x, stuck_linearisation(model).x0)
+    assert np.array_equal(st.x, model.linearisation.x0)
     assert st.contact.f[0] == pytest.approx(2.0 / 3.0, rel=1e-12)
 
 
@@ -457,12 +456,20 @@ def test_static_start_resolves_an_initial_interference():
 
 
 def test_static_start_from_the_model_preload_state():
-    """A model that carries its preload state (``extra["x0"]``, as FE models do)
+    """A model that carries its preload state (``model.preload``, as FE models do)
     starts from it when it is an equilibrium: no Newton iteration."""
+    import dataclasses
+
+    import scipy.sparse as sp
+
+    from jointsim.model import Preload
     sc = separating({"omega": 0.8})
     a = static_start(build_model(sc))
     model = build_model(sc)
-    model.extra["x0"] = a.x.copy()
+    n = model.n_dof
+    model = dataclasses.replace(model, linearisation=None, preload=Preload(
+        x0=a.x.copy(), result=None, f_clamp=np.zeros(n), K_bolt=sp.csr_matrix((n, n)),
+        time_s=0.0))
     b = static_start(model)
     assert b.source == "model" and b.iterations == 0
     assert np.allclose(b.x, a.x, rtol=1e-12, atol=1e-15)

@@ -31,16 +31,15 @@ def write_model_tables(scene, model, writer) -> None:
     tangential law (:func:`_write_law`).  Idempotent.
     """
     units = model.units
-    ex = model.extra
     c = model.contacts
     d, F = unit("displacement", units), unit("force", units)
-    pre = ex.get("preload")
+    pre = None if model.preload is None else model.preload.result
     attrs = {}
     if pre is not None:
         attrs.update(pre.convergence.as_attrs())
         attrs["residual"] = pre.residual
     bolt_total = 0.0
-    rom = ex.get("rom")
+    rom = model.rom
     if rom is not None and rom.bolts is not None:
         bolt_total = float(rom.bolts.preload.sum())
     writer.group("static", sum_N=float(c.N0.sum()), bolt_force_total=bolt_total,
@@ -67,10 +66,12 @@ def write_model_tables(scene, model, writer) -> None:
     g = writer.group("model", kind=scene.model.kind, n_dof=model.n_dof,
                      n_contacts=c.n_elements,
                      normal_kernel=c.normal.name, tangential_kernel=c.law.name)
-    for key in ("n_full_dof", "build_time_s", "reduce_time_s", "preload_time_s"):
-        if key in ex:
-            g.attrs[key] = ex[key]
-    cb = ex.get("cb")
+    if model.fe is not None:
+        for key in ("n_full_dof", "build_time_s", "reduce_time_s"):
+            g.attrs[key] = getattr(model.fe, key)
+    if model.preload is not None:
+        g.attrs["preload_time_s"] = model.preload.time_s
+    cb = None if model.fe is None else model.fe.cb
     if cb is not None:
         g.attrs["n_retained"] = cb.n_retained
         g.attrs["n_cb_modes"] = cb.n_modes
@@ -78,7 +79,7 @@ def write_model_tables(scene, model, writer) -> None:
                      "Craig-Bampton fixed-interface frequencies")
     writer.write("model/dof_labels", np.array(model.dof_labels, dtype=object), "1",
                  "name of every model DOF")
-    st = ex.get("structure")
+    st = None if model.fe is None else model.fe.structure
     if st is not None:
         _write_mesh(writer, st)
         if pre is not None:
@@ -154,17 +155,17 @@ def run_modes(scene, model, writer, results=None) -> ModesResult:
                  "suspension mode); see the group attribute rigid_method")
     writer.write("modes/shapes", res.shapes, "1/sqrt(kg)",
                  "mass-normalised mode shapes over the model DOFs")
-    cb = model.extra.get("cb")
+    cb = None if model.fe is None else model.fe.cb
     if cb is not None:
         writer.write("modes/shapes_full", res.shapes @ cb.T.T, "1/sqrt(kg)",
                      "mode shapes expanded to every FE DOF")
-    fe = "structure" in model.extra
+    fe = model.fe is not None
     if a.full_model:
         if not fe:
             log.warning("analysis.modes.full_model applies to FE models only; skipped")
         else:
             t1 = time.perf_counter()
-            st = model.extra["structure"]
+            st = model.fe.structure
             f_full, _ = eigenmodes(full_stuck_stiffness(model), st.M, a.n_modes)
             writer.write("modes/frequency_hz_full", f_full, hz,
                          "natural frequencies of the unreduced FE model (same contact springs)")
@@ -184,7 +185,7 @@ def run_modes(scene, model, writer, results=None) -> ModesResult:
         path = Path(a.export_rom)
         if not path.is_absolute():
             path = writer.path.parent / path
-        save_rom(path, model.extra["rom"])
+        save_rom(path, model.rom)
         g.attrs["rom_file"] = str(path)
     g.attrs["time_s"] = time.perf_counter() - t0
     el = res.frequency_hz[res.elastic]

@@ -36,7 +36,7 @@ def run_qsma_analysis(scene, model, writer, results=None) -> QSMAResult:
         After writing what was computed, when a load increment failed.
     """
     a = scene.analysis.qsma
-    x0 = np.asarray(model.extra.get("x0", np.zeros(model.n_dof)), dtype=float)
+    x0 = model.linearisation.x0
     modes = stuck_modes(model, a.mode + 10, suspension_hz=a.rigid_cutoff_hz)
     elastic = np.nonzero(modes.elastic)[0]
     if a.mode > elastic.size:

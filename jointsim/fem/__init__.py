@@ -4,6 +4,9 @@
 * :mod:`~jointsim.fem.mesh` -- meshio files -> :class:`~jointsim.fem.mesh.FEMesh`;
 * :mod:`~jointsim.fem.assembly` -- scikit-fem K and M, suspension, bolts;
 * :mod:`~jointsim.fem.interface` -- node pairing, tributary areas, frames;
-* :mod:`~jointsim.fem.build` -- scene -> reduced :class:`~jointsim.model.StructuralModel`
-  (registered as ``BUILDERS["fe"]`` by :mod:`jointsim.reduction`).
+* :mod:`~jointsim.fem.reduction` -- Craig-Bampton reduction;
+* :mod:`~jointsim.fem.reduced` -- :class:`~jointsim.fem.reduced.ReducedModel`
+  and its bolt table (plain data, also read from ROM files);
+* :mod:`~jointsim.fem.build` -- FE structure -> reduced model (the scene ->
+  :class:`~jointsim.model.StructuralModel` builder is :mod:`jointsim.model.fe`).
 """

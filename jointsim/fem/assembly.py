@@ -14,7 +14,7 @@ load): in the preload step the bolt pulls its two ends together with exactly
 its preload ``F`` (its spring is not active); afterwards its length is fixed
 at the preloaded state and its axial spring ``k_b`` acts on changes of length,
 so the bolt tension is ``F + k_b (elongation since preload)``.  The spring
-``K_bolt`` is part of ``K``; :mod:`jointsim.reduction` turns this into the
+``K_bolt`` is part of ``K``; :func:`jointsim.model.preload.structural_model` turns this into the
 constant force ``f_static = f_clamp + K_bolt x0``.
 """
 from __future__ import annotations

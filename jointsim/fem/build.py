@@ -1,4 +1,4 @@
-"""Scene -> FE lap joint -> Craig-Bampton -> preloaded StructuralModel.
+"""FE structure -> Craig-Bampton -> :class:`~jointsim.fem.reduced.ReducedModel`.
 
 The retained (physical) DOFs of the reduced model are, in this order:
 
@@ -14,17 +14,10 @@ points of the reduced model: ``"<point>.x"``, ``"<point>.y"`` and
 """
 from __future__ import annotations
 
-import logging
-import time
-
 import numpy as np
 
-from .._schema import SceneError
-from ..reduction import BoltTable, ReducedModel, craig_bampton, structural_model
-from .assembly import build_structure
-from .mesh import read_mesh
-
-log = logging.getLogger(__name__)
+from .reduced import BoltTable, ReducedModel
+from .reduction import craig_bampton
 
 
 def retained_dofs(structure, retain_points=("excitation", "response")):
@@ -68,8 +61,8 @@ def reduce_structure(structure, n_modes: int, retain_points=("excitation", "resp
 
     Returns
     -------
-    rom : jointsim.reduction.ReducedModel
-    cb : jointsim.reduction.CraigBampton
+    rom : jointsim.fem.reduced.ReducedModel
+    cb : jointsim.fem.reduction.CraigBampton
     """
     B, labels = retained_dofs(structure, retain_points)
     cb = craig_bampton(structure.K, structure.M, B, n_modes)
@@ -94,50 +87,3 @@ def reduce_structure(structure, n_modes: int, retain_points=("excitation", "resp
     rom = ReducedModel(M=cb.M, K=cb.K, interface=structure.interface.renumbered(index),
                        bolts=bolts, points=points, dof_labels=tuple(labels))
     return rom, cb
-
-
-def build_fe(scene):
-    """Structural model of a ``kind = "fe"`` scene: the reduced, preloaded lap joint.
-
-    ``extra`` holds ``structure`` (the full :class:`FEStructure`), ``cb``
-    (the :class:`CraigBampton` basis), ``n_full_dof``, ``build_time_s``,
-    ``reduce_time_s`` and everything :func:`jointsim.reduction.structural_model`
-    adds (``x0``, ``preload``, ``rom``, ...).
-    """
-    m = scene.model
-    file = str(scene.path)
-    t0 = time.perf_counter()
-    path = scene.resolve(m.mesh)
-    try:
-        mesh = read_mesh(path)
-    except (OSError, ValueError) as exc:
-        raise SceneError(file, "model.mesh", f"could not be read: {exc}") from None
-    for i, b in enumerate(m.bolts):
-        for side in ("lower", "upper"):
-            if f"{b.tag}_{side}" not in mesh.point_sets:
-                raise SceneError(file, f"model.bolts[{i}].tag",
-                                 f"{b.tag!r}: the mesh has no point set '{b.tag}_{side}'")
-    for key in ("interface_lower", "interface_upper"):
-        if getattr(m, key) not in mesh.edge_sets:
-            raise SceneError(file, f"model.{key}", f"{getattr(m, key)!r} is not an edge set "
-                                                   f"of the mesh ({sorted(mesh.edge_sets)})")
-    for p in m.retain_points:
-        if p not in mesh.point_sets:
-            raise SceneError(file, "model.retain_points",
-                             f"{p!r} is not a point set of the mesh ({sorted(mesh.point_sets)})")
-    try:
-        structure = build_structure(mesh, E=m.E, nu=m.nu, rho=m.rho, thickness=m.thickness,
-                                    bolts=m.bolts, suspension_stiffness=m.suspension_stiffness,
-                                    interface=(m.interface_lower, m.interface_upper))
-    except ValueError as exc:
-        raise SceneError(file, "model.mesh", str(exc)) from None
-    t1 = time.perf_counter()
-    rom, cb = reduce_structure(structure, m.n_modes, m.retain_points)
-    t2 = time.perf_counter()
-    log.info("FE: %d DOFs -> %d reduced (%d retained + %d modes); build %.2f s, reduce %.2f s",
-             structure.n_dof, rom.n_dof, cb.n_retained, cb.n_modes, t1 - t0, t2 - t1)
-    return structural_model(scene, rom, preload_tangential=m.preload_tangential,
-                            preload_tol=m.preload_tol,
-                            extra=dict(structure=structure, cb=cb, mesh_file=str(path),
-                                       n_full_dof=structure.n_dof, build_time_s=t1 - t0,
-                                       reduce_time_s=t2 - t1))

@@ -43,7 +43,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..fem.interface import Interface
-from ..reduction import BoltTable, ReducedModel
+from ..fem.reduced import BoltTable, ReducedModel
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +75,7 @@ def save_rom(path, rom: ReducedModel) -> Path:
     ----------
     path : str or Path
         ``.npz``, ``.mat`` or ``.h5``/``.hdf5``.
-    rom : jointsim.reduction.ReducedModel
+    rom : jointsim.fem.reduced.ReducedModel
 
     Returns
     -------

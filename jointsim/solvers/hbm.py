@@ -462,8 +462,7 @@ class HBMSystem:
         """
         z = np.zeros((self.n_c, self.n_r))
         if 0 in self.basis.harmonics and self.n_r:
-            from .static import stuck_linearisation
-            x0 = stuck_linearisation(self.model).x0
+            x0 = self.model.linearisation.x0
             z[self.basis.index[0][0]] = self.T @ x0
         return z.ravel()
 

@@ -154,7 +154,8 @@ def rigid_body_modes(model, frequency_hz, shapes, cutoff_hz=None):
     f = np.asarray(frequency_hz, dtype=float)
     if cutoff_hz is not None:
         return f < cutoff_hz, f"below {cutoff_hz:g} Hz"
-    st, cb = model.extra.get("structure"), model.extra.get("cb")
+    fe = model.fe
+    st, cb = (fe.structure, fe.cb) if fe is not None else (None, None)
     if st is not None and cb is not None and hasattr(st, "basis"):
         R = _fe_rigid_fields(st)
         MR = st.M @ R
@@ -165,7 +166,7 @@ def rigid_body_modes(model, frequency_hz, shapes, cutoff_hz=None):
         share /= np.maximum(np.einsum("mi,mi->m", full, (st.M @ full.T).T), 1e-300)
         return share > RIGID_SHARE, "rigid-body share of the modal mass > 0.5"
     rigid = f <= 1e-6 * max(float(f.max(initial=0.0)), 1e-300)
-    if model.extra.get("rom") is not None and f.size > 1:
+    if model.rom is not None and f.size > 1:
         n = min(MAX_RIGID, f.size - 1)
         ratio = f[1:n + 1] / np.maximum(f[:n], 1e-300)
         big = np.flatnonzero(ratio >= GAP_RATIO)
@@ -178,8 +179,9 @@ def rigid_body_modes(model, frequency_hz, shapes, cutoff_hz=None):
 def stuck_modes(model, n_modes: int, suspension_hz=None) -> ModesResult:
     """Modes of the structure linearised at its static state with the joint stuck.
 
-    The stiffness is :func:`jointsim.solvers.static.stuck_linearisation`'s
-    (the tangent at the preload state ``x0``), the same for every solver.
+    The stiffness is ``model.linearisation.K``
+    (:func:`jointsim.solvers.static.stuck_linearisation`: the tangent at the
+    preload state ``x0``), the same for every solver.
 
     Parameters
     ----------
@@ -189,8 +191,7 @@ def stuck_modes(model, n_modes: int, suspension_hz=None) -> ModesResult:
         Modes below this are rigid-body (suspension) modes; default: detected
         (:func:`rigid_body_modes`).
     """
-    from .static import stuck_linearisation
-    K = stuck_linearisation(model).K
+    K = model.linearisation.K
     f, phi = eigenmodes(K, model.M, n_modes)
     rigid, method = rigid_body_modes(model, f, phi, suspension_hz)
     if not np.all(np.isfinite(f)):
@@ -272,9 +273,8 @@ def full_stuck_stiffness(model):
     -------
     scipy.sparse.csr_matrix, shape (n_full_dof, n_full_dof)
     """
-    from .static import stuck_linearisation
-    st, cb = model.extra["structure"], model.extra["cb"]
-    Kc = stuck_linearisation(model).K.toarray() - cb.K
+    st, cb = model.fe.structure, model.fe.cb
+    Kc = model.linearisation.K.toarray() - cb.K
     nb = cb.n_retained
     off = np.abs(Kc[nb:, :]).max() if Kc.shape[0] > nb else 0.0
     if off > 1e-8 * np.abs(Kc).max():
@@ -294,7 +294,7 @@ def monolithic_modes(model, n_modes: int):
     frequency_hz : ndarray, shape (n_modes,)
     """
     from ..fem.assembly import merge_coincident
-    st = model.extra["structure"]
+    st = model.fe.structure
     P = merge_coincident(st.basis)
     K = sp.csr_matrix(P.T @ (st.K - st.K_bolt) @ P)
     M = sp.csr_matrix(P.T @ st.M @ P)

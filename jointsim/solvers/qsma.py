@@ -184,6 +184,10 @@ def qsma(model, phi, x0, alphas, state0=None, tol: float = 1e-10,
 
 
 def _stuck_K(model, x0):
+    """Stuck tangent at ``x0``: the model's linearisation when ``x0`` is its state."""
+    lin = model.linearisation
+    if np.array_equal(x0, lin.x0):
+        return lin.K
     from .static import tangent_stiffness
     return tangent_stiffness(model.K, model.contacts, x0)
 

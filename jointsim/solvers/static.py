@@ -399,7 +399,7 @@ class StuckLinearisation:
 def stuck_linearisation(model, *, tol: float = 1e-10) -> StuckLinearisation:
     """The static state of a structural model and its stuck linearisation.
 
-    ``x0`` is ``model.extra["x0"]`` when the builder solved it (FE and ROM
+    ``x0`` is ``model.preload.x0`` when the builder solved it (FE and ROM
     models: the bolt preload, which is the equilibrium of the model's own
     ``K`` and ``f_static``); otherwise it is solved here by
     :func:`solve_static` under the static load ``f0`` (``f_static`` plus the
@@ -407,8 +407,8 @@ def stuck_linearisation(model, *, tol: float = 1e-10) -> StuckLinearisation:
     scene's normal contact.  The tangent at ``x0`` comes from
     :func:`tangent_stiffness` with the stuck interface (:func:`stuck_mode`).
 
-    The result is cached in ``model.extra["stuck_linearisation"]`` (the
-    model is immutable, so it cannot change).
+    A :class:`~jointsim.model.StructuralModel` computes it once, when it is
+    constructed, and keeps it as ``model.linearisation``: solvers read that.
 
     Parameters
     ----------
@@ -425,13 +425,10 @@ def stuck_linearisation(model, *, tol: float = 1e-10) -> StuckLinearisation:
     RuntimeError
         When the static state cannot be solved (the message says why).
     """
-    cached = model.extra.get("stuck_linearisation")
-    if cached is not None:
-        return cached
     c = model.contacts
     f0 = static_load(model)
     normal, tangential = _default_modes(c, None, stuck_mode(c))
-    given = model.extra.get("x0")
+    given = None if model.preload is None else model.preload.x0
     x_start = np.zeros(model.n_dof) if given is None else np.asarray(given, dtype=float)
     r = residual(model.K, f0, c, x_start, tangential=tangential, normal=normal)
     scale = max(np.linalg.norm(f0), np.linalg.norm(model.K @ x_start), 1e-300)
@@ -457,7 +454,6 @@ def stuck_linearisation(model, *, tol: float = 1e-10) -> StuckLinearisation:
     lin = StuckLinearisation(x0=x0, K=sp.csr_matrix(ev["J"]), f0=f0, N=np.asarray(ev["N"]),
                              gap=np.asarray(ev["g"]), closed=closed, source=source,
                              convergence=conv)
-    model.extra["stuck_linearisation"] = lin
     log.debug("stuck linearisation: %d/%d elements closed at x0 (%s)", int(closed.sum()),
               c.n_elements, conv.message)
     return lin

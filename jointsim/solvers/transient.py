@@ -461,12 +461,12 @@ def static_start(model, frictionless: bool = False, tol: float = 1e-10) -> Start
         When a static solve fails (the message says why).
     """
     from ..loads import static_load
-    from .static import solve_static, stuck_linearisation
+    from .static import solve_static
     c = model.contacts
     cmap = ContactMap(c)
     f0 = static_load(model)
     if frictionless and cmap.active:
-        x_start = model.extra.get("x0") if isinstance(model.extra, dict) else None
+        x_start = None if model.preload is None else model.preload.x0
         res = solve_static(model.K, f0, c, tangential="frictionless", tol=tol,
                            x_start=x_start, f_start=None if x_start is None else f0)
         if not res.convergence.success:
@@ -475,7 +475,7 @@ def static_start(model, frictionless: bool = False, tol: float = 1e-10) -> Start
         state = cmap.state_at(res.u_t, res.N)
         ev = cmap.evaluate(cmap.B @ res.x, state)
         return StartState(res.x, ev, res.convergence.iterations, "frictionless")
-    lin = stuck_linearisation(model, tol=tol)
+    lin = model.linearisation
     if not cmap.active:
         return StartState(lin.x0, empty_eval(c.law.rest_state(np.zeros(0))),
                           lin.convergence.iterations, lin.source)

@@ -21,12 +21,15 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
 
-from .contact import NormalLaw, TangentialLaw
+from ..contact import NormalLaw, TangentialLaw
+from ..fem.assembly import FEStructure
+from ..fem.reduced import ReducedModel
+from ..fem.reduction import CraigBampton
+from ..solvers.static import StaticResult, StuckLinearisation, stuck_linearisation
 
 log = logging.getLogger(__name__)
 
@@ -81,8 +84,65 @@ class ContactSet:
 
 
 @dataclass(frozen=True)
+class Preload:
+    """The preloaded static state solved by a model builder (bolt preload).
+
+    Attributes
+    ----------
+    x0 : ndarray, shape (n_dof,)
+        Preload displacement [m]: the equilibrium of the model's own ``K`` and
+        ``f_static`` with the joint at rest.
+    result : jointsim.solvers.static.StaticResult
+        The preload solve (normal loads, gaps, slips, tangential forces at
+        ``x0``, its convergence report).
+    f_clamp : ndarray, shape (n_dof,)
+        Bolt clamping forces [N] (zeros without bolts).
+    K_bolt : scipy.sparse.csr_matrix, shape (n_dof, n_dof)
+        Bolt springs [N/m] (part of the reduced model's ``K``; zero without bolts).
+    time_s : float
+        Wall time of the preload solve [s].
+    """
+
+    x0: np.ndarray
+    result: StaticResult
+    f_clamp: np.ndarray
+    K_bolt: sp.csr_matrix
+    time_s: float
+
+
+@dataclass(frozen=True)
+class FEParts:
+    """The finite-element model behind a reduced (``kind = "fe"``) model.
+
+    Attributes
+    ----------
+    structure : jointsim.fem.assembly.FEStructure
+        The full assembled structure (``n_full_dof`` DOFs, mesh, basis, bolts).
+    cb : jointsim.fem.reduction.CraigBampton
+        The Craig-Bampton basis, ``x_full = cb.T @ x``, shape (n_full_dof, n_dof).
+    mesh_file : str
+        Path of the mesh file.
+    build_time_s : float
+        Wall time of the FE assembly [s].
+    reduce_time_s : float
+        Wall time of the reduction [s].
+    """
+
+    structure: FEStructure
+    cb: CraigBampton
+    mesh_file: str
+    build_time_s: float = 0.0
+    reduce_time_s: float = 0.0
+
+    @property
+    def n_full_dof(self) -> int:
+        """DOFs of the unreduced FE model."""
+        return self.structure.n_dof
+
+
+@dataclass(frozen=True)
 class StructuralModel:
-    """Linear structure plus contact elements.
+    """Linear structure plus contact elements, with its static state.
 
     Attributes
     ----------
@@ -101,8 +161,22 @@ class StructuralModel:
         Named DOFs (e.g. ``{"response": 12}``).
     units : str
         ``"SI"`` or ``"nondimensional"``.
-    extra : dict
-        Kind-specific data (mesh, reduction basis, ...), not used by solvers.
+    preload : Preload or None
+        The preload state solved by the builder (FE and ROM models); None for
+        lumped models.
+    fe : FEParts or None
+        The unreduced FE model (``kind = "fe"`` only).
+    rom : jointsim.fem.reduced.ReducedModel or None
+        The reduced model the structure was built from (FE and ROM models).
+    source : str or None
+        The file the model was read from (``kind = "rom"``).
+    linearisation : jointsim.solvers.static.StuckLinearisation
+        The static state ``x0`` (``preload.x0`` when it is an equilibrium,
+        else solved under the static load with the joint stuck) and the stuck
+        tangent stiffness there: the one linear joint of every solver.
+        Computed once, when the model is constructed (leave it out, or pass
+        None, to have it computed; pass None again to ``dataclasses.replace``
+        when changing ``K``, the contacts or the loads).
     """
 
     M: sp.csr_matrix
@@ -115,7 +189,15 @@ class StructuralModel:
     dof_labels: tuple
     points: dict = field(default_factory=dict)
     units: str = "SI"
-    extra: dict = field(default_factory=dict)
+    preload: Preload | None = None
+    fe: FEParts | None = None
+    rom: ReducedModel | None = None
+    source: str | None = None
+    linearisation: StuckLinearisation | None = None
+
+    def __post_init__(self):
+        if self.linearisation is None:
+            object.__setattr__(self, "linearisation", stuck_linearisation(self))
 
     @property
     def n_dof(self) -> int:
@@ -124,53 +206,8 @@ class StructuralModel:
     def force_coefficients(self, harmonics, scale: float = 1.0) -> np.ndarray:
         """External force coefficients, shape (n_coeff, n_dof) [N]: see
         :func:`jointsim.loads.force_coefficients`."""
-        from .loads import force_coefficients
+        from ..loads import force_coefficients
         return force_coefficients(self, harmonics, scale)
-
-
-def damping_matrix(M, K, damping, C0=None):
-    """Linear damping matrix from a scene's ``[damping]`` table.
-
-    Parameters
-    ----------
-    M, K : sparse matrix, shape (n, n)
-    damping : jointsim.scene.Damping
-    C0 : sparse matrix, optional
-        Damping given directly (lumped ``model.C``); added to the result.
-
-    Returns
-    -------
-    scipy.sparse.csr_matrix, shape (n, n) [N s/m]
-    """
-    n = M.shape[0]
-    C = sp.csr_matrix((n, n)) if C0 is None else sp.csr_matrix(C0)
-    if damping.kind == "rayleigh":
-        C = C + damping.alpha * M + damping.beta * K
-    elif damping.kind == "modal":
-        zeta = np.asarray(damping.zeta, dtype=float)
-        if zeta.size == 0:
-            raise ValueError("damping.zeta must list at least one modal damping ratio")
-        if n > 2000:
-            raise NotImplementedError("modal damping of a model with more than 2000 DOFs: "
-                                      "reduce it first (Craig-Bampton) or use Rayleigh damping")
-        import scipy.linalg as sla
-        w2, phi = sla.eigh(K.toarray(), M.toarray())
-        m = min(zeta.size, n)
-        w = np.sqrt(np.maximum(w2[:m], 0.0))
-        Mphi = M @ phi[:, :m]
-        C = C + sp.csr_matrix(Mphi @ np.diag(2.0 * zeta[:m] * w) @ Mphi.T)
-    return sp.csr_matrix(C)
-
-
-def _selector(n_rows: int, n_cols: int, plus, minus) -> sp.csr_matrix:
-    """Rows of +1/-1 picking ``x[plus] - x[minus]``; index -1 means ground."""
-    rows, cols, vals = [], [], []
-    for r, (a, b) in enumerate(zip(plus, minus)):
-        if a >= 0:
-            rows.append(r), cols.append(a), vals.append(1.0)
-        if b >= 0:
-            rows.append(r), cols.append(b), vals.append(-1.0)
-    return sp.csr_matrix((vals, (rows, cols)), shape=(n_rows, n_cols))
 
 
 def make_contact_set(scene, Tt, Tn, gap0, N0, area, position) -> ContactSet:
@@ -203,58 +240,3 @@ def with_fixed_normal_springs(K, contacts: ContactSet):
     return sp.csr_matrix(K + Tn.T @ sp.diags(fixed_normal_stiffness(contacts)) @ Tn)
 
 
-def build_lumped(scene) -> StructuralModel:
-    """Structural model of a ``kind = "lumped"`` scene."""
-    m = scene.model
-    n = m.n_dof
-    M = sp.csr_matrix(np.array(m.M, dtype=float))
-    K = sp.csr_matrix(np.array(m.K, dtype=float))
-    C0 = None if m.C is None else np.array(m.C, dtype=float)
-    ne = len(m.contacts)
-    Tt = _selector(ne, n, [c.t_dof for c in m.contacts], [c.t_ref for c in m.contacts])
-    Tn = _selector(ne, n, [c.n_dof for c in m.contacts], [c.n_ref for c in m.contacts])
-    N0 = np.array([c.N0 if c.N0 is not None else 0.0 for c in m.contacts])
-    gap0 = np.array([c.gap0 for c in m.contacts])
-    area = np.array([c.area for c in m.contacts])
-    position = np.column_stack([np.arange(ne, dtype=float), np.zeros(ne)])
-    contacts = make_contact_set(scene, Tt, Tn, gap0, N0, area, position)
-    K = with_fixed_normal_springs(K, contacts)
-    C = damping_matrix(M, K, scene.damping, C0)
-    loads = scene.excitation.loads
-    return StructuralModel(
-        M=M, K=K, C=C, contacts=contacts,
-        load_dofs=np.array([ld.dof for ld in loads], dtype=np.int64),
-        load_signals=tuple(ld.force for ld in loads),
-        f_static=np.zeros(n), dof_labels=tuple(f"x{i}" for i in range(n)),
-        points={}, units=m.units)
-
-
-#: model kind -> builder(scene) -> StructuralModel.  FE and ROM builders
-#: register themselves here from their own modules.
-BUILDERS: dict[str, Callable] = {"lumped": build_lumped}
-
-
-def build_model(scene) -> StructuralModel:
-    """Build the structural model of a scene (lumped, FE or ROM).
-
-    Raises
-    ------
-    NotImplementedError
-        For a model kind that has no builder yet.
-    """
-    kind = scene.model.kind
-    if kind not in BUILDERS:
-        _load_builders()
-    if kind not in BUILDERS:
-        raise NotImplementedError(f"no structural model builder for model.kind = {kind!r}")
-    model = BUILDERS[kind](scene)
-    log.info("model %s: %d DOFs, %d contact elements (%s / %s kernels)", kind, model.n_dof,
-             model.contacts.n_elements, model.contacts.law.name,
-             model.contacts.normal.name)
-    return model
-
-
-def _load_builders() -> None:
-    """Import modules that register builders for the FE and ROM kinds."""
-    from ._plugins import import_available
-    import_available(("jointsim.fem", "jointsim.reduction"))

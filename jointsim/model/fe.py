@@ -1,0 +1,77 @@
+"""Builder of ``kind = "fe"`` scenes: mesh -> FE lap joint -> Craig-Bampton -> preload.
+
+The FE part (assembly and reduction) is :mod:`jointsim.fem`; the preload and
+the contact set are :func:`jointsim.model.preload.structural_model`.
+"""
+from __future__ import annotations
+
+import logging
+import time
+
+from .._schema import SceneError
+from ..fem.assembly import build_structure
+from ..fem.build import reduce_structure
+from ..fem.mesh import read_mesh
+from .preload import structural_model
+from .structural import FEParts, StructuralModel
+
+log = logging.getLogger(__name__)
+
+
+def build_fe(scene) -> StructuralModel:
+    """Structural model of a ``kind = "fe"`` scene: the reduced, preloaded lap joint.
+
+    Parameters
+    ----------
+    scene : jointsim.scene.Scene
+
+    Returns
+    -------
+    StructuralModel
+        ``fe`` holds the full :class:`~jointsim.fem.assembly.FEStructure`, the
+        :class:`~jointsim.fem.reduction.CraigBampton` basis, the mesh file and
+        the build and reduction times; ``preload``, ``rom`` and
+        ``linearisation`` are set by
+        :func:`jointsim.model.preload.structural_model`.
+
+    Raises
+    ------
+    SceneError
+        When the mesh cannot be read or lacks a set the scene names.
+    """
+    m = scene.model
+    file = str(scene.path)
+    t0 = time.perf_counter()
+    path = scene.resolve(m.mesh)
+    try:
+        mesh = read_mesh(path)
+    except (OSError, ValueError) as exc:
+        raise SceneError(file, "model.mesh", f"could not be read: {exc}") from None
+    for i, b in enumerate(m.bolts):
+        for side in ("lower", "upper"):
+            if f"{b.tag}_{side}" not in mesh.point_sets:
+                raise SceneError(file, f"model.bolts[{i}].tag",
+                                 f"{b.tag!r}: the mesh has no point set '{b.tag}_{side}'")
+    for key in ("interface_lower", "interface_upper"):
+        if getattr(m, key) not in mesh.edge_sets:
+            raise SceneError(file, f"model.{key}", f"{getattr(m, key)!r} is not an edge set "
+                                                   f"of the mesh ({sorted(mesh.edge_sets)})")
+    for p in m.retain_points:
+        if p not in mesh.point_sets:
+            raise SceneError(file, "model.retain_points",
+                             f"{p!r} is not a point set of the mesh ({sorted(mesh.point_sets)})")
+    try:
+        structure = build_structure(mesh, E=m.E, nu=m.nu, rho=m.rho, thickness=m.thickness,
+                                    bolts=m.bolts, suspension_stiffness=m.suspension_stiffness,
+                                    interface=(m.interface_lower, m.interface_upper))
+    except ValueError as exc:
+        raise SceneError(file, "model.mesh", str(exc)) from None
+    t1 = time.perf_counter()
+    rom, cb = reduce_structure(structure, m.n_modes, m.retain_points)
+    t2 = time.perf_counter()
+    log.info("FE: %d DOFs -> %d reduced (%d retained + %d modes); build %.2f s, reduce %.2f s",
+             structure.n_dof, rom.n_dof, cb.n_retained, cb.n_modes, t1 - t0, t2 - t1)
+    return structural_model(scene, rom, preload_tangential=m.preload_tangential,
+                            preload_tol=m.preload_tol,
+                            fe=FEParts(structure=structure, cb=cb, mesh_file=str(path),
+                                       build_time_s=t1 - t0, reduce_time_s=t2 - t1))
