@@ -80,6 +80,29 @@ class CraigBampton:
         return 0.5 * (out + out.T)
 
 
+def with_fixed_signs(Phi) -> np.ndarray:
+    """Mode shapes with a deterministic sign: the entry of largest magnitude positive.
+
+    Eigensolvers return each mode up to its sign, and the sign can change
+    between builds of the same model; fixing it makes modal coordinates of
+    files of the same scene comparable.
+
+    Parameters
+    ----------
+    Phi : ndarray, shape (n, m)
+        Mode shapes in columns.
+
+    Returns
+    -------
+    ndarray, shape (n, m)
+    """
+    Phi = np.asarray(Phi)
+    if Phi.size == 0:
+        return Phi
+    pick = Phi[np.argmax(np.abs(Phi), axis=0), np.arange(Phi.shape[1])]
+    return Phi * np.where(pick < 0, -1.0, 1.0)
+
+
 def craig_bampton(K, M, retained, n_modes: int) -> CraigBampton:
     """Hurty/Craig-Bampton reduction of a sparse model.
 
@@ -122,12 +145,13 @@ def craig_bampton(K, M, retained, n_modes: int) -> CraigBampton:
     else:
         op = spla.LinearOperator(K_II.shape, matvec=lu.solve, dtype=float)
         w2, Phi = spla.eigsh(K_II, k=n_modes, M=sp.csc_matrix(M[I][:, I]), sigma=0.0,
-                             which="LM", OPinv=op)
+                             which="LM", OPinv=op, v0=np.ones(I.size))
         order = np.argsort(w2)
         w2, Phi = w2[order], Phi[:, order]
         # normalise to unit modal mass (eigsh already does, to round-off)
         mm = np.einsum("ij,ij->j", Phi, M[I][:, I] @ Phi)
         Phi = Phi / np.sqrt(mm)
+    Phi = with_fixed_signs(Phi)
     T = np.zeros((n, B.size + n_modes))
     T[B, np.arange(B.size)] = 1.0
     T[I, :B.size] = Psi

@@ -32,6 +32,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..fem.reduction import with_fixed_signs
 from ..results import SUCCESS, Convergence
 
 log = logging.getLogger(__name__)
@@ -87,7 +88,7 @@ def eigenmodes(K, M, n_modes: int):
     if sparse_big:
         try:
             w2, phi = spla.eigsh(sp.csc_matrix(K), k=m, M=sp.csc_matrix(M), sigma=0.0,
-                                 which="LM")
+                                 which="LM", v0=np.ones(n))
         except RuntimeError:  # singular K: the dense solver copes
             sparse_big = False
         else:
@@ -98,7 +99,7 @@ def eigenmodes(K, M, n_modes: int):
         Kd = K.toarray() if sp.issparse(K) else np.asarray(K)
         Md = M.toarray() if sp.issparse(M) else np.asarray(M)
         w2, phi = sla.eigh(0.5 * (Kd + Kd.T), 0.5 * (Md + Md.T), subset_by_index=(0, m - 1))
-    return np.sqrt(np.maximum(w2, 0.0)) / (2 * np.pi), phi.T
+    return np.sqrt(np.maximum(w2, 0.0)) / (2 * np.pi), with_fixed_signs(phi).T
 
 
 #: Rigid-body modes by the spectral gap: at most this many ...
