@@ -106,20 +106,7 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
     C = damping_matrix(M, K_stuck, scene.damping,
                        None if rom.C is None else sp.csr_matrix(rom.C))
     loads = scene.excitation.loads
-    load_dofs = []
-    for i, ld in enumerate(loads):
-        if ld.point:
-            key = f"{ld.point}.{ld.direction}"
-            if key not in rom.points:
-                raise SceneError(str(scene.path), f"excitation.loads[{i}].point",
-                                 f"names {ld.point!r}, which is not a retained point of the "
-                                 f"model (retained: {sorted(set(p.split('.')[0] for p in rom.points))})")
-            load_dofs.append(rom.points[key])
-        else:
-            if ld.dof >= n:
-                raise SceneError(str(scene.path), f"excitation.loads[{i}].dof",
-                                 f"must be < {n} (the reduced model has {n} DOFs)")
-            load_dofs.append(ld.dof)
+    load_dofs = reduced_load_dofs(scene, rom)
     preload = Preload(x0=x0, result=pre, f_clamp=f_clamp, K_bolt=K_bolt, time_s=t_pre)
     log.info("preload: sum N0 = %.6g N over %d/%d elements in contact (%s)",
              N0.sum(), int(np.sum(N0 > 0)), ne, pre.convergence.message)
@@ -129,3 +116,30 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
                            f_static=f_static, dof_labels=tuple(rom.dof_labels),
                            points=dict(rom.points), units=getattr(scene.model, "units", "SI"),
                            preload=preload, fe=fe, rom=rom, source=source)
+
+
+def reduced_load_dofs(scene, rom: ReducedModel) -> list[int]:
+    """DOF of each ``[[excitation.loads]]`` entry in the reduced model.
+
+    Raises
+    ------
+    SceneError
+        For a load on a point that is not retained or a DOF out of range.
+    """
+    n = rom.n_dof
+    load_dofs = []
+    for i, ld in enumerate(scene.excitation.loads):
+        if ld.point:
+            key = f"{ld.point}.{ld.direction}"
+            if key not in rom.points:
+                retained = sorted(set(p.split('.')[0] for p in rom.points))
+                raise SceneError(str(scene.path), f"excitation.loads[{i}].point",
+                                 f"names {ld.point!r}, which is not a retained point of the "
+                                 f"model (retained: {retained})")
+            load_dofs.append(rom.points[key])
+        else:
+            if ld.dof >= n:
+                raise SceneError(str(scene.path), f"excitation.loads[{i}].dof",
+                                 f"must be < {n} (the reduced model has {n} DOFs)")
+            load_dofs.append(ld.dof)
+    return load_dofs
