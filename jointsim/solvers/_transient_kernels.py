@@ -3,7 +3,7 @@
 :func:`march_dense` is the fused generalized-alpha march of a dense model
 (lumped and reduced models) with anchored slider banks and penalty normal
 contact: the same scheme and the same scalar contact law as the Python
-stepper of :mod:`jointsim.solvers._march`, without its per-step overhead.
+stepper of :mod:`jointsim.solvers.generalized_alpha`, without its per-step overhead.
 
 The contact march kernels are compiled with ``parallel=True`` for harmonic
 balance, where one call covers many samples and elements.  Time marching
@@ -155,7 +155,7 @@ def march_dense(times, h, x0, v0, a0, phi0, state0,
                 omega, hnum, coef,
                 tkind, nkind, k, g, gap0, kn, N0,
                 tol, max_iter, scale):
-    """Generalized-alpha steps of a dense model, fused (see :mod:`._march` for the scheme).
+    """Generalized-alpha steps of a dense model, fused (see :mod:`.generalized_alpha` for the scheme).
 
     Marches from ``times[0]`` through ``times[1:]`` (equal steps), with Newton
     condensed on the contact coordinates and the state committed at the end of
