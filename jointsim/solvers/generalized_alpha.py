@@ -62,7 +62,13 @@ coordinates only::
 solved by Newton with the consistent tangent ``I + (1-af) G D``, where
 ``D = dphi/dy`` comes from the same march kernels as harmonic balance
 (called with one sample and the committed state: the tangent of the step at
-fixed history).  ``x1`` is recovered with one product by ``Z``.  A step whose
+fixed history).  The iteration stops when
+
+    max |r| <= newton_tol * max(max |y|, max |B x_p|, max |B x0|),
+
+a displacement scale of the step alone (its iterate, its linear prediction
+and its start ``x0``), so that a step's tolerance does not depend on the
+steps marched before it.  ``x1`` is recovered with one product by ``Z``.  A step whose
 Newton iteration fails (iteration limit or non-finite values) is cut in half
 and retried, recursively, up to ``max_cuts`` times.
 """
@@ -133,11 +139,22 @@ class _LinearSolver:
 
 
 class _Condensed:
-    """``S``, its factorisation, ``Z = S^-1 B^T`` and ``G = B Z`` for one step size."""
+    """``S``, its factorisation, ``Z = S^-1 B^T`` and ``G = B Z`` for one step size.
+
+    Attributes
+    ----------
+    S : ndarray or scipy.sparse matrix, shape (n_dof, n_dof)
+    solver : _LinearSolver
+    Sinv : ndarray, shape (n_dof, n_dof), or None
+        C-contiguous ``S^-1`` for the fused kernel (dense ``S``; None when sparse).
+    Z : ndarray, shape (n_dof, n_c)
+    G : ndarray, shape (n_c, n_c)
+    """
 
     def __init__(self, S, cmap: ContactMap, dense: bool):
         self.S = S
         self.solver = _LinearSolver(S)
+        self.Sinv = np.ascontiguousarray(self.solver.inv) if self.solver.dense else None
         if cmap.active:
             Bt = cmap.Bt if dense else cmap.Bt.toarray()
             self.Z = np.asarray(self.solver.solve(Bt)).reshape(S.shape[0], cmap.n_c)
@@ -175,7 +192,8 @@ def condensed_newton(cmap: ContactMap, G, coef, y_p, y0, state, tol, max_iter, s
         Tolerance on ``max |r|`` relative to ``max(|y|, |y_p|, scale)``.
     max_iter : int
     scale : float
-        Displacement scale added to the relative tolerance [m].
+        Displacement scale of the step added to the relative tolerance (the
+        largest contact coordinate at the step's start) [m].
     prev : tuple, optional
         ``(y0, ev0)`` at the start of a dynamic step, for the normal-force
         correction of unilateral contacts.
@@ -279,7 +297,10 @@ class GeneralizedAlpha:
     rho_inf : float
         Spectral radius at infinite frequency.
     newton_tol : float
-        Relative Newton tolerance on the contact coordinates.
+        Relative Newton tolerance on the contact coordinates: a step's
+        residual ``max |r|`` [m] is compared with ``newton_tol`` times the
+        largest contact coordinate of its iterate, its linear prediction and
+        its start (see the module docstring), never with earlier steps.
     max_iter : int
         Newton iterations before a step is cut.
     max_cuts : int
@@ -305,7 +326,6 @@ class GeneralizedAlpha:
         self._factors: dict[float, _Condensed] = {}
         self._mass_solver = None
         self.stats = StepStats()
-        self.scale = 0.0  # displacement scale for the Newton tolerance, raised as we go
         #: March blocks of steps with the fused numba kernel (dense models, anchored or
         #: linear tangential laws, harmonic loads); otherwise step by step in Python.
         self.fused = bool(fused and self.dense and isinstance(force, LoadFunction)
@@ -373,7 +393,6 @@ class GeneralizedAlpha:
         if not np.all(np.isfinite(a0)):
             raise ValueError("the initial acceleration is not finite: is the mass matrix "
                              "singular?")
-        self.scale = max(self.scale, float(np.max(np.abs(self.cmap.B @ x0), initial=0.0)))
         return MarchState(float(t0), x0, v0, a0, ev)
 
     # -- one step ---------------------------------------------------------------
@@ -443,7 +462,7 @@ class GeneralizedAlpha:
             B = self.cmap.B
             y, ev, its, c = condensed_newton(
                 self.cmap, fac.G, coef, B @ x_p, B @ x_guess, s.contact.state,
-                self.newton_tol, self.max_iter, self.scale,
+                self.newton_tol, self.max_iter, float(np.max(np.abs(B @ s.x))),
                 prev=(B @ s.x, s.contact) if self.cmap.unilateral else None)
             self.stats.newton_iterations += its
             x1 = x_p - fac.Z @ (coef * ev.phi + c)
@@ -489,8 +508,6 @@ class GeneralizedAlpha:
         with single_threaded():  # one-sample kernel calls: no thread-pool launches
             out = self._step(s, float(t1), 0)
         self.stats.steps += 1
-        if self.cmap.active:
-            self.scale = max(self.scale, float(np.max(np.abs(out.contact.u))))
         return out
 
     def march(self, s: MarchState, times):
@@ -561,8 +578,6 @@ class GeneralizedAlpha:
         c = self.model.contacts
         law = c.law
         tkind, nkind = law.fused_code, c.normal.fused_code
-        if not hasattr(fac, "Sinv"):
-            fac.Sinv = np.ascontiguousarray(fac.solver.inv)
         state = np.ascontiguousarray(s.contact.state, dtype=float)
         if state.ndim != 2 or state.shape[0] != law.n_elements:
             state = np.zeros((law.n_elements, 0))
@@ -575,8 +590,7 @@ class GeneralizedAlpha:
             self.force.harmonic_rows, np.ascontiguousarray(self.force.coefficients),
             tkind, nkind, np.ascontiguousarray(law.k), np.ascontiguousarray(law.g),
             np.ascontiguousarray(c.gap0, dtype=float), np.ascontiguousarray(c.kn, dtype=float),
-            np.ascontiguousarray(self.cmap.N0, dtype=float), self.newton_tol, self.max_iter,
-            self.scale)
+            np.ascontiguousarray(self.cmap.N0, dtype=float), self.newton_tol, self.max_iter)
         self.stats.steps += done
         self.stats.substeps += done
         self.stats.newton_iterations += its
@@ -587,7 +601,6 @@ class GeneralizedAlpha:
             u[:, 1:done + 1] = U[:, 1:done + 1]
             f[:, 1:done + 1] = F[:, 1:done + 1]
             N[:, 1:done + 1] = NN[:, 1:done + 1]
-            self.scale = max(self.scale, float(np.max(np.abs(U[:, :done + 1]))))
         e = np.zeros(self.cmap.n_e)
         ev = ContactEval(PHI[done].copy(), e, e, e, st.copy() if law.has_force
                          else s.contact.state, U[:, done].copy(), F[:, done].copy(),
