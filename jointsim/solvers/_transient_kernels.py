@@ -155,7 +155,7 @@ def march_dense(times, h, x0, v0, a0, phi0, state0,
                 omega, hnum, coef,
                 tkind, nkind, k, g, gap0, kn, N0,
                 tol, max_iter):
-    """Generalized-alpha steps of a dense model, fused (see :mod:`.generalized_alpha` for the scheme).
+    """Generalized-alpha steps of a dense model, fused (the scheme: :mod:`.generalized_alpha`).
 
     Marches from ``times[0]`` through ``times[1:]`` (equal steps), with Newton
     condensed on the contact coordinates and the state committed at the end of
