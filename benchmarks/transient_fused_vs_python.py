@@ -19,7 +19,7 @@ import numpy as np
 from jointsim.model import build_model
 from jointsim.scene import parse_scene
 from jointsim.loads import LoadFunction
-from jointsim.solvers._march import GeneralizedAlpha
+from jointsim.solvers.generalized_alpha import GeneralizedAlpha
 from jointsim.solvers.transient import static_start
 from jointsim.solvers._transient_kernels import single_threaded
 

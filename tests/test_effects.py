@@ -8,7 +8,7 @@ import jointsim.contact._kernels as kernels
 from jointsim.contact import NoFriction
 from jointsim.model import build_model
 from jointsim.scene import load_scene
-from jointsim.solvers._march import ContactMap
+from jointsim.solvers.contact_map import ContactMap
 from jointsim.solvers.hbm import HBMSystem, solve_point
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from jointsim.analyses.crosscheck import cross_check_file
+from jointsim.io.hbm_points import read_hbm_solutions
 from jointsim.model import build_model
 from jointsim.post.tables import info_text
 from jointsim.run import run_scene
@@ -146,9 +147,9 @@ def test_hbm_reference_sources(crosscheck_run):
     with h5py.File(out) as h5:
         w = h5["hbm/omega"][()]
         k = len(w) // 2
-        ref = CC.hbm_reference(h5, sc, m, float(w[k]), F_SCALE)
+        ref = CC.hbm_reference(read_hbm_solutions(h5), sc, m, float(w[k]), F_SCALE)
         assert ref.source == f"stored point {k}" and np.array_equal(ref.X, h5["hbm/X"][k])
-        other = CC.hbm_reference(h5, sc, m, 1.15, 0.05)
+        other = CC.hbm_reference(read_hbm_solutions(h5), sc, m, 1.15, 0.05)
         assert other.convergence.success
         assert other.source.endswith("from the stuck linear response")
         system = HBMSystem(m, sc.analysis.hbm.harmonics, sc.analysis.hbm.n_samples)

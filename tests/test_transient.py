@@ -11,12 +11,12 @@ import pytest
 from jointsim.model import build_model
 from jointsim.results import STEP_TOO_SMALL
 from jointsim.scene import SceneError
-from jointsim.solvers import _march
+from jointsim.solvers import generalized_alpha as GA
 from jointsim.harmonics import dft_matrix
 from jointsim.loads import LoadFunction
-from jointsim.solvers._march import GeneralizedAlpha
-from jointsim.solvers.transient import (ExtremumTracker, decay_estimates, free_decay,
-                                        march_steady, rigid_modes, static_start)
+from jointsim.solvers.generalized_alpha import GeneralizedAlpha
+from jointsim.solvers.periodic import ExtremumTracker, decay_estimates
+from jointsim.solvers.transient import free_decay, march_steady, rigid_modes, static_start
 
 from ._transient_scenes import (jenkins_backbone, jenkins_dissipation, lumped, separating,
                                 sdof_jenkins, two_dof_jenkins)
@@ -61,9 +61,9 @@ def test_order_two_on_linear_oscillator(rho):
 
 
 def test_alpha_parameters_match_chung_hulbert():
-    am, af, g, b = _march.alpha_parameters(1.0)
+    am, af, g, b = GA.alpha_parameters(1.0)
     assert (am, af, g, b) == (0.5, 0.5, 0.5, 0.25)
-    am, af, g, b = _march.alpha_parameters(0.0)
+    am, af, g, b = GA.alpha_parameters(0.0)
     assert np.allclose((am, af, g, b), (-1.0, 0.0, 1.5, 1.0))
 
 
@@ -187,20 +187,20 @@ def test_failed_step_is_cut_into_halves(monkeypatch):
     ga, s = _marched(sc, 20, h)
     ref = GeneralizedAlpha(ga.model, ga.force, rho_inf=0.8)
     half = ref.step(ref.step(s, s.t + h / 2), s.t + h)
-    real = _march.condensed_newton
+    real = GA.condensed_newton
     big = ga.snap(h)
 
     def flaky(cmap, G, *args, **kw):
         if np.allclose(G, ga._factor(big).G):   # fail at the full step size only
-            raise _march.NewtonFailure("injected")
+            raise GA.NewtonFailure("injected")
         return real(cmap, G, *args, **kw)
 
-    monkeypatch.setattr(_march, "condensed_newton", flaky)
+    monkeypatch.setattr(GA, "condensed_newton", flaky)
     out = ga.step(s, s.t + h)
     assert ga.stats.cuts == 1 and ga.stats.deepest_cut == 1
     assert np.allclose(out.x, half.x, rtol=1e-12, atol=1e-14)
     ga.max_cuts = 0
-    with pytest.raises(_march.StepFailure, match="injected"):
+    with pytest.raises(GA.StepFailure, match="injected"):
         ga.step(s, s.t + h)
 
 
@@ -208,16 +208,16 @@ def test_step_failure_is_reported_and_keeps_results(monkeypatch):
     sc = sdof_jenkins({"omega": 1.0, "steps_per_period": 32, "max_cuts": 2,
                        "max_periods": 10})
     model = build_model(sc)
-    real = _march.condensed_newton
+    real = GA.condensed_newton
     calls = {"n": 0}
 
     def flaky(*args, **kw):
         calls["n"] += 1
         if calls["n"] > 100:   # about three periods in, every solve fails
-            raise _march.NewtonFailure("injected")
+            raise GA.NewtonFailure("injected")
         return real(*args, **kw)
 
-    monkeypatch.setattr(_march, "condensed_newton", flaky)
+    monkeypatch.setattr(GA, "condensed_newton", flaky)
     res = march_steady(model, sc.analysis.transient, progress=False, fused=False)
     assert not res.convergence.success
     assert res.convergence.status == STEP_TOO_SMALL

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from jointsim.analyses.crosscheck import cross_check_file
+from jointsim.io.hbm_points import read_hbm_solutions
 from jointsim.io.hdf5 import ResultWriter
 from jointsim.model import build_model
 from jointsim.solvers.crosscheck import (cross_check, explain_dc, hbm_reference, hbm_solution_at,
@@ -109,12 +110,12 @@ def test_cross_check_file_reads_the_hbm_contract(tmp_path):
             assert "unit" in h5["crosscheck"][name].attrs
         # between stored points the stored solution is interpolated, and says so (only
         # to seed a Newton solve at the frequency)
-        pt = hbm_solution_at(h5, 1.1)
+        pt = hbm_solution_at(read_hbm_solutions(h5), 1.1)
         assert pt.interpolated and pt.points == (0, 1)
         assert np.allclose(pt.X, 0.5 * (X[0] + X[1]))
-        assert hbm_solution_at(h5, 2.0) is None
+        assert hbm_solution_at(read_hbm_solutions(h5), 2.0) is None
         # ... and the reference at 1.1 is solved, not interpolated: the exact FRF
-        ref = hbm_reference(h5, sc, m, 1.1, 1.0)
+        ref = hbm_reference(read_hbm_solutions(h5), sc, m, 1.1, 1.0)
         assert ref.convergence.success and ref.source.startswith("solved at omega")
         exact = _linear_frf(M, K, C, np.array([0.2, 0.0]), 1.1, hs, 2)
         assert np.allclose(ref.X, exact, rtol=0, atol=1e-13)
@@ -134,9 +135,9 @@ def test_hbm_branches_and_force_scales(tmp_path):
         wr.write("hbm/harmonics", np.array([0, 1]), "1")
         wr.write("hbm/branch", branch, "1")
         wr.write("hbm/force_scale", np.array([1.0, 2.0]), "1")
-        a = hbm_solution_at(wr.h5, 1.0, force_scale=1.0)
-        b = hbm_solution_at(wr.h5, 1.0, force_scale=2.0)
+        a = hbm_solution_at(read_hbm_solutions(wr.h5), 1.0, force_scale=1.0)
+        b = hbm_solution_at(read_hbm_solutions(wr.h5), 1.0, force_scale=2.0)
         assert a.points == (1, 2) and a.X[1, 0] == pytest.approx(1.5)
         assert b.points == (4, 5) and b.X[1, 0] == pytest.approx(4.0 + 0.05 / 0.25)
         # the jump from point 2 (branch 0, w = 1.1) to 3 (branch 1, w = 0.8) is no bracket
-        assert hbm_solution_at(wr.h5, 1.15, force_scale=1.0) is None
+        assert hbm_solution_at(read_hbm_solutions(wr.h5), 1.15, force_scale=1.0) is None

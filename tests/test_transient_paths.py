@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from jointsim.model import build_model
-from jointsim.solvers import _march
+from jointsim.solvers import generalized_alpha as GA
 from jointsim.solvers import _transient_kernels as TK
 from jointsim.loads import LoadFunction
-from jointsim.solvers._march import GeneralizedAlpha
+from jointsim.solvers.generalized_alpha import GeneralizedAlpha
 from jointsim.solvers.transient import static_start
 
 from ._transient_scenes import lumped, separating, sdof_jenkins, two_dof_jenkins
@@ -73,7 +73,7 @@ def test_fused_kernel_matches_python_stepper(name):
 def test_sparse_path_matches_dense(monkeypatch):
     sc = SCENES["separating"]()
     _, (_, xd, *_rest) = _march_block(sc, fused=False, n_steps=150)
-    monkeypatch.setattr(_march, "DENSE_MAX_DOF", 0)
+    monkeypatch.setattr(GA, "DENSE_MAX_DOF", 0)
     ga, (_, xs, *_rest2) = _march_block(sc, fused=True, n_steps=150)
     assert not ga.dense and not ga.fused
     assert np.abs(xs - xd).max() <= 1e-9 * np.abs(xd).max()

@@ -2,7 +2,8 @@
 
 The comparison itself is :mod:`jointsim.solvers.crosscheck`; the transient
 runner calls :func:`write_cross_check` with the HBM runner's result in memory.
-:func:`cross_check_file` does the same against the ``/hbm`` group of a file.
+:func:`cross_check_file` does the same against the ``/hbm`` group of a file
+(read by :func:`jointsim.io.hbm_points.read_hbm_solutions`).
 """
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import logging
 
 import numpy as np
 
+from ..io.hbm_points import read_hbm_solutions
 from ..io.hdf5 import unit
 from ..solvers.crosscheck import CrossCheck, HBMSolutions, cross_check, hbm_reference
 
@@ -106,5 +108,5 @@ def cross_check_file(writer, scene, model, result, tol: float = 1e-3) -> CrossCh
     scene, model, result, tol
         As in :func:`write_cross_check`.
     """
-    return write_cross_check(writer, scene, model, result, HBMSolutions.from_h5(writer.h5),
+    return write_cross_check(writer, scene, model, result, read_hbm_solutions(writer.h5),
                              tol=tol)

@@ -3,7 +3,7 @@
 :func:`march_dense` is the fused generalized-alpha march of a dense model
 (lumped and reduced models) with anchored slider banks and penalty normal
 contact: the same scheme and the same scalar contact law as the Python
-stepper of :mod:`jointsim.solvers._march`, without its per-step overhead.
+stepper of :mod:`jointsim.solvers.generalized_alpha`, without its per-step overhead.
 
 The contact march kernels are compiled with ``parallel=True`` for harmonic
 balance, where one call covers many samples and elements.  Time marching
@@ -154,8 +154,8 @@ def march_dense(times, h, x0, v0, a0, phi0, state0,
                 M, C, K, Sinv, B, Bt, Z, G, am, af, gam, bet,
                 omega, hnum, coef,
                 tkind, nkind, k, g, gap0, kn, N0,
-                tol, max_iter, scale):
-    """Generalized-alpha steps of a dense model, fused (see :mod:`._march` for the scheme).
+                tol, max_iter):
+    """Generalized-alpha steps of a dense model, fused (the scheme: :mod:`.generalized_alpha`).
 
     Marches from ``times[0]`` through ``times[1:]`` (equal steps), with Newton
     condensed on the contact coordinates and the state committed at the end of
@@ -194,9 +194,10 @@ def march_dense(times, h, x0, v0, a0, phi0, state0,
         Slider stiffnesses and slip forces per unit normal load.
     gap0, kn, N0 : ndarray, shape (n_e,)
     tol : float
+        Relative Newton tolerance: a step converges when ``max |r|`` is at most
+        ``tol`` times the largest contact coordinate of its iterate, its linear
+        prediction and its start (a scale of the step alone).
     max_iter : int
-    scale : float
-        Displacement scale of the Newton tolerance [m].
 
     Returns
     -------
@@ -273,7 +274,7 @@ def march_dense(times, h, x0, v0, a0, phi0, state0,
             if unilateral:
                 g_start[:] = gap0 + (B @ x)[ne:]
             y = B @ (x + h * v + 0.5 * h * h * a)
-            refp = np.max(np.abs(yp))
+            refp = max(np.max(np.abs(yp)), np.max(np.abs(B @ x)))
             ok = False
             for it in range(max_iter + 1):
                 _contact_sample(y, state, tkind, nkind, k, g, gap0, kn, N0, phi, duu, dug,
@@ -287,7 +288,7 @@ def march_dense(times, h, x0, v0, a0, phi0, state0,
                 err = np.max(np.abs(r))
                 if not np.isfinite(err):
                     break
-                ref = max(np.max(np.abs(y)), refp, scale)
+                ref = max(np.max(np.abs(y)), refp)
                 if err <= tol * ref or err == 0.0:
                     ok = True
                     break

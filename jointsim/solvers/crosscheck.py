@@ -241,7 +241,7 @@ def cross_check(Xa, harmonics_a, Xb, harmonics_b, *, model=None, loops=None,
 
 
 # --------------------------------------------------------------------------
-# Against harmonic-balance solution points (in memory, or the /hbm group of a file)
+# Against harmonic-balance solution points (in memory)
 # --------------------------------------------------------------------------
 @dataclass(frozen=True)
 class HBMSolutions:
@@ -249,7 +249,8 @@ class HBMSolutions:
 
     The HBM runner returns this object (the points it wrote to ``/hbm``, in the
     same order), so later analyses compare with it in memory;
-    :meth:`from_h5` reads the same from a finished file.
+    :func:`jointsim.io.hbm_points.read_hbm_solutions` reads the same from a
+    finished file.
 
     Attributes
     ----------
@@ -280,37 +281,10 @@ class HBMSolutions:
     def n_points(self) -> int:
         return int(self.omega.size)
 
-    @classmethod
-    def from_h5(cls, h5) -> "HBMSolutions | None":
-        """The points stored in the ``/hbm`` group of a result file (None without them).
-
-        Uses ``/hbm/omega``, ``/hbm/X``, ``/hbm/harmonics`` and, when present,
-        ``/hbm/q``, ``/hbm/branch``, ``/hbm/force_scale`` and the ``n_samples``
-        attribute of ``/hbm`` (DESIGN §4 paths).
-        """
-        if "hbm/omega" not in h5 or "hbm/X" not in h5:
-            return None
-
-        def opt(name):
-            return h5[name][()] if name in h5 else None
-
-        n_samples = h5["hbm"].attrs.get("n_samples")
-        return cls(omega=h5["hbm/omega"][()], X=h5["hbm/X"][()],
-                   harmonics=tuple(int(h) for h in h5["hbm/harmonics"][()]),
-                   n_samples=None if n_samples is None else int(n_samples),
-                   q=opt("hbm/q"), branch=opt("hbm/branch"),
-                   force_scale=None if "hbm/force_scale" not in h5
-                   else np.atleast_1d(h5["hbm/force_scale"][()]))
-
-
-def _solutions(src) -> HBMSolutions | None:
-    """``src`` itself, or the points of the result file (h5py File or Group) ``src``."""
-    return src if isinstance(src, HBMSolutions) or src is None else HBMSolutions.from_h5(src)
-
 
 @dataclass(frozen=True)
 class HBMPoint:
-    """A stored HBM solution near a requested frequency, read from a result file.
+    """A stored HBM solution near a requested frequency.
 
     Attributes
     ----------
@@ -333,12 +307,13 @@ class HBMPoint:
     interpolated: bool
 
 
-def hbm_solution_at(solutions, omega: float, force_scale: float | None = None, X_near=None,
+def hbm_solution_at(solutions: HBMSolutions | None, omega: float,
+                    force_scale: float | None = None, X_near=None,
                     rtol: float = 1e-9) -> HBMPoint | None:
     """The HBM solution at (or around) ``omega`` among stored solution points.
 
-    ``solutions`` is an :class:`HBMSolutions` (or a result file, whose
-    ``/hbm`` points are read by :meth:`HBMSolutions.from_h5`).  With
+    ``solutions`` is an :class:`HBMSolutions` (the HBM runner's result, or
+    :func:`jointsim.io.hbm_points.read_hbm_solutions` of a file).  With
     ``branch`` (the branch of each point) brackets never span two branches,
     and with ``force_scale`` (one entry per branch) only branches of the
     requested force scale are used.  Where a branch passes ``omega`` several
@@ -352,7 +327,7 @@ def hbm_solution_at(solutions, omega: float, force_scale: float | None = None, X
     HBMPoint or None
         None when no stored branch reaches ``omega``.
     """
-    sols = _solutions(solutions)
+    sols = solutions
     if sols is None:
         return None
     w = sols.omega
@@ -451,8 +426,8 @@ def hbm_reference(solutions, scene, model, omega: float, force_scale: float, X_n
 
     Parameters
     ----------
-    solutions : HBMSolutions or h5py.File
-        The FRC's solution points (or a result file with ``/hbm``).
+    solutions : HBMSolutions
+        The FRC's solution points.
     scene : jointsim.scene.Scene
     model : jointsim.model.StructuralModel
     omega : float
@@ -475,16 +450,9 @@ def hbm_reference(solutions, scene, model, omega: float, force_scale: float, X_n
     from ..results import NOT_CONVERGED, SUCCESS, Convergence
     from .hbm import HBMSystem, solve_point
     t0 = time.perf_counter()
-    sols = _solutions(solutions)
+    sols = solutions
     hs = sols.harmonics
-    rows = _rows(hs)
-    near = None
-    if X_near is not None and harmonics_near is not None:
-        rn = _rows(tuple(harmonics_near))
-        near = np.zeros((max(s.stop for s in rows.values()), model.n_dof))
-        for h, sl in rows.items():
-            if h in rn:
-                near[sl] = np.asarray(X_near)[rn[h]]
+    near = _in_harmonics(X_near, harmonics_near, hs, model.n_dof)
     settings = scene.analysis.hbm if scene is not None else None
     n_samples = int(sols.n_samples if sols.n_samples is not None
                     else getattr(settings, "n_samples", 128))
@@ -499,22 +467,7 @@ def hbm_reference(solutions, scene, model, omega: float, force_scale: float, X_n
     F = system.force_coefficients(force_scale)
     tol = min(float(getattr(settings, "tol", 1e-10)), 1e-10)
     max_iter = max(int(getattr(settings, "max_iter", 20)), 30)
-    seeds = []
-    w = sols.omega
-
-    def stored_seed(i):
-        z = sols.q[i] if sols.q is not None else system.contact_coordinates(sols.X[i])
-        return (f"stored point {i} (omega = {w[i]:.8g})", (i,), z)
-
-    if pt is not None:   # a branch passes omega: the nearer end of its bracket
-        seeds.append(stored_seed(min(pt.points, key=lambda j: abs(w[j] - omega))))
-    elif sols.n_points:
-        ok = np.flatnonzero(_scale_mask(sols, force_scale))
-        if ok.size:
-            seeds.append(stored_seed(int(ok[np.argmin(np.abs(w[ok] - omega))])))
-    seeds.append(("the stuck linear response", (), np.zeros(system.n_z)))
-    if near is not None:
-        seeds.append(("the time-marching solution", (), system.contact_coordinates(near)))
+    seeds = _seeds(sols, system, pt, omega, force_scale, near)
     sol, used = None, seeds[-1]
     for seed in seeds:
         z0 = np.asarray(seed[2], dtype=float)
@@ -531,3 +484,50 @@ def hbm_reference(solutions, scene, model, omega: float, force_scale: float, X_n
     return HBMReference(sol.X, hs, float(omega), source, used[1], n_samples,
                         sol.residual / max(float(np.abs(F).max(initial=0.0)), 1e-300),
                         time.perf_counter() - t0, conv)
+
+
+def _in_harmonics(X, harmonics_x, harmonics, n_dof: int):
+    """``X`` (rows of ``harmonics_x``) on the rows of ``harmonics``, zero where it
+    has no harmonic; None without ``X`` or ``harmonics_x``.
+
+    Returns
+    -------
+    ndarray, shape (n_coeff, n_dof), or None
+    """
+    if X is None or harmonics_x is None:
+        return None
+    rows = _rows(harmonics)
+    rn = _rows(tuple(harmonics_x))
+    out = np.zeros((max(s.stop for s in rows.values()), n_dof))
+    for h, sl in rows.items():
+        if h in rn:
+            out[sl] = np.asarray(X)[rn[h]]
+    return out
+
+
+def _seeds(sols: HBMSolutions, system, pt: HBMPoint | None, omega: float, force_scale,
+           near) -> list:
+    """Newton seeds of :func:`hbm_reference`, in the order they are tried.
+
+    Returns
+    -------
+    list of tuple
+        ``(description, stored points used, contact coordinates z0 (n_z,))``.
+    """
+    seeds = []
+    w = sols.omega
+
+    def stored_seed(i):
+        z = sols.q[i] if sols.q is not None else system.contact_coordinates(sols.X[i])
+        return (f"stored point {i} (omega = {w[i]:.8g})", (i,), z)
+
+    if pt is not None:   # a branch passes omega: the nearer end of its bracket
+        seeds.append(stored_seed(min(pt.points, key=lambda j: abs(w[j] - omega))))
+    elif sols.n_points:
+        ok = np.flatnonzero(_scale_mask(sols, force_scale))
+        if ok.size:
+            seeds.append(stored_seed(int(ok[np.argmin(np.abs(w[ok] - omega))])))
+    seeds.append(("the stuck linear response", (), np.zeros(system.n_z)))
+    if near is not None:
+        seeds.append(("the time-marching solution", (), system.contact_coordinates(near)))
+    return seeds

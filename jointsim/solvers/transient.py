@@ -2,7 +2,7 @@
 
 The integrator (generalized-alpha with Newton condensed on the contact
 coordinates, step cutting, and the consistent tangent of the contact
-kernels) is in :mod:`jointsim.solvers._march`.  This module drives it:
+kernels) is in :mod:`jointsim.solvers.generalized_alpha`.  This module drives it:
 
 * :func:`march_steady` forces the structure at ``omega`` from its static
   equilibrium until the period-to-period change falls below
@@ -11,7 +11,11 @@ kernels) is in :mod:`jointsim.solvers._march`.  This module drives it:
   ``/hbm/X``), the element loops and the energy balance of that period;
 * :func:`free_decay` releases the structure from a deflection along a linear
   mode of the stuck joint and extracts the amplitude-dependent frequency and
-  damping from the ring-down by the peak method of :func:`decay_estimates`;
+  damping from the ring-down by the peak method of
+  :func:`~jointsim.solvers.periodic.decay_estimates`.
+
+The pure functions of the marched samples (period change, energy balance,
+extrema of a ring-down) are in :mod:`jointsim.solvers.periodic`.
 
 The ``transient`` analysis of ``jointsim run`` (writing ``/transient/*``, the
 loops, their Masing check and the cross-check against harmonic balance) is
@@ -29,7 +33,10 @@ from ..results import (INTERRUPTED, NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, S
                        Convergence)
 from ..harmonics import coefficient_index, dft_matrix, n_coefficients
 from ..loads import LoadFunction
-from ._march import ContactMap, GeneralizedAlpha, StepFailure, empty_eval
+from .contact_map import ContactMap, empty_eval
+from .generalized_alpha import GeneralizedAlpha, StepFailure
+from .periodic import (EnergyBalance, ExtremumTracker, PeriodData, decay_estimates,
+                       energy_balance, geometric_error, period_change)
 from ._transient_kernels import single_threaded
 
 log = logging.getLogger(__name__)
@@ -42,76 +49,6 @@ PATH_SAMPLES = 64
 # --------------------------------------------------------------------------
 # Results
 # --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class EnergyBalance:
-    """Work done over one period, from the marched samples.
-
-    The sums use the trapezoidal rule on the step grid: forces averaged over
-    each step times the displacement increment, and ``h vbar^T C vbar`` with
-    the mean velocity of the step.  With ``rho_inf = 1`` (the trapezoidal
-    rule) the discrete balance is exact up to the Newton tolerance; with
-    ``rho_inf < 1`` the imbalance is the numerical dissipation of the scheme.
-
-    Attributes
-    ----------
-    input : float
-        Work of the external force [J].
-    viscous : float
-        Dissipated by the damping matrix [J].
-    friction : float
-        Work of the tangential contact forces on the slips (the loop areas) [J].
-    normal : float
-        Work of the normal contact forces (zero over a period for the
-        elastic penalty) [J].
-    stored : float
-        Change of kinetic plus linear elastic energy over the period [J].
-    imbalance : float
-        ``input - viscous - friction - normal - stored`` [J].
-    relative : float
-        ``|imbalance| / max(|input|, viscous + |friction|)`` [-].
-    """
-
-    input: float
-    viscous: float
-    friction: float
-    normal: float
-    stored: float
-    imbalance: float
-    relative: float
-
-    def as_attrs(self) -> dict:
-        return {f"energy_{k}": float(getattr(self, k)) for k in
-                ("input", "viscous", "friction", "normal", "stored", "imbalance", "relative")}
-
-
-@dataclass(frozen=True)
-class PeriodData:
-    """The marched samples of one period (``n + 1`` samples, both ends included).
-
-    Attributes
-    ----------
-    index : int
-        Period number (0 is the first).
-    t : ndarray, shape (n + 1,)
-        Times [s].
-    x, v : ndarray, shape (n + 1, n_dof)
-        Displacements [m] and velocities [m/s].
-    u, f, N : ndarray, shape (n_e, n + 1)
-        Tangential slip [m], tangential force [N] and normal load [N].
-    g : ndarray, shape (n_e, n + 1)
-        Gap changes ``Tn x`` [m] (zeros with a fixed normal load).
-    """
-
-    index: int
-    t: np.ndarray
-    x: np.ndarray
-    v: np.ndarray
-    u: np.ndarray
-    f: np.ndarray
-    N: np.ndarray
-    g: np.ndarray
-
-
 @dataclass(frozen=True)
 class SteadyResult:
     """A forced steady state found by time marching.
@@ -202,204 +139,6 @@ class FreeDecayResult:
     stats: dict
     wall_time: float
     convergence: Convergence = field(repr=False)
-
-
-# --------------------------------------------------------------------------
-# Period analysis (pure functions)
-# --------------------------------------------------------------------------
-def period_change(x_new, x_old) -> float:
-    """Largest change between two periods relative to the vibration amplitude.
-
-    Parameters
-    ----------
-    x_new, x_old : ndarray, shape (n, n_dof)
-        Displacements at the same phases of consecutive periods [m].
-
-    Returns
-    -------
-    float
-        ``max |x_new - x_old| / max_j (max_t x_j - min_t x_j) / 2`` [-].
-    """
-    amp = 0.5 * float(np.max(np.ptp(x_new, axis=0)))
-    diff = float(np.max(np.abs(x_new - x_old)))
-    if amp == 0.0:
-        return 0.0 if diff == 0.0 else np.inf
-    return diff / amp
-
-
-def energy_balance(p: PeriodData, force, M, C, K, unilateral=None) -> EnergyBalance:
-    """Energy balance of one marched period (see :class:`EnergyBalance`).
-
-    Parameters
-    ----------
-    p : PeriodData
-    force : callable
-        ``force(t) -> ndarray (n_dof,)`` [N].
-    M, C, K : matrix, shape (n_dof, n_dof)
-    unilateral : tuple, optional
-        ``(gap0, kn)`` of unilateral penalty contacts: the normal work then uses
-        the same energy-consistent average as the scheme
-        (:func:`~jointsim.solvers._transient_kernels.gap_correction`), i.e. the
-        change of the penalty energy.
-    """
-    F = np.array([force(t) for t in p.t])
-    dx = np.diff(p.x, axis=0)
-    w_in = float(np.sum(0.5 * (F[1:] + F[:-1]) * dx))
-    h = np.diff(p.t)
-    vbar = 0.5 * (p.v[1:] + p.v[:-1])
-    w_c = float(np.sum(h * np.einsum("ij,ij->i", vbar, (C @ vbar.T).T)))
-    w_f = float(np.sum(0.5 * (p.f[:, 1:] + p.f[:, :-1]) * np.diff(p.u, axis=1)))
-    Nbar = 0.5 * (p.N[:, 1:] + p.N[:, :-1])
-    if unilateral is not None and p.N.shape[0]:
-        from ._transient_kernels import gap_correction
-        gap0, kn = unilateral
-        gaps = gap0[:, None] + p.g
-        c, dc = np.empty(gap0.size), np.empty(gap0.size)
-        for j in range(p.t.size - 1):
-            gap_correction(gaps[:, j], p.N[:, j], gaps[:, j + 1], p.N[:, j + 1], kn, c, dc)
-            Nbar[:, j] += c
-    w_n = float(np.sum(-Nbar * np.diff(p.g, axis=1)))
-
-    def stored(x, v):
-        return 0.5 * float(v @ (M @ v)) + 0.5 * float(x @ (K @ x))
-
-    w_s = stored(p.x[-1], p.v[-1]) - stored(p.x[0], p.v[0])
-    imb = w_in - w_c - w_f - w_n - w_s
-    ref = max(abs(w_in), w_c + abs(w_f))
-    return EnergyBalance(w_in, w_c, w_f, w_n, w_s, imb, abs(imb) / ref if ref > 0 else 0.0)
-
-
-def geometric_error(changes) -> float:
-    """Distance to the limit estimated from a geometrically decreasing sequence.
-
-    With the last two changes ``c1 < c0``, ``rho = c1 / c0`` and the remaining
-    distance is ``c1 rho / (1 - rho)``; ``inf`` when the sequence does not
-    decrease, ``0`` when the last change is 0.
-    """
-    c = [v for v in changes if np.isfinite(v)]
-    if not c:
-        return np.inf
-    if c[-1] == 0.0:
-        return 0.0
-    if len(c) < 2 or not c[-1] < c[-2]:
-        return np.inf
-    rho = c[-1] / c[-2]
-    return c[-1] * rho / (1.0 - rho)
-
-
-def hermite_extremum(t0, t1, q0, q1, d0, d1):
-    """Extremum of the cubic Hermite interpolant of ``q`` on ``[t0, t1]``.
-
-    ``d0`` and ``d1`` (the derivatives at the ends) must differ in sign or
-    one of them be 0.
-
-    Returns
-    -------
-    t, q : float
-        Time and value of the extremum.
-    """
-    dt = t1 - t0
-    a = 6.0 * q0 + 3.0 * dt * d0 - 6.0 * q1 + 3.0 * dt * d1
-    b = -6.0 * q0 - 4.0 * dt * d0 + 6.0 * q1 - 2.0 * dt * d1
-    c = dt * d0
-    tau = None
-    if abs(a) > 1e-14 * (abs(b) + abs(c)):
-        disc = b * b - 4.0 * a * c
-        if disc >= 0.0:
-            sq = np.sqrt(disc)
-            # numerically stable roots of a t^2 + b t + c
-            qq = -0.5 * (b + np.copysign(sq, b))
-            roots = [qq / a] + ([c / qq] if qq != 0.0 else [])
-            inside = [r for r in roots if -1e-12 <= r <= 1.0 + 1e-12]
-            if inside:
-                tau = min(max(inside[0], 0.0), 1.0)
-    elif b != 0.0:
-        tau = min(max(-c / b, 0.0), 1.0)
-    if tau is None:  # degenerate: linear interpolation of the derivative
-        tau = d0 / (d0 - d1) if d0 != d1 else 0.5
-    h00 = 2 * tau ** 3 - 3 * tau ** 2 + 1
-    h10 = tau ** 3 - 2 * tau ** 2 + tau
-    h01 = -2 * tau ** 3 + 3 * tau ** 2
-    h11 = tau ** 3 - tau ** 2
-    return t0 + tau * dt, h00 * q0 + h10 * dt * d0 + h01 * q1 + h11 * dt * d1
-
-
-class ExtremumTracker:
-    """Alternating extrema of a sampled signal ``q(t)`` with known derivative.
-
-    Feed samples in time order with :meth:`add`; an extremum is found where
-    ``dq/dt`` changes sign, and located by cubic Hermite interpolation.
-    Consecutive extrema alternate (maximum, minimum, ...): a repeated kind
-    (round-off near rest) keeps the more extreme value.
-    """
-
-    def __init__(self):
-        self.t: list[float] = []
-        self.q: list[float] = []
-        self.kind: list[int] = []
-        self._prev = None
-
-    def add(self, t, q, d) -> None:
-        if self._prev is not None:
-            t0, q0, d0 = self._prev
-            kind = 0
-            if d0 > 0.0 and d <= 0.0:
-                kind = 1
-            elif d0 < 0.0 and d >= 0.0:
-                kind = -1
-            if kind:
-                te, qe = hermite_extremum(t0, t, q0, q, d0, d)
-                if self.kind and self.kind[-1] == kind:
-                    if kind * qe > kind * self.q[-1]:
-                        self.t[-1], self.q[-1] = te, qe
-                else:
-                    self.t.append(te)
-                    self.q.append(qe)
-                    self.kind.append(kind)
-        self._prev = (t, q, d)
-
-
-def decay_estimates(t_ext, q_ext):
-    """Frequency, damping and amplitude of a ring-down from its extrema.
-
-    With alternating extrema ``(t_j, q_j)`` and half swings
-    ``H_j = |q_{j+1} - q_j| / 2``, every three consecutive swings give one
-    estimate centred on swing ``j + 1``:
-
-    * amplitude ``A = H_{j+1}``;
-    * period ``T = (t_{j+2} - t_j + t_{j+3} - t_{j+1}) / 2``;
-    * logarithmic decrement ``delta = ln(H_j / H_{j+2})`` over one cycle and
-      ``zeta = delta / sqrt(4 pi^2 + delta^2)``.
-
-    Swings are offset-free: a constant shift of the signal (a slider that
-    stays displaced) does not bias them.  For a linear viscously damped
-    oscillator the frequency (the damped one) and damping ratio are exact.
-    For a nonlinear ring-down each estimate is an average over about 1.5
-    cycles, and the amplitude is the peak value, not the first-harmonic
-    amplitude of EPMC; both biases grow with the decay per cycle and the
-    waveform distortion (see ``docs/transient.md``).
-
-    Parameters
-    ----------
-    t_ext, q_ext : array_like, shape (n,)
-        Times [s] and values of alternating extrema.
-
-    Returns
-    -------
-    time, amplitude, frequency_hz, damping_ratio : ndarray, shape (max(n - 3, 0),)
-    """
-    t = np.asarray(t_ext, dtype=float)
-    q = np.asarray(q_ext, dtype=float)
-    if t.size < 4:
-        e = np.zeros(0)
-        return e, e, e, e
-    H = 0.5 * np.abs(np.diff(q))
-    j = np.arange(t.size - 3)
-    period = 0.5 * ((t[j + 2] - t[j]) + (t[j + 3] - t[j + 1]))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        delta = np.where((H[j] > 0) & (H[j + 2] > 0), np.log(H[j] / H[j + 2]), np.nan)
-    zeta = delta / np.sqrt(4.0 * np.pi ** 2 + delta ** 2)
-    return 0.5 * (t[j + 1] + t[j + 2]), H[j + 1], 1.0 / period, zeta
 
 
 # --------------------------------------------------------------------------
@@ -594,22 +333,73 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
         frictionless_preload = _frictionless_preload(scene)
     static = static_start(model, frictionless_preload, settings.newton_tol)
     ga = _stepper(model, settings, force, fused)
-    n = settings.steps_per_period
-    period = 2.0 * np.pi / omega
-    h = period / n
+    h = 2.0 * np.pi / omega / settings.steps_per_period
+    s = _steady_initial_state(ga, force, static, h, settings, initial)
+    rigid = rigid_modes(model, getattr(settings, "rigid_cutoff_hz", None))
+    bar = _progress(settings.max_periods, f"transient w={omega:.4g}", progress)
+    try:
+        run = _periods_until_steady(ga, s, settings, h, rigid, on_period, bar)
+    finally:
+        bar.close()
+    if run.status != SUCCESS:
+        log.warning("transient: %s", run.message)
+    return _steady_result(model, settings, force, ga, static, rigid, run,
+                          time.perf_counter() - t_start)
+
+
+def _steady_initial_state(ga: GeneralizedAlpha, force: LoadFunction, static: StartState,
+                          h: float, settings, initial):
+    """The state a forced march starts from (step 1 of :func:`march_steady`).
+
+    ``initial`` when given, else the discrete linear steady response
+    (:func:`linear_start`) with ``settings.start = "linear"``, else the static
+    state at rest.
+
+    Returns
+    -------
+    MarchState
+    """
     if initial is None and getattr(settings, "start", "rest") == "linear":
         initial = linear_start(ga, force, static, h)
     if initial is None:
-        s = ga.start(0.0, static.x, np.zeros(model.n_dof), static.contact.state)
-    else:
-        s = ga.start(0.0, *initial)
+        return ga.start(0.0, static.x, np.zeros(ga.model.n_dof), static.contact.state)
+    return ga.start(0.0, *initial)
 
-    rigid = rigid_modes(model, getattr(settings, "rigid_cutoff_hz", None))
+
+@dataclass(frozen=True)
+class _MarchOutcome:
+    """How a march loop ended: its status, message and the periods it did.
+
+    Attributes
+    ----------
+    status : str
+        A status of :mod:`jointsim.results`.
+    message : str
+    periods : int
+        Periods marched (the failed one included).
+    changes : tuple of float
+        Period-to-period changes (forced march; empty for a free decay).
+    last : PeriodData or None
+        The last complete period (forced march).
+    """
+
+    status: str
+    message: str
+    periods: int
+    changes: tuple = ()
+    last: PeriodData | None = None
+
+
+def _periods_until_steady(ga: GeneralizedAlpha, s, settings, h: float, rigid: RigidModes,
+                          on_period, bar) -> _MarchOutcome:
+    """March whole periods until the change falls below ``steady_tol`` (step 2 of
+    :func:`march_steady`); a failed step or an interrupt ends the loop with
+    what was marched."""
+    n = settings.steps_per_period
     changes: list[float] = []
     last: PeriodData | None = None
     status, message = NOT_CONVERGED, ""
     k = 0
-    bar = _progress(settings.max_periods, f"transient w={omega:.4g}", progress)
     try:
         with single_threaded():
             for k in range(settings.max_periods):
@@ -639,13 +429,17 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
         status, message = STEP_TOO_SMALL, f"gave up in period {k}: {exc}"
     except KeyboardInterrupt:
         status, message = INTERRUPTED, f"interrupted in period {k}"
-    finally:
-        bar.close()
-    if status != SUCCESS:
-        log.warning("transient: %s", message)
-    n_periods = len(changes)
+    return _MarchOutcome(status, message, len(changes), tuple(changes), last)
+
+
+def _steady_result(model, settings, force: LoadFunction, ga: GeneralizedAlpha,
+                   static: StartState, rigid: RigidModes, run: _MarchOutcome,
+                   wall_time: float) -> SteadyResult:
+    """Harmonics and energy balance of the last period (step 3 of :func:`march_steady`)."""
+    n = settings.steps_per_period
+    last = run.last
     if last is not None:
-        E = dft_matrix(settings.harmonics, n, omega, last.t[0])
+        E = dft_matrix(settings.harmonics, n, float(settings.omega), last.t[0])
         X = E @ last.x[:n]
         c = model.contacts
         energy = energy_balance(last, force, ga.M, ga.C, ga.K,
@@ -657,12 +451,13 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
     stats["static_iterations"] = static.iterations
     stats["rigid_modes_left_out"] = rigid.n
     return SteadyResult(
-        omega=omega, force_scale=float(settings.force_scale),
+        omega=float(settings.omega), force_scale=float(settings.force_scale),
         harmonics=tuple(settings.harmonics), X=X, last=last, energy=energy,
-        period_change=np.asarray(changes, dtype=float),
-        error_estimate=geometric_error(changes), static_x=static.x, stats=stats,
-        wall_time=time.perf_counter() - t_start,
-        convergence=Convergence(status == SUCCESS, status, message, n_periods))
+        period_change=np.asarray(run.changes, dtype=float),
+        error_estimate=geometric_error(run.changes), static_x=static.x, stats=stats,
+        wall_time=wall_time,
+        convergence=Convergence(run.status == SUCCESS, run.status, run.message,
+                                run.periods))
 
 
 @dataclass(frozen=True)
@@ -858,23 +653,63 @@ def free_decay(model, settings, *, scene=None, on_block=None, on_estimate=None,
                          "analysis.transient.rigid_cutoff_hz to skip rigid-body modes")
     ga = _stepper(model, settings, force, fused)
     q0 = float(settings.amplitude)
-    x0 = static.x + q0 * phi
-    cmap = ga.cmap
-    if cmap.active:
-        ev = loaded_state(cmap, cmap.B @ static.x, cmap.B @ x0, static.contact.state)
-        # start() evaluates the laws at x0 again from this state; a rate-independent
-        # law evaluated twice at the same input is unchanged
-        s = ga.start(0.0, x0, np.zeros(model.n_dof), ev.state)
-    else:
-        s = ga.start(0.0, x0, np.zeros(model.n_dof), static.contact.state)
-    Mphi = np.asarray(ga.M @ phi).ravel()
-    n = settings.steps_per_period
-    h = 2.0 * np.pi / w_lin / n
+    s = _deflected_state(ga, static, static.x + q0 * phi)
+    h = 2.0 * np.pi / w_lin / settings.steps_per_period
     tracker = ExtremumTracker()
-    tracker.add(0.0, float(Mphi @ (s.x - static.x)), float(Mphi @ s.v))
+    bar = _progress(settings.max_periods, "free decay", progress)
+    try:
+        run = _ring_down(ga, s, static.x, np.asarray(ga.M @ phi).ravel(), h, settings,
+                         tracker, on_block, on_estimate, stop_ratio * q0, bar)
+    finally:
+        bar.close()
+    tt, amp, fr, zeta = decay_estimates(tracker.t, tracker.q)
+    status, message = run.status, run.message
+    if status == SUCCESS:
+        message += f"; {tt.size} estimates from {len(tracker.t)} extrema"
+        if tt.size == 0:
+            status = NOT_CONVERGED
+            message += " (too few extrema: raise max_periods)"
+    if status != SUCCESS:
+        log.warning("free decay: %s", message)
+    stats = ga.stats.as_attrs()
+    return FreeDecayResult(
+        mode=settings.mode, omega_linear=w_lin, phi=phi, q0=q0, time=tt, amplitude=amp,
+        frequency_hz=fr, damping_ratio=zeta, static_x=static.x, stats=stats,
+        wall_time=time.perf_counter() - t_start,
+        convergence=Convergence(status == SUCCESS, status, message, run.periods))
+
+
+def _deflected_state(ga: GeneralizedAlpha, static: StartState, x0):
+    """At rest at ``x0``, with the contact laws marched along the straight path
+    from the static state (step 1 of :func:`free_decay`).
+
+    Returns
+    -------
+    MarchState
+    """
+    cmap = ga.cmap
+    zero = np.zeros(ga.model.n_dof)
+    if not cmap.active:
+        return ga.start(0.0, x0, zero, static.contact.state)
+    ev = loaded_state(cmap, cmap.B @ static.x, cmap.B @ x0, static.contact.state)
+    # start() evaluates the laws at x0 again from this state; a rate-independent
+    # law evaluated twice at the same input is unchanged
+    return ga.start(0.0, x0, zero, ev.state)
+
+
+def _ring_down(ga: GeneralizedAlpha, s, x_static, Mphi, h: float, settings,
+               tracker: ExtremumTracker, on_block, on_estimate, stop_swing: float,
+               bar) -> _MarchOutcome:
+    """March periods of the linear mode, feeding the modal coordinate
+    ``q = Mphi^T (x - x_static)`` to ``tracker`` (step 2 of :func:`free_decay`).
+
+    Stops after ``max_periods``, when a period's half swing falls below
+    ``stop_swing`` [m], or when a step fails (what was marched is kept).
+    """
+    n = settings.steps_per_period
+    tracker.add(0.0, float(Mphi @ (s.x - x_static)), float(Mphi @ s.v))
     n_done = 0
     status, message = SUCCESS, ""
-    bar = _progress(settings.max_periods, "free decay", progress)
     k = 0
     try:
         with single_threaded():
@@ -882,7 +717,7 @@ def free_decay(model, settings, *, scene=None, on_block=None, on_estimate=None,
                 t = (k * n + np.arange(n + 1)) * h
                 s, xb, vb, *_ = ga.march_block(s, t)
                 t, xb = t[1:], xb[1:]
-                qb = (xb - static.x) @ Mphi
+                qb = (xb - x_static) @ Mphi
                 for tj, qj, dj in zip(t, qb, vb[1:] @ Mphi):
                     tracker.add(tj, qj, dj)
                 if not np.all(np.isfinite(xb)):
@@ -897,7 +732,7 @@ def free_decay(model, settings, *, scene=None, on_block=None, on_estimate=None,
                 n_done = est[0].size
                 bar.update(1)
                 swing = 0.5 * float(np.ptp(qb))
-                if swing <= stop_ratio * q0:
+                if swing <= stop_swing:
                     message = f"at rest after {k + 1} periods (swing {swing:.2e})"
                     break
             else:
@@ -906,19 +741,4 @@ def free_decay(model, settings, *, scene=None, on_block=None, on_estimate=None,
         status, message = STEP_TOO_SMALL, f"gave up in period {k}: {exc}"
     except KeyboardInterrupt:
         status, message = INTERRUPTED, f"interrupted in period {k}"
-    finally:
-        bar.close()
-    tt, amp, fr, zeta = decay_estimates(tracker.t, tracker.q)
-    if status == SUCCESS:
-        message += f"; {tt.size} estimates from {len(tracker.t)} extrema"
-        if tt.size == 0:
-            status = NOT_CONVERGED
-            message += " (too few extrema: raise max_periods)"
-    if status != SUCCESS:
-        log.warning("free decay: %s", message)
-    stats = ga.stats.as_attrs()
-    return FreeDecayResult(
-        mode=settings.mode, omega_linear=w_lin, phi=phi, q0=q0, time=tt, amplitude=amp,
-        frequency_hz=fr, damping_ratio=zeta, static_x=static.x, stats=stats,
-        wall_time=time.perf_counter() - t_start,
-        convergence=Convergence(status == SUCCESS, status, message, k + 1))
+    return _MarchOutcome(status, message, k + 1)

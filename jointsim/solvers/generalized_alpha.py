@@ -1,8 +1,8 @@
 """Generalized-alpha stepping of a structure with friction contact.
 
-This module holds the integrator itself: the contact map in condensed
-coordinates, the stepper (a Newton solve per step, condensed onto the contact
-coordinates, with step cutting) and the external force.  The drivers that
+This module holds the integrator itself: the stepper (a Newton solve per
+step, condensed onto the contact coordinates, with step cutting); the contact
+elements in condensed coordinates are :mod:`jointsim.solvers.contact_map`.  The drivers that
 march to a steady state or ring down a free decay, and the runner that writes
 the result file, are in :mod:`jointsim.solvers.transient`; the static state
 they start from and the linear modes come from :mod:`jointsim.solvers.static`
@@ -62,7 +62,13 @@ coordinates only::
 solved by Newton with the consistent tangent ``I + (1-af) G D``, where
 ``D = dphi/dy`` comes from the same march kernels as harmonic balance
 (called with one sample and the committed state: the tangent of the step at
-fixed history).  ``x1`` is recovered with one product by ``Z``.  A step whose
+fixed history).  The iteration stops when
+
+    max |r| <= newton_tol * max(max |y|, max |B x_p|, max |B x0|),
+
+a displacement scale of the step alone (its iterate, its linear prediction
+and its start ``x0``), so that a step's tolerance does not depend on the
+steps marched before it.  ``x1`` is recovered with one product by ``Z``.  A step whose
 Newton iteration fails (iteration limit or non-finite values) is cut in half
 and retried, recursively, up to ``max_cuts`` times.
 """
@@ -78,6 +84,7 @@ import scipy.sparse.linalg as spla
 
 from ..loads import LoadFunction
 from ._transient_kernels import single_threaded
+from .contact_map import ContactEval, ContactMap, empty_eval
 from .newton import NewtonOptions, newton
 
 log = logging.getLogger(__name__)
@@ -109,175 +116,6 @@ def alpha_parameters(rho_inf: float):
 
 
 # --------------------------------------------------------------------------
-# Contact map
-# --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ContactEval:
-    """The contact forces at given contact coordinates, with a fixed history.
-
-    Attributes
-    ----------
-    phi : ndarray, shape (n_c,)
-        Forces conjugate to the contact coordinates: ``[f_t]`` or
-        ``[f_t, -N]`` [N].
-    duu, dug, dgg : ndarray, shape (n_e,)
-        Non-zero blocks of ``D = dphi/dy``: ``df_t/du_t`` [N/m],
-        ``df_t/dg`` [N/m] and ``d(-N)/dg`` [N/m] (the last two are zero and
-        unused with a fixed normal load).
-    state : ndarray, shape (n_e, state_size)
-        The law's state after this evaluation (committed only at the end of
-        a converged step).
-    u, f, N : ndarray, shape (n_e,)
-        Tangential slip [m], tangential force [N] and normal load [N].
-    """
-
-    phi: np.ndarray
-    duu: np.ndarray
-    dug: np.ndarray
-    dgg: np.ndarray
-    state: np.ndarray
-    u: np.ndarray
-    f: np.ndarray
-    N: np.ndarray
-
-
-def empty_eval(state) -> ContactEval:
-    """The contact evaluation of a structure without contact elements."""
-    e = np.zeros(0)
-    return ContactEval(e, e, e, e, state, e, e, e)
-
-
-class ContactMap:
-    """Contact elements seen from the structure, in condensed coordinates.
-
-    Parameters
-    ----------
-    contacts : jointsim.model.ContactSet
-    friction : bool
-        Evaluate the tangential law (False: tangential forces are zero, as
-        in a frictionless preload).
-
-    Attributes
-    ----------
-    B : scipy.sparse.csr_matrix, shape (n_c, n_dof)
-        ``Tt`` (fixed normal load) or ``[Tt; Tn]`` (coupled).
-    n_e, n_c : int
-        Elements and contact coordinates (``n_e`` or ``2 n_e``).
-    coupled : bool
-    """
-
-    def __init__(self, contacts, friction: bool = True, dense: bool = False):
-        self.contacts = contacts
-        self.law = contacts.law
-        self.coupled = bool(contacts.coupled)
-        self.friction = bool(friction) and self.law.has_force
-        self.n_e = contacts.n_elements
-        if self.coupled:
-            self.B = sp.csr_matrix(sp.vstack([contacts.Tt, contacts.Tn]))
-        else:
-            self.B = sp.csr_matrix(contacts.Tt)
-        self.n_c = self.B.shape[0]
-        #: the gap can open and close: the averaged normal force needs the
-        #: energy-consistent correction (see ``_transient_kernels.gap_correction``)
-        self.unilateral = self.coupled and contacts.normal.can_open
-        if dense:  # small models: dense products are faster than sparse ones
-            self.B = self.B.toarray()
-            self.Bt = np.ascontiguousarray(self.B.T)
-        else:
-            self.Bt = sp.csr_matrix(self.B.T)
-        self._zeros = np.zeros(self.n_e)
-        self.N0 = np.asarray(contacts.N0, dtype=float)
-
-    @property
-    def active(self) -> bool:
-        """False when there is nothing to evaluate (no elements)."""
-        return self.n_c > 0
-
-    def normal(self, y):
-        """Normal load and ``dN/dg`` at contact coordinates ``y``, shape (n_e,) each."""
-        if not self.coupled:
-            return self.N0, self._zeros
-        g = self.contacts.gap0 + y[self.n_e:]
-        N, dNdg = self.contacts.normal.load(g[:, None])
-        return N[:, 0], dNdg[:, 0]
-
-    def evaluate(self, y, state) -> ContactEval:
-        """Contact forces and tangent at ``y`` from the committed ``state``.
-
-        Parameters
-        ----------
-        y : ndarray, shape (n_c,)
-            Contact coordinates [m].
-        state : ndarray, shape (n_e, state_size)
-            Law state at the start of the step (not modified).
-        """
-        ne = self.n_e
-        u = y[:ne]
-        N, dNdg = self.normal(y)
-        if self.friction:
-            f, dfdu, dfdN, new = self.law.march(u[:, None], N[:, None], state)
-            f, dfdu, dfdN = f[:, 0], dfdu[:, 0], dfdN[:, 0]
-        else:
-            f = dfdu = dfdN = self._zeros
-            new = state
-        if self.coupled:
-            phi = np.concatenate([f, -N])
-            return ContactEval(phi, dfdu, dfdN * dNdg, -dNdg, new, u, f, N)
-        return ContactEval(f, dfdu, self._zeros, self._zeros, new, u, f, N)
-
-    def correction(self, y0, ev0: ContactEval, y1, ev1: ContactEval):
-        """Energy-consistent correction of the averaged normal force over a step.
-
-        Parameters
-        ----------
-        y0, ev0 : ndarray, ContactEval
-            Contact coordinates and forces at the start of the step.
-        y1, ev1 : ndarray, ContactEval
-            The same at the (trial) end of the step.
-
-        Returns
-        -------
-        c, dc : ndarray, shape (n_c,)
-            Force term added to the averaged contact forces [N] (non-zero only
-            for the gap coordinates of elements that open or close within the
-            step) and its derivative by ``y1`` (diagonal) [N/m].
-        """
-        from ._transient_kernels import gap_correction
-        c = np.zeros(self.n_c)
-        dc = np.zeros(self.n_c)
-        if self.unilateral:
-            ne = self.n_e
-            ce, dce = np.empty(ne), np.empty(ne)
-            gap0 = self.contacts.gap0
-            gap_correction(gap0 + y0[ne:], ev0.N, gap0 + y1[ne:], ev1.N, self.contacts.kn,
-                           ce, dce)
-            c[ne:], dc[ne:] = -ce, -dce
-        return c, dc
-
-    def times_D(self, G, ev: ContactEval):
-        """``G @ D`` for a dense ``G`` of shape (m, n_c), using the block structure of D."""
-        ne = self.n_e
-        GD = np.empty_like(G)
-        GD[:, :ne] = G[:, :ne] * ev.duu
-        if self.coupled:
-            GD[:, ne:] = G[:, :ne] * ev.dug + G[:, ne:] * ev.dgg
-        return GD
-
-    def D_matrix(self, ev: ContactEval) -> np.ndarray:
-        """Dense ``D = dphi/dy``, shape (n_c, n_c) (for tests and modes)."""
-        return self.times_D(np.eye(self.n_c), ev)
-
-    def state_at(self, u0, N0) -> np.ndarray:
-        """Law state of unloaded elements resting at slip ``u0`` under load ``N0``.
-
-        Parameters
-        ----------
-        u0, N0 : ndarray, shape (n_e,)
-        """
-        return self.law.state_at(u0, N0)
-
-
-# --------------------------------------------------------------------------
 # Linear algebra of the linear part
 # --------------------------------------------------------------------------
 class _LinearSolver:
@@ -301,11 +139,22 @@ class _LinearSolver:
 
 
 class _Condensed:
-    """``S``, its factorisation, ``Z = S^-1 B^T`` and ``G = B Z`` for one step size."""
+    """``S``, its factorisation, ``Z = S^-1 B^T`` and ``G = B Z`` for one step size.
+
+    Attributes
+    ----------
+    S : ndarray or scipy.sparse matrix, shape (n_dof, n_dof)
+    solver : _LinearSolver
+    Sinv : ndarray, shape (n_dof, n_dof), or None
+        C-contiguous ``S^-1`` for the fused kernel (dense ``S``; None when sparse).
+    Z : ndarray, shape (n_dof, n_c)
+    G : ndarray, shape (n_c, n_c)
+    """
 
     def __init__(self, S, cmap: ContactMap, dense: bool):
         self.S = S
         self.solver = _LinearSolver(S)
+        self.Sinv = np.ascontiguousarray(self.solver.inv) if self.solver.dense else None
         if cmap.active:
             Bt = cmap.Bt if dense else cmap.Bt.toarray()
             self.Z = np.asarray(self.solver.solve(Bt)).reshape(S.shape[0], cmap.n_c)
@@ -343,7 +192,8 @@ def condensed_newton(cmap: ContactMap, G, coef, y_p, y0, state, tol, max_iter, s
         Tolerance on ``max |r|`` relative to ``max(|y|, |y_p|, scale)``.
     max_iter : int
     scale : float
-        Displacement scale added to the relative tolerance [m].
+        Displacement scale of the step added to the relative tolerance (the
+        largest contact coordinate at the step's start) [m].
     prev : tuple, optional
         ``(y0, ev0)`` at the start of a dynamic step, for the normal-force
         correction of unilateral contacts.
@@ -447,7 +297,10 @@ class GeneralizedAlpha:
     rho_inf : float
         Spectral radius at infinite frequency.
     newton_tol : float
-        Relative Newton tolerance on the contact coordinates.
+        Relative Newton tolerance on the contact coordinates: a step's
+        residual ``max |r|`` [m] is compared with ``newton_tol`` times the
+        largest contact coordinate of its iterate, its linear prediction and
+        its start (see the module docstring), never with earlier steps.
     max_iter : int
         Newton iterations before a step is cut.
     max_cuts : int
@@ -473,7 +326,6 @@ class GeneralizedAlpha:
         self._factors: dict[float, _Condensed] = {}
         self._mass_solver = None
         self.stats = StepStats()
-        self.scale = 0.0  # displacement scale for the Newton tolerance, raised as we go
         #: March blocks of steps with the fused numba kernel (dense models, anchored or
         #: linear tangential laws, harmonic loads); otherwise step by step in Python.
         self.fused = bool(fused and self.dense and isinstance(force, LoadFunction)
@@ -541,7 +393,6 @@ class GeneralizedAlpha:
         if not np.all(np.isfinite(a0)):
             raise ValueError("the initial acceleration is not finite: is the mass matrix "
                              "singular?")
-        self.scale = max(self.scale, float(np.max(np.abs(self.cmap.B @ x0), initial=0.0)))
         return MarchState(float(t0), x0, v0, a0, ev)
 
     # -- one step ---------------------------------------------------------------
@@ -611,7 +462,7 @@ class GeneralizedAlpha:
             B = self.cmap.B
             y, ev, its, c = condensed_newton(
                 self.cmap, fac.G, coef, B @ x_p, B @ x_guess, s.contact.state,
-                self.newton_tol, self.max_iter, self.scale,
+                self.newton_tol, self.max_iter, float(np.max(np.abs(B @ s.x))),
                 prev=(B @ s.x, s.contact) if self.cmap.unilateral else None)
             self.stats.newton_iterations += its
             x1 = x_p - fac.Z @ (coef * ev.phi + c)
@@ -657,8 +508,6 @@ class GeneralizedAlpha:
         with single_threaded():  # one-sample kernel calls: no thread-pool launches
             out = self._step(s, float(t1), 0)
         self.stats.steps += 1
-        if self.cmap.active:
-            self.scale = max(self.scale, float(np.max(np.abs(out.contact.u))))
         return out
 
     def march(self, s: MarchState, times):
@@ -729,8 +578,6 @@ class GeneralizedAlpha:
         c = self.model.contacts
         law = c.law
         tkind, nkind = law.fused_code, c.normal.fused_code
-        if not hasattr(fac, "Sinv"):
-            fac.Sinv = np.ascontiguousarray(fac.solver.inv)
         state = np.ascontiguousarray(s.contact.state, dtype=float)
         if state.ndim != 2 or state.shape[0] != law.n_elements:
             state = np.zeros((law.n_elements, 0))
@@ -743,8 +590,7 @@ class GeneralizedAlpha:
             self.force.harmonic_rows, np.ascontiguousarray(self.force.coefficients),
             tkind, nkind, np.ascontiguousarray(law.k), np.ascontiguousarray(law.g),
             np.ascontiguousarray(c.gap0, dtype=float), np.ascontiguousarray(c.kn, dtype=float),
-            np.ascontiguousarray(self.cmap.N0, dtype=float), self.newton_tol, self.max_iter,
-            self.scale)
+            np.ascontiguousarray(self.cmap.N0, dtype=float), self.newton_tol, self.max_iter)
         self.stats.steps += done
         self.stats.substeps += done
         self.stats.newton_iterations += its
@@ -755,7 +601,6 @@ class GeneralizedAlpha:
             u[:, 1:done + 1] = U[:, 1:done + 1]
             f[:, 1:done + 1] = F[:, 1:done + 1]
             N[:, 1:done + 1] = NN[:, 1:done + 1]
-            self.scale = max(self.scale, float(np.max(np.abs(U[:, :done + 1]))))
         e = np.zeros(self.cmap.n_e)
         ev = ContactEval(PHI[done].copy(), e, e, e, st.copy() if law.has_force
                          else s.contact.state, U[:, done].copy(), F[:, done].copy(),
