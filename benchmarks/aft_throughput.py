@@ -4,27 +4,23 @@ Jenkins elements with coupled normal load (unilateral, separation on),
 harmonics 0..7, 128 samples per period, random coefficients that make every
 element stick, slip and separate during the period.  For 10, 100 and 1000
 elements, times :meth:`jointsim.solvers.hbm.AFT.evaluate` (numba kernels)
-and the plain-NumPy implementation of ``tests/aft_numpy.py`` side by side in
+and the plain-NumPy implementation of ``tests/_aft_reference.py`` side by side in
 the same run, and prints microseconds per element and their ratio.
 
-Run: ``python benchmarks/aft_throughput.py [--threads N]``.  Numba's
+Run from the repository root: ``python -m benchmarks.aft_throughput [--threads N]``.  Numba's
 compilation is done (and timed separately) before the measurement.
 """
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from aft_numpy import anchor_aft_numpy  # noqa: E402
-
-from jointsim.contact import AnchoredBank, UnilateralPenalty  # noqa: E402
-from jointsim.model import ContactSet  # noqa: E402
-from jointsim.harmonics import HarmonicBasis  # noqa: E402
-from jointsim.solvers.hbm import AFT  # noqa: E402
+from jointsim.contact import AnchoredBank, UnilateralPenalty
+from jointsim.model import ContactSet
+from jointsim.harmonics import HarmonicBasis
+from jointsim.solvers.hbm import AFT
+from tests._aft_reference import anchor_aft_numpy
 
 
 def contact_set(ne):

@@ -1,7 +1,7 @@
 """Time marching: the fused numba march against the Python stepper, side by side.
 
 Both march the same scene through the same steps with the same scheme (the
-results agree to round-off, see tests/test_transient_paths.py); the ratio is
+results agree to round-off, see tests/solvers/test_transient_paths.py); the ratio is
 the cost of stepping in Python.  Run from the repository root:
 
     python benchmarks/transient_fused_vs_python.py [--periods 20]

@@ -4,7 +4,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from jointsim import _toml
@@ -206,7 +206,6 @@ def _same(a, b):
     return a == b and type(a) is type(b)
 
 
-@settings(max_examples=150, deadline=None)
-@given(tables)
+@given(tables)  # examples: the hypothesis profile (tests/conftest.py)
 def test_toml_round_trip(data):
     assert _same(_toml.loads(_toml.dumps(data)), data)

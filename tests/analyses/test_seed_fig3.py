@@ -1,5 +1,4 @@
 """The seed paper's Fig. 3 experiment, end to end through run_scene and the file."""
-from pathlib import Path
 
 import h5py
 import numpy as np
@@ -8,7 +7,9 @@ import pytest
 from jointsim.run import run_scene
 from jointsim.scene import load_scene
 
-SEED = Path(__file__).resolve().parents[1] / "models" / "seed_fig3"
+from .._scenes import ROOT
+
+SEED = ROOT / "models" / "seed_fig3"
 CASES = ["const", "sin1", "sin2", "sep"]
 
 

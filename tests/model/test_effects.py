@@ -1,5 +1,4 @@
 """A scene declares its physics, and nothing else is computed."""
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,8 +10,9 @@ from jointsim.scene import load_scene
 from jointsim.solvers.contact_map import ContactMap
 from jointsim.solvers.hbm import HBMSystem, solve_point
 
-ROOT = Path(__file__).resolve().parents[1]
-CHAIN = ROOT / "models" / "hbm" / "chain2_jenkins.toml"
+from .._scenes import CHAIN2, ROOT
+
+CHAIN = CHAIN2
 
 
 def forbid_normal_contact(monkeypatch):

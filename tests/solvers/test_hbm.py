@@ -1,6 +1,4 @@
 """Harmonic balance, continuation and EPMC (issue 4): checks against oracles."""
-import sys
-from pathlib import Path
 
 import h5py
 import numpy as np
@@ -14,26 +12,10 @@ from jointsim.solvers.continuation import continue_branch
 from jointsim.harmonics import HarmonicBasis, harmonic_amplitude
 from jointsim.solvers.hbm import AFT, HBMSystem, solve_point
 
-sys.path.insert(0, str(Path(__file__).parent))
-from aft_numpy import anchor_aft_numpy  # noqa: E402
+from .._aft_reference import anchor_aft_numpy
+from .._scenes import ROOT, four_dof
 
-MODELS = Path(__file__).resolve().parents[1] / "models" / "hbm"
-
-
-def four_dof(law="jenkins", reversal="anchor", normal="fixed", C=None):
-    """Two contact elements between DOFs and to ground, gaps closed at rest."""
-    C = C if C is not None else np.diag([0.01, 0.01, 0.02, 0.01]).tolist()
-    d = {"model": {"kind": "lumped", "M": np.diag([1.0, 1.0, 2.0, 1.0]).tolist(),
-                   "K": [[2, -1, 0, 0], [-1, 2, -0.5, 0], [0, -0.5, 1, -0.3], [0, 0, -0.3, 1]],
-                   "C": C,
-                   "contacts": [{"t_dof": 1, "n_dof": 2, "N0": 1.0, "gap0": -0.5},
-                                {"t_dof": 0, "t_ref": 2, "n_dof": 3, "n_ref": 0, "N0": 0.8,
-                                 "gap0": -0.3}]},
-         "joint": {"law": law, "reversal": reversal, "mu": 0.3, "kt": 0.8, "kn": 1.0,
-                   "n_sliders": 5},
-         "effects": {"normal": normal, "separation": True},
-         "excitation": {"loads": [{"dof": 0, "force": {"harmonics": [{"h": 1, "cos": 1.0}]}}]}}
-    return parse_scene(d, "four_dof.toml")
+MODELS = ROOT / "models" / "hbm"
 
 
 CASES = [("jenkins", "anchor", "fixed"), ("jenkins", "anchor", "coupled"),

@@ -15,7 +15,7 @@ from jointsim.loads import LoadFunction
 from jointsim.solvers.generalized_alpha import GeneralizedAlpha
 from jointsim.solvers.transient import static_start
 
-from ._transient_scenes import lumped, separating, sdof_jenkins, two_dof_jenkins
+from .._transient_scenes import lumped, separating, sdof_jenkins, two_dof_jenkins
 
 
 def _iwan():

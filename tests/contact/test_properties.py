@@ -9,10 +9,10 @@ from jointsim.masing import check_loops
 from jointsim.scene import Joint
 from jointsim.solvers.prescribed import march_prescribed
 
-from . import _reference as ref
+from .. import _reference as ref
 
-SETTINGS = settings(max_examples=60, deadline=None,
-                    suppress_health_check=[HealthCheck.too_slow])
+# example count and deadline from the hypothesis profile (tests/conftest.py)
+SETTINGS = settings(suppress_health_check=[HealthCheck.too_slow])
 
 LAWS = [("jenkins", "anchor"), ("jenkins", "scaled"), ("iwan4", "anchor"), ("iwan4", "scaled")]
 

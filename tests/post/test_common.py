@@ -10,7 +10,7 @@ from jointsim.model import build_model
 from jointsim.post.common import law_from_file
 from jointsim.run import run_scene
 
-from ._transient_scenes import lumped
+from .._transient_scenes import lumped
 
 
 def _scene(law, reversal="anchor", friction=True):

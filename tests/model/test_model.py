@@ -13,14 +13,14 @@ from jointsim.model import BUILDERS, FEParts, Preload, StructuralModel, build_mo
 from jointsim.scene import load_scene, parse_scene
 from jointsim.solvers.static import StaticResult, StuckLinearisation, stuck_linearisation
 
-ROOT = Path(__file__).resolve().parents[1]
+from .._scenes import ROOT
+
 FE_SCENE = ROOT / "models" / "lap_joint_fixed_n.toml"
-COARSE = "model.mesh='../meshes/lap_joint_coarse.msh'"
 
 
-@pytest.fixture(scope="module")
-def fe_model():
-    return build_model(load_scene(FE_SCENE, [COARSE]))
+@pytest.fixture
+def fe_model(coarse_fixed_model):
+    return coarse_fixed_model
 
 
 def test_builder_table_is_explicit():

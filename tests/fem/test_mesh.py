@@ -1,5 +1,4 @@
 """FE mesh generation, tags, assembly sanity and interface pairing."""
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,7 +9,8 @@ from jointsim.fem.generate import RESOLUTIONS, lap_joint_mesh
 from jointsim.fem.mesh import from_meshio, read_mesh, write_mesh
 from jointsim.scene import Bolt
 
-ROOT = Path(__file__).resolve().parents[1]
+from .._scenes import ROOT
+
 MESHES = ROOT / "meshes"
 DEPTH = 0.0254
 

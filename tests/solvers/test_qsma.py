@@ -1,5 +1,4 @@
 """Quasi-static modal analysis against analytic backbones and directly marched loops."""
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,7 +8,8 @@ from jointsim.scene import load_scene, parse_scene
 from jointsim.solvers.modes import stuck_modes
 from jointsim.solvers.qsma import masing_dissipation, qsma, qsma_cycle
 
-ROOT = Path(__file__).resolve().parents[1]
+from .._scenes import ROOT
+
 COARSE = "model.mesh='../meshes/lap_joint_coarse.msh'"
 
 

@@ -1,23 +1,23 @@
-"""Static contact solver: analytic oracles, the FE bolt preload, Jacobians vs FD."""
+"""Static contact solver: analytic oracles, the FE bolt preload, the stuck
+linearisation, Jacobians vs FD."""
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
 from jointsim.fem.build import reduce_structure
-from jointsim.fem.mesh import read_mesh
-from jointsim.fem.assembly import build_structure
 from jointsim.model import build_model, make_contact_set
 from jointsim.results import SUCCESS
 from jointsim.scene import load_scene, parse_scene
 from jointsim.contact import BilateralPenalty, GivenNormal, UnilateralPenalty
-from jointsim.solvers.static import _Problem, residual, solve_static
+from jointsim.solvers.hbm import HBMSystem
+from jointsim.solvers.static import _Problem, residual, solve_static, tangent_stiffness
+
+from .._scenes import ROOT
 
 NORMALS = {"unilateral": UnilateralPenalty, "bilateral": BilateralPenalty, "fixed": GivenNormal}
 
-ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "models" / "lap_joint.toml"
 COARSE = ["model.mesh='../meshes/lap_joint_coarse.msh'"]
 
@@ -79,19 +79,9 @@ def test_jenkins_load_unload_history_analytic():
 
 
 @pytest.fixture(scope="module")
-def coarse_parts():
-    scene = load_scene(SCENE, COARSE)
-    m = scene.model
-    st = build_structure(read_mesh(scene.resolve(m.mesh)), E=m.E, nu=m.nu, rho=m.rho,
-                         thickness=m.thickness, bolts=m.bolts,
-                         suspension_stiffness=m.suspension_stiffness)
-    rom, cb = reduce_structure(st, m.n_modes)
-    return scene, st, rom, cb
-
-
-@pytest.fixture(scope="module")
-def coarse_model(coarse_parts):
-    return build_model(coarse_parts[0])
+def coarse_parts(coarse_scene, coarse_structure):
+    rom, cb = reduce_structure(coarse_structure, coarse_scene.model.n_modes)
+    return coarse_scene, coarse_structure, rom, cb
 
 
 def test_preload_equilibrium_and_symmetry(coarse_model):
@@ -210,3 +200,48 @@ def test_sparse_and_dense_assembly_agree(monkeypatch):
                                atol=1e-12 * np.abs(dense["J"]).max())
     np.testing.assert_allclose(sparse["R"], dense["R"], rtol=1e-12,
                                atol=1e-12 * np.abs(dense["R"]).max())
+
+
+# --------------------------------------------------------------------------
+# The static state and its stuck linearisation
+# --------------------------------------------------------------------------
+@pytest.fixture
+def coupled(coarse_lap_coupled):
+    return coarse_lap_coupled
+
+
+def test_stuck_linearisation_of_the_fe_model_is_the_preload(coupled):
+    lin = coupled.linearisation                                      # built with the model
+    assert lin.source == "model" and lin.convergence.success
+    assert np.array_equal(lin.x0, coupled.preload.x0)
+    assert abs(coupled.linearisation.K - lin.K).max() == 0.0  # the one definition
+    # x0 is the equilibrium of the model's own K and f_static
+    r = residual(coupled.K, lin.f0, coupled.contacts, lin.x0, tangential="stuck")
+    assert np.linalg.norm(r) <= 1e-9 * np.linalg.norm(lin.f0)
+    # N at x0 is N0, and the closed elements are those with N0 > 0
+    assert np.allclose(lin.N, coupled.contacts.N0, rtol=1e-12, atol=1e-9)
+    assert np.array_equal(lin.closed, coupled.contacts.N0 > 0)
+    K = tangent_stiffness(coupled.K, coupled.contacts, lin.x0)
+    assert abs(lin.K - K).max() == 0.0
+
+
+def test_stuck_linearisation_of_a_lumped_model_solves_the_static_state():
+    """A constant load on a lumped model with a stuck Jenkins element to ground:
+    x0 = (K + kt e e^T)^-1 f0 (oracle), K0 = K + kt e e^T."""
+    d = {"model": {"kind": "lumped", "M": [[1.0, 0.0], [0.0, 1.0]],
+                   "K": [[2.0, -1.0], [-1.0, 2.0]],
+                   "contacts": [{"t_dof": 1, "N0": 10.0}]},
+         "joint": {"law": "jenkins", "kt": 0.25, "mu": 0.5},
+         "excitation": {"loads": [{"dof": 0, "force": {"constant": 0.3,
+                                                       "harmonics": [{"h": 1, "cos": 1.0}]}}]}}
+    m = build_model(parse_scene(d, "static.toml"))
+    lin = m.linearisation
+    K0 = np.array([[2.0, -1.0], [-1.0, 2.25]])
+    assert lin.source == "solved"
+    assert np.allclose(lin.x0, np.linalg.solve(K0, [0.3, 0.0]), rtol=1e-12, atol=0)
+    assert np.allclose(lin.K.toarray(), K0, rtol=0, atol=1e-15)
+    # the harmonic balance starts there: harmonic 0 of the slip is Tt x0
+    s = HBMSystem(m, (0, 1, 2), 16)
+    z0 = s.static_coordinates().reshape(s.n_c, s.n_r)
+    assert z0[0, 0] == pytest.approx(lin.x0[1], rel=1e-14)
+    assert np.all(z0[1:] == 0.0)

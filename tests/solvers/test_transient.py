@@ -18,7 +18,7 @@ from jointsim.solvers.generalized_alpha import GeneralizedAlpha
 from jointsim.solvers.periodic import ExtremumTracker, decay_estimates
 from jointsim.solvers.transient import free_decay, march_steady, rigid_modes, static_start
 
-from ._transient_scenes import (jenkins_backbone, jenkins_dissipation, lumped, separating,
+from .._transient_scenes import (jenkins_backbone, jenkins_dissipation, lumped, separating,
                                 sdof_jenkins, two_dof_jenkins)
 
 
@@ -565,7 +565,7 @@ def test_rigid_modes_of_the_free_free_lap_joint():
 
     from jointsim.scene import load_scene
     from jointsim.solvers.modes import stuck_modes
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     model = build_model(load_scene(root / "models" / "lap_joint.toml",
                                    ["model.mesh='../meshes/lap_joint_coarse.msh'"]))
     rig = rigid_modes(model)

@@ -6,7 +6,7 @@ from jointsim.contact import iwan4_constants, tangential_law
 from jointsim.scene import Joint
 from jointsim.solvers.prescribed import march_prescribed
 
-from . import _reference as ref
+from .. import _reference as ref
 
 
 def march_cos(law, A, N, ns, n_periods=3):

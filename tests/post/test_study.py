@@ -4,7 +4,6 @@ The committed scenes are run on the coarse mesh, without their FRC, so that the
 whole chain (preload, modes, QSMA, EPMC with loops at chosen amplitudes) runs in
 seconds.
 """
-from pathlib import Path
 
 import h5py
 import numpy as np
@@ -15,7 +14,8 @@ from jointsim.post import study
 from jointsim.run import run_scene
 from jointsim.scene import apply_overrides, parse_scene
 
-ROOT = Path(__file__).resolve().parents[1]
+from .._scenes import ROOT
+
 AMPLITUDES = [3e-4, 1e-3, 3e-3]
 
 

@@ -1,5 +1,4 @@
 """End to end: `jointsim run` of the lap joint (coarse mesh), post-processing, ROM scene."""
-from pathlib import Path
 
 import h5py
 import numpy as np
@@ -8,7 +7,8 @@ import pytest
 from jointsim.cli import main
 from jointsim.post.tables import info_text
 
-ROOT = Path(__file__).resolve().parents[1]
+from .._scenes import ROOT
+
 SCENE = ROOT / "models" / "lap_joint.toml"
 COARSE = "model.mesh='../meshes/lap_joint_coarse.msh'"
 

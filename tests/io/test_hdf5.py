@@ -1,5 +1,4 @@
 """The result-file contract (DESIGN §4) and incremental writing."""
-from pathlib import Path
 
 import h5py
 import numpy as np
@@ -11,7 +10,9 @@ from jointsim.io.hdf5 import SCHEMA_VERSION, ResultWriter
 from jointsim.run import run_scene
 from jointsim.scene import load_scene
 
-SEED = Path(__file__).resolve().parents[1] / "models" / "seed_fig3"
+from .._scenes import ROOT
+
+SEED = ROOT / "models" / "seed_fig3"
 
 
 def test_contract_of_a_prescribed_run(tmp_path):
@@ -78,7 +79,6 @@ def test_append_shape_mismatch_is_an_error(tmp_path):
         w.append("x", np.zeros(3), "m")
         with pytest.raises(ValueError, match="does not fit"):
             w.append("x", np.zeros(4), "m")
-
 
 
 def test_append_rows_matches_row_by_row_appends(tmp_path):

@@ -1,96 +1,30 @@
-"""Harmonic balance and EPMC on the FE lap joint (coarse mesh) and the shared static
-state / stuck linearisation: checks against oracles."""
-import sys
-from pathlib import Path
-
+"""Harmonic balance and EPMC on the FE lap joint (coarse mesh): checks against
+oracles.  The static state and the stuck modes have their own files
+(``test_static.py``, ``test_modes.py``)."""
 import h5py
 import numpy as np
 import pytest
 
-from jointsim import _toml
 from jointsim.model import build_model
 from jointsim.run import run_scene
-from jointsim.scene import SceneError, apply_overrides, load_scene, parse_scene
+from jointsim.scene import SceneError, load_scene, parse_scene
 from jointsim.solvers.continuation import continue_branch
 from jointsim.solvers.epmc import EPMCSystem
 from jointsim.harmonics import harmonic_amplitude
 from jointsim.solvers.hbm import HBMSystem, solve_point
-from jointsim.solvers.modes import elastic_mode, eigenmodes, rigid_body_modes, stuck_modes
-from jointsim.solvers.static import residual, stuck_linearisation, tangent_stiffness
+from jointsim.solvers.modes import elastic_mode
 
-sys.path.insert(0, str(Path(__file__).parent))
-from test_hbm import four_dof  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
-COUPLED = ROOT / "models" / "lap_joint.toml"
-FIXED = ROOT / "models" / "lap_joint_fixed_n.toml"
-COARSE = "model.mesh='../meshes/lap_joint_coarse.msh'"
-NO_FULL = ["analysis.modes.full_model=false", "analysis.modes.monolithic=false"]
+from .._scenes import COUPLED, FIXED, NO_FULL, four_dof, lap_scene
 
 
-def lap_scene(path, analyses=("modes",), overrides=()):
-    """A lap-joint scene on the coarse mesh keeping only the named analyses."""
-    out, keep = [], True
-    for line in path.read_text().splitlines():
-        s = line.strip()
-        if s.startswith("[") and not s.startswith("[["):
-            keep = not s.startswith("[analysis.") or s[len("[analysis."):-1] in analyses
-        if keep:
-            out.append(line)
-    data = apply_overrides(_toml.loads("\n".join(out)), [COARSE, *overrides], str(path))
-    return parse_scene(data, str(path), path.parent)
-
-
-@pytest.fixture(scope="module")
-def coupled():
-    return build_model(lap_scene(COUPLED))
-
-
-@pytest.fixture(scope="module")
-def fixed():
-    return build_model(lap_scene(FIXED))
+@pytest.fixture
+def fixed(coarse_lap_fixed):
+    return coarse_lap_fixed
 
 
 # --------------------------------------------------------------------------
-# The static state and its stuck linearisation
+# The static state as the start of the harmonic balance
 # --------------------------------------------------------------------------
-def test_stuck_linearisation_of_the_fe_model_is_the_preload(coupled):
-    lin = coupled.linearisation                                      # built with the model
-    assert lin.source == "model" and lin.convergence.success
-    assert np.array_equal(lin.x0, coupled.preload.x0)
-    assert abs(coupled.linearisation.K - lin.K).max() == 0.0  # the one definition
-    # x0 is the equilibrium of the model's own K and f_static
-    r = residual(coupled.K, lin.f0, coupled.contacts, lin.x0, tangential="stuck")
-    assert np.linalg.norm(r) <= 1e-9 * np.linalg.norm(lin.f0)
-    # N at x0 is N0, and the closed elements are those with N0 > 0
-    assert np.allclose(lin.N, coupled.contacts.N0, rtol=1e-12, atol=1e-9)
-    assert np.array_equal(lin.closed, coupled.contacts.N0 > 0)
-    K = tangent_stiffness(coupled.K, coupled.contacts, lin.x0)
-    assert abs(lin.K - K).max() == 0.0
-
-
-def test_stuck_linearisation_of_a_lumped_model_solves_the_static_state():
-    """A constant load on a lumped model with a stuck Jenkins element to ground:
-    x0 = (K + kt e e^T)^-1 f0 (oracle), K0 = K + kt e e^T."""
-    d = {"model": {"kind": "lumped", "M": [[1.0, 0.0], [0.0, 1.0]],
-                   "K": [[2.0, -1.0], [-1.0, 2.0]],
-                   "contacts": [{"t_dof": 1, "N0": 10.0}]},
-         "joint": {"law": "jenkins", "kt": 0.25, "mu": 0.5},
-         "excitation": {"loads": [{"dof": 0, "force": {"constant": 0.3,
-                                                       "harmonics": [{"h": 1, "cos": 1.0}]}}]}}
-    m = build_model(parse_scene(d, "static.toml"))
-    lin = m.linearisation
-    K0 = np.array([[2.0, -1.0], [-1.0, 2.25]])
-    assert lin.source == "solved"
-    assert np.allclose(lin.x0, np.linalg.solve(K0, [0.3, 0.0]), rtol=1e-12, atol=0)
-    assert np.allclose(lin.K.toarray(), K0, rtol=0, atol=1e-15)
-    # the harmonic balance starts there: harmonic 0 of the slip is Tt x0
-    s = HBMSystem(m, (0, 1, 2), 16)
-    z0 = s.static_coordinates().reshape(s.n_c, s.n_r)
-    assert z0[0, 0] == pytest.approx(lin.x0[1], rel=1e-14)
-    assert np.all(z0[1:] == 0.0)
-
-
 def test_hbm_starts_at_the_static_state(fixed):
     """Without a harmonic load the static state solves the harmonic balance: the
     residual at z0 vanishes and X_0 = x0."""
@@ -107,52 +41,6 @@ def test_hbm_starts_at_the_static_state(fixed):
     assert np.abs(X[0] - x0).max() <= 1e-5 * np.abs(x0).max()
     assert np.abs(s.T @ (X[0] - x0)).max() <= 1e-12 * np.abs(x0).max()
     assert np.abs(X[1:]).max() <= 1e-12 * np.abs(x0).max()
-
-
-def test_fixed_normal_load_linearises_like_the_coupled_joint(coupled, fixed):
-    """Fixed N: normal springs only where the preload closed the interface, so the
-    stuck linear modes are the coupled joint's."""
-    fc = stuck_modes(coupled, 8).frequency_hz
-    ff = stuck_modes(fixed, 8).frequency_hz
-    assert np.allclose(fc[3:], ff[3:], rtol=1e-7, atol=0)
-    # the suspension modes (w^2 ~ 1e-9 of the contact stiffness) to round-off
-    assert np.allclose(fc[:3], ff[:3], rtol=1e-4, atol=0)
-    Kc = coupled.linearisation.K.toarray()
-    Kf = fixed.linearisation.K.toarray()
-    assert np.abs(Kc - Kf).max() <= 1e-9 * np.abs(Kc).max()
-
-
-# --------------------------------------------------------------------------
-# Rigid-body (suspension) modes and the elastic mode numbering
-# --------------------------------------------------------------------------
-def test_suspension_modes_are_detected(coupled):
-    res = stuck_modes(coupled, 8)
-    assert list(res.elastic) == [False, False, False] + [True] * 5
-    assert "rigid-body share" in res.rigid_method
-    assert res.frequency_hz[2] < 6.0 < 100.0 < res.frequency_hz[3]
-    em = elastic_mode(coupled, 1)
-    assert em.index == 3 and em.n_rigid == 3
-    assert em.frequency_hz == pytest.approx(res.frequency_hz[3], rel=1e-8)  # eigh round-off
-    assert em.phi @ (coupled.M @ em.phi) == pytest.approx(1.0, rel=1e-10)
-    # an explicit cutoff decides instead
-    mask, how = rigid_body_modes(coupled, res.frequency_hz, res.shapes, cutoff_hz=4.0)
-    assert list(mask[:4]) == [True, True, False, False] and "below 4" in how
-    assert elastic_mode(coupled, 2, rigid_cutoff_hz=4.0).index == 3
-
-
-def test_rom_uses_the_spectral_gap_and_lumped_models_have_no_rigid_modes(coupled):
-    import dataclasses
-    rom_like = dataclasses.replace(coupled, fe=None)
-    f, phi = eigenmodes(coupled.linearisation.K, coupled.M, 8)
-    mask, how = rigid_body_modes(rom_like, f, phi)
-    assert list(mask) == [True, True, True] + [False] * 5 and "gap" in how
-    lumped = build_model(four_dof())
-    f, phi = eigenmodes(lumped.K, lumped.M, 4)
-    mask, _ = rigid_body_modes(lumped, np.array([0.01, 1.0, 1.2, 1.5]), phi)
-    assert not mask.any()
-    assert elastic_mode(lumped, 1).index == 0
-    with pytest.raises(ValueError, match="elastic modes"):
-        elastic_mode(lumped, 5)
 
 
 # --------------------------------------------------------------------------

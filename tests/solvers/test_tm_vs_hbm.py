@@ -11,7 +11,6 @@
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import h5py
 import numpy as np
@@ -27,8 +26,10 @@ from jointsim.solvers import crosscheck as CC
 from jointsim.solvers.hbm import HBMSystem, solve_point
 from jointsim.solvers.transient import march_steady
 
-MODELS = Path(__file__).resolve().parents[1] / "models"
-CHAIN = MODELS / "hbm" / "chain2_jenkins.toml"
+from .._scenes import CHAIN2, ROOT
+
+MODELS = ROOT / "models"
+CHAIN = CHAIN2
 F_SCALE = 0.2          # the top branch of the scene: the element slips near resonance
 OMEGA_PEAK = 1.0202    # its HBM peak (jointsim info on the scene's FRC)
 

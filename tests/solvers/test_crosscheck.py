@@ -14,7 +14,7 @@ from jointsim.solvers.crosscheck import (cross_check, explain_dc, hbm_reference,
                                          memory_elements)
 from jointsim.solvers.transient import march_steady
 
-from ._transient_scenes import lumped, two_dof_jenkins
+from .._transient_scenes import lumped, two_dof_jenkins
 
 
 def _two_dof(F, C=0.05):

@@ -6,7 +6,7 @@ from jointsim.contact import _kernels as K
 from jointsim.contact import iwan4_sliders
 from jointsim.contact.laws import AnchoredBank, ScaledBank
 
-from . import _reference as ref
+from .. import _reference as ref
 
 LAWS = {"bank_anchor": AnchoredBank, "bank_scaled": ScaledBank}
 

@@ -1,0 +1,62 @@
+"""Stuck-joint modes, rigid-body (suspension) modes and the elastic mode numbering
+(:mod:`jointsim.solvers.modes`) on the coarse FE lap joint and a lumped model."""
+import numpy as np
+import pytest
+
+from jointsim.model import build_model
+from jointsim.solvers.modes import elastic_mode, eigenmodes, rigid_body_modes, stuck_modes
+
+from .._scenes import four_dof
+
+
+@pytest.fixture
+def coupled(coarse_lap_coupled):
+    return coarse_lap_coupled
+
+
+@pytest.fixture
+def fixed(coarse_lap_fixed):
+    return coarse_lap_fixed
+
+
+def test_fixed_normal_load_linearises_like_the_coupled_joint(coupled, fixed):
+    """Fixed N: normal springs only where the preload closed the interface, so the
+    stuck linear modes are the coupled joint's."""
+    fc = stuck_modes(coupled, 8).frequency_hz
+    ff = stuck_modes(fixed, 8).frequency_hz
+    assert np.allclose(fc[3:], ff[3:], rtol=1e-7, atol=0)
+    # the suspension modes (w^2 ~ 1e-9 of the contact stiffness) to round-off
+    assert np.allclose(fc[:3], ff[:3], rtol=1e-4, atol=0)
+    Kc = coupled.linearisation.K.toarray()
+    Kf = fixed.linearisation.K.toarray()
+    assert np.abs(Kc - Kf).max() <= 1e-9 * np.abs(Kc).max()
+
+
+def test_suspension_modes_are_detected(coupled):
+    res = stuck_modes(coupled, 8)
+    assert list(res.elastic) == [False, False, False] + [True] * 5
+    assert "rigid-body share" in res.rigid_method
+    assert res.frequency_hz[2] < 6.0 < 100.0 < res.frequency_hz[3]
+    em = elastic_mode(coupled, 1)
+    assert em.index == 3 and em.n_rigid == 3
+    assert em.frequency_hz == pytest.approx(res.frequency_hz[3], rel=1e-8)  # eigh round-off
+    assert em.phi @ (coupled.M @ em.phi) == pytest.approx(1.0, rel=1e-10)
+    # an explicit cutoff decides instead
+    mask, how = rigid_body_modes(coupled, res.frequency_hz, res.shapes, cutoff_hz=4.0)
+    assert list(mask[:4]) == [True, True, False, False] and "below 4" in how
+    assert elastic_mode(coupled, 2, rigid_cutoff_hz=4.0).index == 3
+
+
+def test_rom_uses_the_spectral_gap_and_lumped_models_have_no_rigid_modes(coupled):
+    import dataclasses
+    rom_like = dataclasses.replace(coupled, fe=None)
+    f, phi = eigenmodes(coupled.linearisation.K, coupled.M, 8)
+    mask, how = rigid_body_modes(rom_like, f, phi)
+    assert list(mask) == [True, True, True] + [False] * 5 and "gap" in how
+    lumped = build_model(four_dof())
+    f, phi = eigenmodes(lumped.K, lumped.M, 4)
+    mask, _ = rigid_body_modes(lumped, np.array([0.01, 1.0, 1.2, 1.5]), phi)
+    assert not mask.any()
+    assert elastic_mode(lumped, 1).index == 0
+    with pytest.raises(ValueError, match="elastic modes"):
+        elastic_mode(lumped, 5)
