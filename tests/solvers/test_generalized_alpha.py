@@ -14,7 +14,7 @@ from jointsim.model import build_model
 from jointsim.solvers.generalized_alpha import GeneralizedAlpha
 from jointsim.solvers.transient import static_start
 
-from ._transient_scenes import sdof_jenkins
+from .._transient_scenes import sdof_jenkins
 
 
 @pytest.mark.parametrize("fused", [False, True])
