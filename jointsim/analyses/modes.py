@@ -128,13 +128,7 @@ def _write_mesh(writer, st) -> None:
 def run_modes(scene, model, writer, results=None) -> ModesResult:
     """Runner of ``[analysis.modes]``: the stuck modes, written to ``/modes``.
 
-    Parameters
-    ----------
-    scene : jointsim.scene.Scene
-    model : jointsim.model.StructuralModel
-    writer : jointsim.io.hdf5.ResultWriter
-    results : dict, optional
-        Results of the analyses run before (unused).
+    The runner contract (arguments, ``results``) is in :mod:`jointsim.analyses`.
 
     Returns
     -------

@@ -18,13 +18,7 @@ log = logging.getLogger(__name__)
 def run_qsma_analysis(scene, model, writer, results=None) -> QSMAResult:
     """``[analysis.qsma]``: the QSMA backbone of one mode, written to ``/qsma``.
 
-    Parameters
-    ----------
-    scene : jointsim.scene.Scene
-    model : jointsim.model.StructuralModel
-    writer : jointsim.io.hdf5.ResultWriter
-    results : dict, optional
-        Results of the analyses run before (unused).
+    The runner contract (arguments, ``results``) is in :mod:`jointsim.analyses`.
 
     Returns
     -------

@@ -104,15 +104,9 @@ class _History:
 def run_transient(scene, model, writer, results=None) -> None:
     """The ``transient`` analysis of a scene: march, extract, write ``/transient``.
 
-    Parameters
-    ----------
-    scene : jointsim.scene.Scene
-    model : jointsim.model.StructuralModel
-    writer : jointsim.io.hdf5.ResultWriter
-    results : dict, optional
-        Results of the analyses run before; with ``"hbm"`` (an
-        :class:`~jointsim.solvers.crosscheck.HBMSolutions`) a steady march is
-        cross-checked against harmonic balance at its frequency.
+    The runner contract is in :mod:`jointsim.analyses`.  With ``results["hbm"]`` (an
+    :class:`~jointsim.solvers.crosscheck.HBMSolutions`) a steady march is
+    cross-checked against harmonic balance at its frequency.
 
     Raises
     ------

@@ -14,18 +14,9 @@ from .structural import StructuralModel, make_contact_set, with_fixed_normal_spr
 
 
 def build_lumped(scene) -> StructuralModel:
-    """Structural model of a ``kind = "lumped"`` scene.
-
-    Parameters
-    ----------
-    scene : jointsim.scene.Scene
-
-    Returns
-    -------
-    StructuralModel
-        ``preload``, ``fe``, ``rom`` and ``source`` are None; ``linearisation``
-        is solved under the static load.
-    """
+    """Structural model of a ``kind = "lumped"`` scene (a builder of
+    :data:`jointsim.model.BUILDERS`): ``preload``, ``fe``, ``rom`` and ``source``
+    are None; ``linearisation`` is solved under the static load."""
     m = scene.model
     n = m.n_dof
     M = sp.csr_matrix(np.array(m.M, dtype=float))

@@ -8,17 +8,9 @@ from .structural import StructuralModel
 
 
 def build_rom(scene) -> StructuralModel:
-    """Structural model of a ``kind = "rom"`` scene (reduced model from a file).
-
-    Parameters
-    ----------
-    scene : jointsim.scene.Scene
-
-    Returns
-    -------
-    StructuralModel
-        ``source`` is the file, ``rom`` the reduced model read from it;
-        ``preload`` and ``linearisation`` as for FE models.
+    """Structural model of a ``kind = "rom"`` scene (reduced model from a file; a
+    builder of :data:`jointsim.model.BUILDERS`): ``source`` is the file, ``rom`` the
+    reduced model read from it; ``preload`` and ``linearisation`` as for FE models.
 
     Raises
     ------
