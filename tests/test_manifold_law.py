@@ -63,3 +63,11 @@ def test_manifold_law_is_on_the_manifold_wherever_it_is_admissible(name):
     print(name, "on", on, "of which separating", sep_on, "scaled off there", scaled_off)
     assert on >= 12 and sep_on >= 1
     assert scaled_off >= 3     # Eq. 7 is off on paths where the manifold law is on
+
+
+def test_harmonic_balance_with_the_manifold_law_is_refused():
+    from jointsim.scene import SceneError, load_scene
+    with pytest.raises(SceneError, match="joint.reversal"):
+        load_scene("models/hbm/chain2_friction_fold.toml", overrides=["joint.reversal=manifold"])
+    # prescribed motion with it runs: the seed Fig. 3 scenes
+    assert load_scene("models/seed_fig3/sep.toml", overrides=["joint.reversal=manifold"])
