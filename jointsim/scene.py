@@ -251,9 +251,11 @@ class Joint:
 
     law: str = spec("jenkins", choices=("jenkins", "iwan4", "stuck"),
                     doc="tangential law")
-    reversal: str = spec("anchor", choices=("anchor", "scaled"),
+    reversal: str = spec("anchor", choices=("anchor", "scaled", "manifold"),
                          doc="'anchor': physical elastic dry friction; 'scaled': reversal "
-                             "force scaled by N(t)/N_r (seed Eq. 7, condition 5)")
+                             "force scaled by N(t)/N_r (seed Eq. 7, condition 5); "
+                             "'manifold': Eq. 7's scaling with Masing's memory rule (on the "
+                             "Masing manifold where it lies within mu N; no HBM/EPMC)")
     mu: float = spec(0.1, doc="friction coefficient", ge=0)
     kt: float = spec(1.0, doc="tangential stiffness per unit area", unit="N/m^3", gt=0)
     kn: float = spec(1.0, doc="normal stiffness per unit area", unit="N/m^3", gt=0)

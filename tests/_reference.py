@@ -54,6 +54,52 @@ def scaled_bank(u, N, k, g, N_start):
     return f
 
 
+def manifold_bank(u, N, k, g, u0=None):
+    """Manifold reversal law from its definition (DESIGN §2, issue 14), plain Python.
+
+    Masing's memory as a Python list of open reversals ``(u_r, N_r, f_r)``:
+    a reversal is pushed when the direction of ``u`` changes; an inner loop
+    closes when ``u`` reaches the reversal before the current one (both are
+    removed); with two left the older is removed when reached.  Force:
+    ``f_r N/N_r + 2 s fbb(|u - u_r|/2; N)`` (backbone before the first
+    reversal), clipped to ``+-sum(g) N``, 0 for ``N <= 0``.  Unbounded stack.
+    """
+    ne, nt = u.shape
+    f = np.zeros((ne, nt))
+    for e in range(ne):
+        up = 0.0 if u0 is None else u0[e]
+        base = up
+        Np, fp, d = N[e, 0], 0.0, 0
+        stack = []
+        for t in range(nt):
+            ut, Nt = u[e, t], N[e, t]
+            if ut != up:
+                dn = 1 if ut > up else -1
+                if d != 0 and dn != d:
+                    stack.append((up, Np, fp))
+                d = dn
+                while len(stack) >= 2 and (ut - stack[-2][0]) * d >= 0.0:
+                    if len(stack) >= 3:
+                        del stack[-2:]
+                    else:
+                        del stack[0]
+            if Nt <= 0.0:
+                ft = 0.0
+            else:
+                bb = lambda x: np.minimum(k[e] * x, g[e] * Nt).sum()  # noqa: E731
+                if not stack:
+                    ft = np.sign(ut - base) * bb(abs(ut - base))
+                else:
+                    ur, Nr, fr = stack[-1]
+                    ft = (fr * (Nt / Nr) if Nr > 0.0 else 0.0) \
+                        + 2.0 * np.sign(ut - ur) * bb(0.5 * abs(ut - ur))
+                lim = g[e].sum() * Nt
+                ft = min(max(ft, -lim), lim)
+            f[e, t] = ft
+            up, Np, fp = ut, Nt, ft
+    return f
+
+
 def normal(gap, kn, unilateral=True):
     N = -kn[:, None] * gap
     return np.where(gap >= 0.0, 0.0, N) if unilateral else N

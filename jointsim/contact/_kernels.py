@@ -326,3 +326,189 @@ def normal_penalty(g, kn, can_open, closed_at_zero):
         for t in range(nt):
             N[e, t], dNdg[e, t] = normal_point(g[e, t], kn[e], can_open, closed_at_zero)
     return N, dNdg
+
+
+# --------------------------------------------------------------------------
+# The manifold reversal law: seed Eq. 7's scaling with Masing's memory rule
+# --------------------------------------------------------------------------
+# Layout of the manifold-law state, per element: 6 shared entries, then a
+# stack of MF_DEPTH open reversals, each (u_r [m], N_r [N], f_r [N]).
+MF_U_PREV, MF_N_PREV, MF_DIR, MF_F_PREV, MF_TOP, MF_U0 = 0, 1, 2, 3, 4, 5
+MF_SHARED = 6
+#: Open reversals the manifold law remembers; on overflow the oldest (outermost)
+#: is forgotten.  Each open reversal needs a nested, shrinking inner loop, so
+#: 32 is only reached by 16 nested loops that have not closed.
+MF_DEPTH = 32
+
+
+@njit(cache=True, inline="always")
+def _mf_pass(u, d, ur):
+    """True when motion in direction ``d`` at ``u`` has reached or passed ``ur``."""
+    return (d > 0.0 and u >= ur) or (d < 0.0 and u <= ur)
+
+
+@njit(cache=True)
+def _mf_drop_bottom(s, e, top):
+    for j in range(top - 1):
+        for q in range(3):
+            s[e, MF_SHARED + 3 * j + q] = s[e, MF_SHARED + 3 * (j + 1) + q]
+
+
+@njit(cache=True)
+def manifold_memory(s, e, ut):
+    """Update the reversal stack of element ``e`` for the sample ``ut`` (in place).
+
+    A reversal at the previous sample is pushed with the force there; then,
+    Masing's memory rule: while the motion reaches or passes the reversal
+    before the current one, the inner loop has closed and both are popped.
+    With only two reversals left, the older is dropped when reached (the
+    steady outer loop keeps its latest extremes, as the Masing check of
+    :mod:`jointsim.masing` does).
+    """
+    du = ut - s[e, MF_U_PREV]
+    if du == 0.0:
+        return
+    d = 1.0 if du > 0.0 else -1.0
+    top = int(s[e, MF_TOP])
+    if s[e, MF_DIR] != 0.0 and d != s[e, MF_DIR]:
+        if top == MF_DEPTH:
+            _mf_drop_bottom(s, e, top)
+            top -= 1
+        b = MF_SHARED + 3 * top
+        s[e, b] = s[e, MF_U_PREV]
+        s[e, b + 1] = s[e, MF_N_PREV]
+        s[e, b + 2] = s[e, MF_F_PREV]
+        top += 1
+    s[e, MF_DIR] = d
+    while top >= 2:
+        ur = s[e, MF_SHARED + 3 * (top - 2)]
+        if not _mf_pass(ut, d, ur):
+            break
+        if top >= 3:
+            top -= 2
+        else:
+            _mf_drop_bottom(s, e, top)
+            top = 1
+    s[e, MF_TOP] = float(top)
+
+
+@njit(cache=True)
+def manifold_force(s, e, ut, Nt, k, g):
+    """Force of element ``e`` of the manifold law at ``(ut, Nt)`` given its memory.
+
+    ``f = f_r N / N_r + 2 sgn(u - u_r) f_bb(|u - u_r| / 2; N)`` from the top
+    reversal ``(u_r, N_r, f_r)`` of the stack (the first term is 0 when
+    ``N_r <= 0``), ``f = sgn(u - u_0) f_bb(|u - u_0|; N)`` before the first
+    reversal, clipped to ``+-sum(g) N``; 0 while ``N <= 0``.
+
+    Returns
+    -------
+    f, dfdu, dfdN : float
+        Force [N] and its partial derivatives with the memory held fixed.
+    """
+    if Nt <= 0.0:
+        return 0.0, 0.0, 0.0
+    ns = k.shape[1]
+    top = int(s[e, MF_TOP])
+    if top == 0:
+        delta = ut - s[e, MF_U0]
+        x = abs(delta)
+        c = 1.0
+        f0 = 0.0
+        dN0 = 0.0
+    else:
+        b = MF_SHARED + 3 * (top - 1)
+        delta = ut - s[e, b]
+        x = 0.5 * abs(delta)
+        c = 2.0
+        Nr = s[e, b + 1]
+        if Nr > 0.0:
+            f0 = s[e, b + 2] * (Nt / Nr)
+            dN0 = s[e, b + 2] / Nr
+        else:
+            f0 = 0.0
+            dN0 = 0.0
+    sg = 1.0 if delta > 0.0 else (-1.0 if delta < 0.0 else 0.0)
+    bb = 0.0
+    kst = 0.0
+    gsl = 0.0
+    gsum = 0.0
+    for i in range(ns):
+        a = k[e, i] * x
+        q = g[e, i] * Nt
+        gsum += g[e, i]
+        if a < q:
+            bb += a
+            kst += k[e, i]
+        else:
+            bb += q
+            gsl += g[e, i]
+    f = f0 + c * sg * bb
+    lim = gsum * Nt
+    if f > lim:
+        return lim, 0.0, gsum
+    if f < -lim:
+        return -lim, 0.0, -gsum
+    return f, kst, dN0 + c * sg * gsl
+
+
+@njit(cache=True)
+def _manifold_element(e, u, N, k, g, s, f, dfdu, dfdN):
+    """March element ``e`` of the manifold law (see bank_manifold_march)."""
+    for t in range(u.shape[1]):
+        ut = u[e, t]
+        Nt = N[e, t]
+        manifold_memory(s, e, ut)
+        fe, de, dn = manifold_force(s, e, ut, Nt, k, g)
+        s[e, MF_U_PREV] = ut
+        s[e, MF_N_PREV] = Nt
+        s[e, MF_F_PREV] = fe
+        f[e, t] = fe
+        dfdu[e, t] = de
+        dfdN[e, t] = dn
+
+
+@njit(cache=True)
+def _bank_manifold_serial(u, N, k, g, s0):
+    ne, nt = u.shape
+    f, dfdu, dfdN = np.zeros((ne, nt)), np.zeros((ne, nt)), np.zeros((ne, nt))
+    s = s0.copy()
+    for e in range(ne):
+        _manifold_element(e, u, N, k, g, s, f, dfdu, dfdN)
+    return f, dfdu, dfdN, s
+
+
+@njit(cache=True, parallel=True)
+def _bank_manifold_parallel(u, N, k, g, s0):
+    ne, nt = u.shape
+    f, dfdu, dfdN = np.zeros((ne, nt)), np.zeros((ne, nt)), np.zeros((ne, nt))
+    s = s0.copy()
+    for e in prange(ne):
+        _manifold_element(e, u, N, k, g, s, f, dfdu, dfdN)
+    return f, dfdu, dfdN, s
+
+
+def bank_manifold_march(u, N, k, g, s0):
+    """March elements of the manifold reversal law over samples.
+
+    Parameters
+    ----------
+    u, N : ndarray, shape (n_e, n_t)
+        Tangential displacement [m] and normal load [N].
+    k, g : ndarray, shape (n_e, n_s)
+        Slider stiffness [N/m] and slip force per unit normal load [-] of the
+        bank whose backbone ``f_bb(x; N) = sum_i min(k_i x, g_i N)`` the law uses.
+    s0 : ndarray, shape (n_e, MF_SHARED + 3 MF_DEPTH)
+        State: previous u [m], previous N [N], direction (-1, 0, 1), previous
+        force [N], number of open reversals, rest position u_0 [m], then the
+        stack of open reversals ``(u_r, N_r, f_r)``, oldest first.
+
+    Returns
+    -------
+    f, dfdu, dfdN : ndarray, shape (n_e, n_t)
+    s : ndarray
+        State after the last sample.
+    """
+    if _threaded(u, k):
+        return _bank_manifold_parallel(u, N, k, g, s0)
+    return _bank_manifold_serial(u, N, k, g, s0)

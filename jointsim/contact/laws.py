@@ -12,6 +12,8 @@ Every law is a *slider bank* (see :mod:`jointsim.contact._kernels`): slider
 
 * :class:`AnchoredBank` -- physical elastic dry friction (Jenkins, Iwan);
 * :class:`ScaledBank` -- the seed's Eq. 7 reversal law;
+* :class:`ManifoldBank` -- Eq. 7's scaling with Masing's memory rule (on the
+  Masing manifold wherever the manifold stays inside the friction limit);
 * :class:`LinearSpring` -- a tangential spring that never slips (``stuck``);
 * :class:`NoFriction` -- no tangential force (``effects.friction = false``).
 """
@@ -111,12 +113,16 @@ class TangentialLaw:
     fused_code : int or None
         Code of the law in the fused time-marching kernel; None when the
         fused kernel does not support it (the Python stepper is used).
+    has_aft : bool
+        False when the law has no AFT kernel with an exact Jacobian (scenes
+        with harmonic balance are refused, see :mod:`jointsim.contact.select`).
     """
 
     name: ClassVar[str] = ""
     has_force: ClassVar[bool] = True
     can_slip: ClassVar[bool] = True
     fused_code: ClassVar[int | None] = None
+    has_aft: ClassVar[bool] = True
 
     k: np.ndarray
     g: np.ndarray
@@ -334,6 +340,64 @@ class ScaledBank(TangentialLaw):
     def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled):
         return AK.scaled_aft(u, N, dNdg, self.k, self.g, np.ascontiguousarray(N[:, 0]),
                              basis.P, basis.Gam, min_periods, max_periods, tol, coupled)
+
+
+@dataclass(frozen=True)
+class ManifoldBank(TangentialLaw):
+    """Seed Eq. 7's scaled reversal force with the Masing manifold's own memory.
+
+    After a reversal ``(u_r, N_r, f_r)`` the force is the manifold's,
+    ``f = f_r N / N_r + 2 sgn(u - u_r) f_bb(|u - u_r| / 2; N)`` (DESIGN §2),
+    with ``f_bb`` the backbone of the slider bank ``(k, g)``; before the first
+    reversal it is the backbone ``sgn(u - u_0) f_bb(|u - u_0|; N)``.  The
+    governing reversal comes from a stack that is popped when an inner loop
+    closes, exactly the memory rule of :func:`jointsim.masing.check_loops`, so
+    the law is on its manifold to round-off wherever the manifold lies inside
+    the friction limit; where it does not (``|f_manifold| > mu N``, possible
+    when N falls after a reversal whose force was inside the limit) the
+    force is clipped to ``+-mu N``, and the Masing check's deviation equals
+    exactly the manifold's excess over the limit.
+
+    Differences with :class:`ScaledBank` (Eq. 7): Eq. 7 keeps only the last
+    reversal, so after an inner loop closes it does not return to the older
+    branch; and it scales and clips each slider separately.  Both agree for
+    two-reversal loops whose reversals are reached in slip.
+
+    State per element: ``MF_SHARED`` entries and a stack of ``MF_DEPTH`` open
+    reversals (see :func:`jointsim.contact._kernels.bank_manifold_march`).  On
+    overflow the oldest open reversal is forgotten.  Like Eq. 7 the law is not
+    path-continuous (a micro-reversal re-scales the reference force), and it
+    has no AFT kernel: harmonic balance with it is refused.
+    """
+
+    name: ClassVar[str] = "bank_manifold"
+    has_aft: ClassVar[bool] = False
+
+    def state_size(self) -> int:
+        return K.MF_SHARED + 3 * K.MF_DEPTH
+
+    def rest_state(self, N0) -> np.ndarray:
+        ne = self.n_elements
+        s = np.zeros((ne, self.state_size()))
+        s[:, K.MF_N_PREV] = np.broadcast_to(np.asarray(N0, dtype=float), (ne,))
+        return s
+
+    def state_at(self, u0, N0) -> np.ndarray:
+        s = self.rest_state(N0)
+        s[:, K.MF_U_PREV] = u0
+        s[:, K.MF_U0] = u0
+        return s
+
+    def march(self, u, N, state):
+        return K.bank_manifold_march(np.ascontiguousarray(u, dtype=float),
+                                     np.ascontiguousarray(N, dtype=float), self.k, self.g,
+                                     np.ascontiguousarray(state))
+
+    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled,
+            parallel=True):
+        raise NotImplementedError(
+            "the manifold reversal law has no AFT kernel with exact history derivatives; "
+            "use it with time marching or prescribed motion")
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from .._schema import SceneError
-from .laws import (AnchoredBank, LinearSpring, NoFriction, ScaledBank, TangentialLaw,
+from .laws import (AnchoredBank, LinearSpring, ManifoldBank, NoFriction, ScaledBank, TangentialLaw,
                    iwan4_parameters, jenkins_parameters, no_parameters, spring_parameters)
 from .normal import BilateralPenalty, GivenNormal, NormalLaw, UnilateralPenalty
 
@@ -32,6 +32,8 @@ TANGENTIAL_TABLE: dict[tuple[str, str], tuple[type[TangentialLaw], Callable]] = 
     ("jenkins", "scaled"): (ScaledBank, jenkins_parameters),
     ("iwan4", "anchor"): (AnchoredBank, iwan4_parameters),
     ("iwan4", "scaled"): (ScaledBank, iwan4_parameters),
+    ("jenkins", "manifold"): (ManifoldBank, jenkins_parameters),
+    ("iwan4", "manifold"): (ManifoldBank, iwan4_parameters),
     ("stuck", "anchor"): (LinearSpring, spring_parameters),
 }
 
@@ -113,8 +115,16 @@ def select_kernels(scene) -> KernelChoice:
         if key not in TANGENTIAL_TABLE:
             raise SceneError(file, "joint.reversal",
                              f"{j.reversal!r} is not defined for law {j.law!r}; "
-                             "'scaled' applies to the friction laws 'jenkins' and 'iwan4'")
+                             "'scaled' and 'manifold' apply to the friction laws 'jenkins' "
+                             "and 'iwan4'")
         law_class, parameters = TANGENTIAL_TABLE[key]
+        if not law_class.has_aft:
+            for name in ("hbm", "epmc"):
+                if getattr(scene.analysis, name, None) is not None:
+                    raise SceneError(file, "joint.reversal",
+                                     f"{j.reversal!r} has no harmonic-balance (AFT) kernel "
+                                     f"with an exact Jacobian, so analysis.{name} cannot use "
+                                     "it; use 'anchor' or 'scaled', or a transient analysis")
     normal_class = NORMAL_TABLE[(fx.normal, fx.separation)]
     if kind == "prescribed":
         if normal_class.coupled:

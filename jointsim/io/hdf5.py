@@ -265,8 +265,8 @@ def write_loops(writer: ResultWriter, point: int, u, f, N, report, units: str,
                   "while the force opposes the motion after a reversal")
     writer.append(f"{p}masing/eq6_ok", report.eq6_ok, one, "seed Eq. 6: d(mu N)/ds <= kt "
                   "while slipping")
-    writer.append(f"{p}masing/eq4_margin", report.eq4_margin, one, "min(1 + d(mu N)/ds / kt)")
-    writer.append(f"{p}masing/eq6_margin", report.eq6_margin, one, "min(1 - d(mu N)/ds / kt)")
+    writer.append(f"{p}masing/eq4_margin", report.eq4_margin, one, "held: min(1 + d(mu N)/ds / kt); violated: -integrated violation / (kt ptp(u))")
+    writer.append(f"{p}masing/eq6_margin", report.eq6_margin, one, "held: min(1 - d(mu N)/ds / kt); violated: -integrated violation / (kt ptp(u))")
     writer.append(f"{p}masing/n_reversals", report.n_reversals, one, "reversals of u per period")
     writer.append(f"{p}masing/f_manifold", report.f_manifold, F, "manifold prediction")
     writer.append(f"{p}masing/f_masing", report.f_masing, F, "classical Masing prediction")
