@@ -3,7 +3,7 @@
 Jenkins elements with coupled normal load (unilateral, separation on),
 harmonics 0..7, 128 samples per period, random coefficients that make every
 element stick, slip and separate during the period.  For 10, 100 and 1000
-elements, times :meth:`jointsim.solvers.hbm.AFT.evaluate` (numba kernels)
+elements, times :meth:`jointsim.solvers.aft.AFT.evaluate` (numba kernels)
 and the plain-NumPy implementation of ``tests/aft_numpy.py`` side by side in
 the same run, and prints microseconds per element and their ratio.
 
@@ -24,7 +24,7 @@ from aft_numpy import anchor_aft_numpy  # noqa: E402
 from jointsim.contact import AnchoredBank, UnilateralPenalty  # noqa: E402
 from jointsim.model import ContactSet  # noqa: E402
 from jointsim.harmonics import HarmonicBasis  # noqa: E402
-from jointsim.solvers.hbm import AFT  # noqa: E402
+from jointsim.solvers.aft import AFT  # noqa: E402
 
 
 def contact_set(ne):

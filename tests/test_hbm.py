@@ -12,7 +12,8 @@ from jointsim.run import run_scene
 from jointsim.scene import SceneError, load_scene, parse_scene
 from jointsim.solvers.continuation import continue_branch
 from jointsim.harmonics import HarmonicBasis, harmonic_amplitude
-from jointsim.solvers.hbm import AFT, HBMSystem, solve_point
+from jointsim.solvers.aft import AFT
+from jointsim.solvers.hbm import HBMSystem, solve_point
 
 sys.path.insert(0, str(Path(__file__).parent))
 from aft_numpy import anchor_aft_numpy  # noqa: E402

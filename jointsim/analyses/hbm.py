@@ -35,7 +35,8 @@ from ..masing import check_loops
 from ..contact import _aft_kernels as AK
 from ..solvers.continuation import continue_branch
 from ..solvers.crosscheck import HBMSolutions
-from ..solvers.hbm import HBMSystem, frc_scales, harmonic_amplitude, refine_peak
+from ..harmonics import harmonic_amplitude
+from ..solvers.hbm import HBMSystem, frc_scales, refine_peak
 
 log = logging.getLogger(__name__)
 
