@@ -63,10 +63,13 @@ class AFT:
         Periods marched at least / at most until the law's state repeats.
     periodic_tol : float
         Relative state change below which a period counts as periodic.
+    parallel : bool
+        Let the kernels run on numba threads (on enough elements); False keeps
+        them on the calling thread (worker processes, which are the parallelism).
     """
 
     def __init__(self, contacts, basis: HarmonicBasis, min_periods: int = 2,
-                 max_periods: int = 50, periodic_tol: float = 1e-10):
+                 max_periods: int = 50, periodic_tol: float = 1e-10, parallel: bool = True):
         self.contacts = contacts
         self.basis = basis
         self.law = contacts.law
@@ -75,6 +78,7 @@ class AFT:
         self.max_periods = int(max(max_periods, min_periods))
         self.periodic_tol = float(periodic_tol)
         self.n_e = contacts.n_elements
+        self.parallel = bool(parallel)
 
     def evaluate(self, U, G=None, jacobian: bool = True) -> AFTResult:
         """Forces of all elements from slip (and gap-change) coefficients.
@@ -100,7 +104,8 @@ class AFT:
             N = np.ascontiguousarray(np.broadcast_to(c.N0[:, None], (ne, nt)), dtype=float)
             dNdg = np.zeros((ne, nt))
         f, au, ag, Juu, Jug, periods, change = self.law.aft(
-            u, N, dNdg, b, self.min_periods, self.max_periods, self.periodic_tol, self.coupled)
+            u, N, dNdg, b, self.min_periods, self.max_periods, self.periodic_tol, self.coupled,
+            self.parallel)
         Ft = f @ b.P.T
         Nc = N @ b.P.T
         JNN = None
@@ -109,13 +114,13 @@ class AFT:
             if Juu is None:
                 Juu = np.zeros((ne, nc, nc))
             if au is not None:
-                b.add_diag_product(Juu, au)
+                b.add_diag_product(Juu, au, self.parallel)
             if self.coupled:
                 if Jug is None:
                     Jug = np.zeros((ne, nc, nc))
                 if ag is not None:
-                    b.add_diag_product(Jug, ag)
-                JNN = b.diag_product(dNdg)
+                    b.add_diag_product(Jug, ag, self.parallel)
+                JNN = b.diag_product(dNdg, self.parallel)
             else:
                 Jug = None
         if np.any(periods >= self.max_periods) and np.any(change > self.periodic_tol):

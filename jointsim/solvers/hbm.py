@@ -69,16 +69,19 @@ class HBMSystem:
     harmonics : sequence of int
     n_samples : int
     min_periods, max_periods : int
-        AFT march periods (see :class:`AFT`).
+        AFT march periods (see :class:`~jointsim.solvers.aft.AFT`).
+    parallel : bool
+        Let the AFT kernels use numba threads (see :class:`~jointsim.solvers.aft.AFT`);
+        False in worker processes.
     """
 
     def __init__(self, model, harmonics, n_samples: int, min_periods: int = 2,
-                 max_periods: int = 50):
+                 max_periods: int = 50, parallel: bool = True):
         self.model = model
         self.basis = HarmonicBasis(harmonics, n_samples)
         c = model.contacts
         self.contacts = c
-        self.aft = AFT(c, self.basis, min_periods, max_periods)
+        self.aft = AFT(c, self.basis, min_periods, max_periods, parallel=parallel)
         ne = c.n_elements
         self.n_e = ne
         self.friction = c.law.has_force
