@@ -3,7 +3,7 @@
 Jenkins elements with coupled normal load (unilateral, separation on),
 harmonics 0..7, 128 samples per period, random coefficients that make every
 element stick, slip and separate during the period.  For 10, 100 and 1000
-elements, times :meth:`jointsim.solvers.hbm.AFT.evaluate` (numba kernels)
+elements, times :meth:`jointsim.solvers.aft.AFT.evaluate` (numba kernels)
 and the plain-NumPy implementation of ``tests/_aft_reference.py`` side by side in
 the same run, and prints microseconds per element and their ratio.
 
@@ -19,7 +19,7 @@ import scipy.sparse as sp
 from jointsim.contact import AnchoredBank, UnilateralPenalty
 from jointsim.model import ContactSet
 from jointsim.harmonics import HarmonicBasis
-from jointsim.solvers.hbm import AFT
+from jointsim.solvers.aft import AFT
 from tests._aft_reference import anchor_aft_numpy
 
 

@@ -51,7 +51,7 @@ def _diag_parallel(J, Ac, As, hk, sk, wk):
         _diag_one(e, J, Ac, As, hk, sk, wk)
 
 
-def add_diag_products(J, Ac, As, hk, sk, wk):
+def add_diag_products(J, Ac, As, hk, sk, wk, parallel=True):
     """Add ``P diag(alpha) Gam`` to per-element blocks from Fourier sums of alpha.
 
     With ``Ac[e, m] = sum_t alpha[e, t] cos(m theta_t)`` and ``As`` the sine
@@ -69,6 +69,9 @@ def add_diag_products(J, Ac, As, hk, sk, wk):
         1 for a sine coefficient, 0 for cosine (and the constant).
     wk : ndarray, shape (n_c,)
         DFT weight of each coefficient (``1/n_t`` for h = 0, else ``2/n_t``).
+    parallel : bool
+        Allow numba threads (from ``PARALLEL_MIN`` elements); False keeps the
+        products on the calling thread (e.g. in a worker process).
     """
-    run = _diag_parallel if J.shape[0] >= PARALLEL_MIN else _diag_serial
+    run = _diag_parallel if parallel and J.shape[0] >= PARALLEL_MIN else _diag_serial
     run(J, np.ascontiguousarray(Ac), np.ascontiguousarray(As), hk, sk, wk)

@@ -277,13 +277,18 @@ class HarmonicBasis:
         """Samples over one period of coefficient arrays ``X`` (n_c, ...) -> (n_t, ...)."""
         return np.tensordot(self.Gam, X, axes=(1, 0))
 
-    def diag_product(self, alpha):
-        """``P diag(alpha_e) Gam`` for every row of ``alpha`` (n_e, n_t) -> (n_e, n_c, n_c)."""
+    def diag_product(self, alpha, parallel: bool = True):
+        """``P diag(alpha_e) Gam`` for every row of ``alpha`` (n_e, n_t) -> (n_e, n_c, n_c).
+
+        ``parallel=False`` keeps the kernel on the calling thread."""
         J = np.zeros((alpha.shape[0], self.n_coeff, self.n_coeff))
-        self.add_diag_product(J, alpha)
+        self.add_diag_product(J, alpha, parallel)
         return J
 
-    def add_diag_product(self, J, alpha):
-        """Add ``P diag(alpha_e) Gam`` to ``J[e]`` for every row of ``alpha`` (n_e, n_t)."""
+    def add_diag_product(self, J, alpha, parallel: bool = True):
+        """Add ``P diag(alpha_e) Gam`` to ``J[e]`` for every row of ``alpha`` (n_e, n_t).
+
+        ``parallel=False`` keeps the kernel on the calling thread."""
         alpha = np.ascontiguousarray(alpha)
-        HK.add_diag_products(J, alpha @ self.cosm, alpha @ self.sinm, self.hk, self.sk, self.wk)
+        HK.add_diag_products(J, alpha @ self.cosm, alpha @ self.sinm, self.hk, self.sk, self.wk,
+                             parallel)

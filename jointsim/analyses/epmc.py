@@ -20,7 +20,8 @@ from ..io.hdf5 import unit, write_loops
 from ..masing import check_loops
 from ..solvers.continuation import continue_branch
 from ..solvers.epmc import EPMCSystem
-from ..solvers.hbm import HBMSystem, _dense
+from ..solvers.condensation import dense_array
+from ..solvers.hbm import HBMSystem
 from ..solvers.modes import elastic_mode
 
 log = logging.getLogger(__name__)
@@ -77,7 +78,7 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     em = elastic_mode(model, a.mode, a.rigid_cutoff_hz)
     F = system.force_coefficients(0.0)
     ep = EPMCSystem(system, em.phi, F)
-    xi0 = float(em.phi @ _dense(model.C) @ em.phi)
+    xi0 = float(em.phi @ dense_array(model.C) @ em.phi)
     g = _write_header(writer, a, model, em, xi0)
     if g.attrs.get("branch_status", "") in ("complete", "gave up"):
         log.info("epmc already %s; skipped", g.attrs["branch_status"])

@@ -32,10 +32,10 @@ import numpy as np
 from .._schema import SceneError
 from ..io.hdf5 import unit, write_loops
 from ..masing import check_loops
-from ..contact import _aft_kernels as AK
 from ..solvers.continuation import continue_branch
 from ..solvers.crosscheck import HBMSolutions
-from ..solvers.hbm import HBMSystem, frc_scales, harmonic_amplitude, refine_peak
+from ..harmonics import harmonic_amplitude
+from ..solvers.hbm import HBMSystem, frc_scales, refine_peak
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +64,7 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
     """
     t_start = time.perf_counter()
     a = scene.analysis.hbm
-    system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods)
+    system = _system(model, a)
     dof = _response_dof(scene, model)
     g = _write_header(writer, a, model, system, dof)
     out = _Output(writer, scene, model, system, dof)
@@ -88,6 +88,15 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
     if failures:
         raise RuntimeError("hbm: " + "; ".join(failures))
     return out.solutions()
+
+
+def _system(model, a, parallel: bool = True) -> HBMSystem:
+    """The condensed HBM system of ``[analysis.hbm]`` settings ``a``.
+
+    ``parallel=False`` keeps the AFT kernels off numba threads (worker processes).
+    """
+    return HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods,
+                     parallel=parallel)
 
 
 def _response_dof(scene, model) -> int:
@@ -332,14 +341,14 @@ def _can_fork() -> bool:
 def _branch_process(job, job_args, queue) -> None:
     """Body of a worker process: compute a branch, send its points to the parent.
 
-    The workers are the parallelism: their AFT kernels stay on one thread (no
-    numba thread pool is started in a forked process, and the cores are not
-    oversubscribed).
+    The workers are the parallelism: each builds its own system with
+    ``parallel=False``, so its AFT kernels stay on one thread (no numba thread
+    pool is started in a forked process, and the cores are not oversubscribed).
     """
-    AK.PARALLEL_MIN = np.iinfo(np.int64).max
     try:
+        serial = _system(job_args["system"].model, job_args["a"], parallel=False)
         conv = _run_branch(job, on_record=lambda rec: queue.put(("point", job.ib, rec)),
-                           progress=False, **job_args)
+                           progress=False, **dict(job_args, system=serial))
         queue.put(("done", job.ib, (conv.success, conv.message)))
     except BaseException as exc:  # reported to the parent, which keeps the file valid
         queue.put(("done", job.ib, (False, f"worker failed: {type(exc).__name__}: {exc}")))

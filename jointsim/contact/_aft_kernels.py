@@ -155,7 +155,8 @@ def _anchor_parallel(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, c
                     f, au, ag, Juu, Jug, periods, change)
 
 
-def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled):
+def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
+               parallel=True):
     """Periodic march of banks of anchored sliders with history derivatives.
 
     Parameters
@@ -175,6 +176,9 @@ def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled
         Periodicity tolerance on the anchors, relative to ``max |u| + max |w|``.
     coupled : bool
         Compute the derivatives with respect to the gap coefficients.
+    parallel : bool
+        Allow numba threads (from ``PARALLEL_MIN`` elements); False marches on
+        the calling thread (e.g. in a worker process).
 
     Returns
     -------
@@ -190,7 +194,7 @@ def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled
     """
     ne, nt = u.shape
     out = _alloc(ne, nt, Gam.shape[1])
-    run = _anchor_parallel if ne >= PARALLEL_MIN else _anchor_serial
+    run = _anchor_parallel if parallel and ne >= PARALLEL_MIN else _anchor_serial
     run(u, N, dNdg, k, g, CP, Gam, int(min_periods), int(max_periods), float(tol),
         bool(coupled), *out)
     return out
@@ -335,7 +339,8 @@ def _scaled_parallel(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods,
                     coupled, f, au, ag, Juu, Jug, periods, change)
 
 
-def scaled_aft(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol, coupled):
+def scaled_aft(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol, coupled,
+               parallel=True):
     """Periodic march of banks of scaled-reversal sliders with history derivatives.
 
     Parameters
@@ -353,6 +358,7 @@ def scaled_aft(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol, 
     tol : float
         Periodicity tolerance on the state, relative to its largest entry.
     coupled : bool
+    parallel : bool
 
     Returns
     -------
@@ -361,7 +367,7 @@ def scaled_aft(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol, 
     """
     ne, nt = u.shape
     out = _alloc(ne, nt, Gam.shape[1])
-    run = _scaled_parallel if ne >= PARALLEL_MIN else _scaled_serial
+    run = _scaled_parallel if parallel and ne >= PARALLEL_MIN else _scaled_serial
     run(u, N, dNdg, k, g, N_rest, P, Gam, int(min_periods), int(max_periods), float(tol),
         bool(coupled), *out)
     return out

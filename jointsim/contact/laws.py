@@ -202,7 +202,7 @@ class TangentialLaw:
         raise NotImplementedError(f"{type(self).__name__} has no march kernel")
 
     def aft(self, u, N, dNdg, basis, min_periods: int, max_periods: int, tol: float,
-            coupled: bool):
+            coupled: bool, parallel: bool = True):
         """Periodic march over one period of samples, with history derivatives.
 
         Parameters
@@ -218,6 +218,8 @@ class TangentialLaw:
             Periodicity tolerance.
         coupled : bool
             Derivatives with respect to the gap coefficients are wanted.
+        parallel : bool
+            Allow the kernel numba threads (False: the calling thread only).
 
         Returns
         -------
@@ -300,9 +302,9 @@ class AnchoredBank(TangentialLaw):
                                    np.ascontiguousarray(N, dtype=float), self.k, self.g,
                                    np.ascontiguousarray(state))
 
-    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled):
+    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled, parallel=True):
         return AK.anchor_aft(u, N, dNdg, self.k, self.g, basis.CP, basis.Gam, min_periods,
-                             max_periods, tol, coupled)
+                             max_periods, tol, coupled, parallel)
 
 
 @dataclass(frozen=True)
@@ -337,9 +339,10 @@ class ScaledBank(TangentialLaw):
                                    np.ascontiguousarray(N, dtype=float), self.k, self.g,
                                    np.ascontiguousarray(state))
 
-    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled):
+    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled, parallel=True):
         return AK.scaled_aft(u, N, dNdg, self.k, self.g, np.ascontiguousarray(N[:, 0]),
-                             basis.P, basis.Gam, min_periods, max_periods, tol, coupled)
+                             basis.P, basis.Gam, min_periods, max_periods, tol, coupled,
+                             parallel)
 
 
 @dataclass(frozen=True)
@@ -413,7 +416,7 @@ class LinearSpring(TangentialLaw):
                                   np.ascontiguousarray(self.k[:, 0]))
         return f, dfdu, np.zeros_like(f), state
 
-    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled):
+    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled, parallel=True):
         k = self.k[:, 0]
         periods, change = _no_history(u)
         return (k[:, None] * u, np.broadcast_to(k[:, None], u.shape), None, None, None,
@@ -439,7 +442,7 @@ class NoFriction(TangentialLaw):
         z = np.zeros(np.shape(u))
         return z, z.copy(), z.copy(), state
 
-    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled):
+    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled, parallel=True):
         periods, change = _no_history(u)
         return np.zeros_like(u), None, None, None, None, periods, change
 

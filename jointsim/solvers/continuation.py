@@ -34,8 +34,11 @@ tolerances refer to the scaled quantities.
   solve at ``lam = lam_end`` exactly.  A branch that turns back out of the
   range through ``lam_start`` stops there.
 
-Every accepted point is handed to ``on_point`` at once, so a caller can
-write it to disk (an interrupted run keeps the branch so far).
+The algorithm is the stepper :class:`Continuation` (after scipy's
+``OdeSolver``: construct, then ``step()`` until ``status`` is no longer
+``"running"``); :func:`continue_branch` drives it and hands every accepted
+point to ``on_point`` at once, so a caller can write it to disk (an
+interrupted run keeps the branch so far).
 """
 from __future__ import annotations
 
@@ -164,13 +167,13 @@ def _corner(F, yk, t, h, tol, max_iter, max_jump=np.inf):
     return None
 
 
-def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: float,
-                    step_min: float, step_max: float, max_points: int, tol: float,
-                    max_iter: int = 20, target_iter: int = 4, max_jump: float = 2.0,
-                    backtrack: int = 4, stall: int = 5,
-                    solve_first: bool = True, tangent0=None, on_point=None,
-                    progress: bool = True, desc: str = "continuation") -> Branch:
-    """Follow the solution branch of ``R(z, lam) = 0`` from ``y0`` to ``lam = lam_end``.
+class Continuation:
+    """Pseudo-arclength continuation of ``R(z, lam) = 0`` as a stepper object.
+
+    After scipy's ``OdeSolver``: the constructor solves (or accepts) the first
+    point, each :meth:`step` advances the branch by one accepted point
+    (shrinking and retrying failed steps internally), and ``status`` tells
+    whether stepping may go on.  The algorithm is in the module docstring.
 
     Parameters
     ----------
@@ -194,84 +197,161 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
         Tolerance on ``max|R| / rscale``.
     max_iter, target_iter : int
         Corrector iterations at most / aimed at by the step control.
+    max_jump : float
+        A corrector landing farther than ``max_jump * h`` from its predictor
+        is rejected (guards against jumping to another branch).
     backtrack : int
         Halvings of a Newton step that increases the residual (1: none).
     stall : int
         A corrector whose best residual has not fallen by 10 % in this many
         iterations is given up (it cycles across a kink).
-    max_jump : float
-        A corrector landing farther than ``max_jump * h`` from its predictor
-        is rejected (guards against jumping to another branch).
-    tangent0 : ndarray, optional
+    solve_first : bool
+        Correct ``y0`` at fixed ``lam`` before accepting it.
+    tangent0 : ndarray, shape (n + 1,), optional
         Tangent guess at the start (scaled); default ``+-e_lam`` towards the end.
-    on_point : callable, optional
-        ``on_point(index, y, info: PointInfo)`` for every accepted point.
-    progress : bool
-        Show a tqdm bar of the progress through the ``lam`` range.
+    desc : str
+        Name of the branch in log messages.
 
-    Returns
-    -------
-    Branch
+    Attributes
+    ----------
+    status : str
+        ``"running"`` (``step`` may be called), ``"finished"`` (the branch
+        reached ``lam_end`` or turned back out of the range) or ``"failed"``
+        (the first point did not converge, the step shrank below ``step_min``,
+        or ``max_points`` were reached first).
+    message : str or None
+        Why the branch ended (None while running).
+    convergence : jointsim.results.Convergence or None
+        The end as a convergence report (None while running).
+    y : ndarray, shape (n + 1,)
+        The last accepted point (unscaled), ``lam = y[-1]``.
+    h : float
+        Scaled arclength step the next :meth:`step` tries first.
+    points : list of ndarray, shape (n + 1,)
+        Every accepted point (unscaled).
+    infos : list of PointInfo
+        Bookkeeping of every accepted point (``infos[-1].tangent``: the unit
+        tangent at the last one, scaled variables).
+    branch : Branch
+        The points so far as a :class:`Branch`.
+    n_points : int
+        Accepted points.
+    nfev : int
+        Evaluations of ``fun``.
+    n_failed : int
+        Corrector attempts that were rejected (each followed by another try).
     """
-    from tqdm.auto import tqdm
 
-    y0 = np.asarray(y0, dtype=float).copy()
-    scale = np.asarray(scale, dtype=float)
-    n1 = y0.size
-    lam0 = float(y0[-1])
-    direction = 1.0 if lam_end >= lam0 else -1.0
-    span = abs(lam_end - lam0)
-    rs = float(rscale)
+    def __init__(self, fun, y0, lam_end: float, *, scale, rscale: float, step: float,
+                 step_min: float, step_max: float, max_points: int, tol: float,
+                 max_iter: int = 20, target_iter: int = 4, max_jump: float = 2.0,
+                 backtrack: int = 4, stall: int = 5, solve_first: bool = True,
+                 tangent0=None, desc: str = "continuation"):
+        y0 = np.asarray(y0, dtype=float).copy()
+        self.fun = fun
+        self.scale = np.asarray(scale, dtype=float)
+        self.rscale = float(rscale)
+        self.n1 = y0.size
+        self.lam0 = float(y0[-1])
+        self.lam_end = float(lam_end)
+        self.direction = 1.0 if lam_end >= self.lam0 else -1.0
+        self.step_min, self.step_max = step_min, step_max
+        self.max_points, self.tol, self.max_iter = max_points, tol, max_iter
+        self.target_iter, self.max_jump = target_iter, max_jump
+        self.backtrack, self.stall = backtrack, stall
+        self.desc = desc
+        self._col = self.scale / self.rscale
+        self._lam_start_h = self.lam0 / self.scale[-1]
+        self._lam_end_h = lam_end / self.scale[-1]
+        self.status, self.message, self.convergence = "running", None, None
+        self.points, self.infos = [], []
+        self.nfev = self.n_failed = 0
+        self.h = float(step)
+        self._start(y0, solve_first, tangent0)
 
-    col = scale / rs
+    # -- state ------------------------------------------------------------------
+    @property
+    def n_points(self) -> int:
+        """Accepted points."""
+        return len(self.points)
 
-    def F(yh):
-        R, J, extra = fun(yh * scale)
-        return R / rs, J * col[None, :], extra
+    @property
+    def y(self) -> np.ndarray:
+        """The last accepted point (unscaled)."""
+        return self.points[-1]
 
-    ys, its, res, steps, tans = [], [], [], [], []
-    bar = tqdm(total=1000, desc=desc, disable=(not progress) or None, leave=False,
-               bar_format="{l_bar}{bar}| {postfix}")
+    @property
+    def branch(self) -> Branch:
+        """The points accepted so far (``convergence`` None while running)."""
+        infos = self.infos
+        return Branch(y=np.array(self.points).reshape(len(self.points), self.n1),
+                      iterations=np.array([i.iterations for i in infos]),
+                      residual=np.array([i.residual for i in infos]),
+                      step=np.array([i.step for i in infos]), convergence=self.convergence,
+                      tangents=[i.tangent for i in infos])
 
-    def accept(yh, info):
-        y = yh * scale
-        ys.append(y)
-        its.append(info.iterations)
-        res.append(info.residual)
-        steps.append(info.step)
-        tans.append(info.tangent)
-        if on_point is not None:
-            on_point(len(ys) - 1, y, info)
-        frac = 0.0 if span == 0 else min(max((y[-1] - lam0) * direction / span, 0.0), 1.0)
-        bar.n = int(1000 * frac)
-        bar.set_postfix_str(f"{len(ys)} pts, lam={y[-1]:.6g}, h={info.step:.2g}")
-        bar.refresh()
+    # -- pieces -----------------------------------------------------------------
+    def _F(self, yh):
+        """Scaled residual and Jacobian at the scaled point ``yh``."""
+        self.nfev += 1
+        R, J, extra = self.fun(yh * self.scale)
+        return R / self.rscale, J * self._col[None, :], extra
 
-    def corrector_fixed(yh, lam_h):
+    def _accept(self, yh, info: PointInfo) -> None:
+        self.points.append(yh * self.scale)
+        self.infos.append(info)
+
+    def _finish(self, status: int, message: str) -> str:
+        self.convergence = Convergence(status == SUCCESS, status, message, len(self.points))
+        self.status = "finished" if status == SUCCESS else "failed"
+        self.message = message
+        if status != SUCCESS:
+            log.warning("%s: %s", self.desc, message)
+        return message
+
+    def _start(self, y0, solve_first, tangent0) -> None:
+        """Solve (or take) the first point and its tangent."""
+        yh = y0 / self.scale
+        t_prev = np.zeros(self.n1)
+        t_prev[-1] = self.direction
+        if tangent0 is not None:
+            t_prev = np.asarray(tangent0, dtype=float) / np.linalg.norm(tangent0)
+        if solve_first:
+            yh, R, J, extra, it, ok = self._corrector_fixed(yh, yh[-1])
+            if not ok:
+                self._finish(NOT_CONVERGED, f"the first point (lam = {self.lam0:g}) did not "
+                                            f"converge in {self.max_iter} Newton iterations")
+                return
+        else:
+            R, J, extra = self._F(yh)
+            it = 0
+        t = tangent(J, t_prev)
+        self._accept(yh, PointInfo(it, float(np.abs(R).max(initial=0.0)), 0.0, t, extra))
+        self._yh, self._t = yh, t
+        self._check_max_points()
+
+    def _check_max_points(self) -> None:
+        if self.status == "running" and len(self.points) >= self.max_points:
+            self._finish(NOT_CONVERGED, f"stopped at max_points = {self.max_points} before "
+                                        f"lam = {self.lam_end:g} (reached "
+                                        f"{self.points[-1][-1]:.8g})")
+
+    def _corrector_fixed(self, yh, lam_h):
         """Newton in z at fixed lam (scaled)."""
         def fun(z):
-            R, J, extra = F(np.concatenate([z, [lam_h]]))
+            R, J, extra = self._F(np.concatenate([z, [lam_h]]))
             return R, J[:, :-1], (J, extra)
 
-        res = newton(fun, yh[:-1], NewtonOptions(tol, max_iter, line_search="none"))
+        res = newton(fun, yh[:-1], NewtonOptions(self.tol, self.max_iter, line_search="none"))
         J, extra = res.extra
         return (np.concatenate([res.x, [lam_h]]), res.R, J, extra, res.iterations,
                 res.success)
 
-    def finish(status, message):
-        bar.close()
-        conv = Convergence(status == SUCCESS, status, message, len(ys))
-        if status != SUCCESS:
-            log.warning("%s: %s", desc, message)
-        return Branch(y=np.array(ys).reshape(len(ys), n1), iterations=np.array(its),
-                      residual=np.array(res), step=np.array(steps), convergence=conv,
-                      tangents=tans)
-
-    def retraces(yc, yk):
+    def _retraces(self, yc, yk) -> bool:
         """Whether ``yc`` lies back on the branch already traced: closer to one of
         the last segments than half its distance from ``yk``."""
         d = np.linalg.norm(yc - yk)
-        pts = [p / scale for p in ys[-RETRACE_POINTS:]]
+        pts = [p / self.scale for p in self.points[-RETRACE_POINTS:]]
         for a, b in zip(pts[:-1], pts[1:]):
             ab = b - a
             s_ = float(np.clip((yc - a) @ ab / max(ab @ ab, 1e-300), 0.0, 1.0))
@@ -279,21 +359,23 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                 return True
         return False
 
-    def correct(yk, t, h, jump_limit=max_jump):
+    def _correct(self, yk, t, h, jump_limit=None):
         """Predictor ``yk + h t`` and Newton on the hyperplane ``t.(y - yk) = h``.
 
         Fails on non-finite values, on ``max_iter`` iterations, on stagnation
         (the best residual not improved by 10 % in ``stall`` iterations: Newton
         cycling across a kink), when it lands farther than ``jump_limit * h``
-        from the predictor, and when it lands back on the branch already traced.
-        Returns ``(ok, y, R, J, extra, iterations)``.
+        (default ``max_jump * h``) from the predictor, and when it lands back on
+        the branch already traced.  Returns ``(ok, y, R, J, extra, iterations)``.
         """
+        jump_limit = self.max_jump if jump_limit is None else jump_limit
+        desc = self.desc
         pred = yk + h * t
         # backtracking: the residual is only piecewise smooth (stick/slip
         # switches at samples) and a full step can cycle across a kink
-        fun, jac, measure = _bordered(F, t, yk, h)
-        res = newton(fun, pred, NewtonOptions(tol, max_iter, line_search="decrease",
-                                              max_tries=backtrack, stall=stall),
+        fun, jac, measure = _bordered(self._F, t, yk, h)
+        res = newton(fun, pred, NewtonOptions(self.tol, self.max_iter, line_search="decrease",
+                                              max_tries=self.backtrack, stall=self.stall),
                      jacobian=jac, measure=measure)
         yc, (R, J, extra), ok, it = res.x, res.extra, res.success, res.iterations
         if not ok:
@@ -302,105 +384,182 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
             ok = False
             log.debug("%s: corrector jumped %.3g from the predictor (h = %.3g); retrying",
                       desc, np.linalg.norm(yc - pred), h)
-        if ok and retraces(yc, yk):
+        if ok and self._retraces(yc, yk):
             ok = False
             log.debug("%s: corrector landed back on the traced branch (h = %.3g)", desc, h)
+        if not ok:
+            self.n_failed += 1
         return ok, yc, R, J, extra, it
 
-    yh = y0 / scale
-    t_prev = np.zeros(n1)
-    t_prev[-1] = direction
-    if tangent0 is not None:
-        t_prev = np.asarray(tangent0, dtype=float) / np.linalg.norm(tangent0)
-    try:
-        if solve_first:
-            yh, R, J, extra, it, ok = corrector_fixed(yh, yh[-1])
-            if not ok:
-                return finish(NOT_CONVERGED, f"the first point (lam = {lam0:g}) did not "
-                                             f"converge in {max_iter} Newton iterations")
+    def _try_longer(self, yk, t, h):
+        """Longer steps (4 and 16 times, at most ``step_max``) over a kink.
+
+        A kink of the piecewise-smooth residual (a stick/slip or contact switch
+        crossing a sample) can make Newton cycle near it while a longer step
+        lands beyond it.  Returns ``(ok, h, y, R, J, extra, iterations)`` of the
+        last try.
+        """
+        for hj in sorted({min(4.0 * h, self.step_max), min(16.0 * h, self.step_max)}):
+            ok, yc, R, J, extra, it = self._correct(yk, t, hj)
+            if ok:
+                log.debug("%s: stepped over a kink at lam = %.8g (h %.3g -> %.3g)",
+                          self.desc, yk[-1] * self.scale[-1], h, hj)
+                return True, hj, yc, R, J, extra, it
+        return False, h, yc, R, J, extra, it
+
+    def _try_corner(self, yk, t, h):
+        """Pass a corner of the piecewise-smooth branch.
+
+        First accept a point beyond a corner of up to 80 degrees (the
+        hyperplane still cuts the branch there, but far from the predictor),
+        then take the tangent of the piece beyond it and try both orientations.
+        Returns ``(ok, h, y, R, J, extra, iterations)``.
+        """
+        hc = max(h, 1e3 * self.step_min)
+        ok, yc, R, J, extra, it = self._correct(yk, t, hc, jump_limit=CORNER_JUMP)
+        if ok:
+            h = hc
+            log.debug("%s: passed a corner of the branch at lam = %.8g", self.desc,
+                      yk[-1] * self.scale[-1])
+        got = None if ok else _corner(self._F, yk, t, hc, self.tol, self.max_iter,
+                                      self.max_jump)
+        if got is not None and self._retraces(got[0], yk):
+            got = None
+        if got is not None:
+            yc, R, J, extra, it = got
+            ok = True
+            log.debug("%s: passed a corner of the branch at lam = %.8g", self.desc,
+                      yk[-1] * self.scale[-1])
+        return ok, h, yc, R, J, extra, it
+
+    def _close_at_end(self, yk, t, yc, R, extra, it, h, t_new) -> str:
+        """The corrected point passed ``lam_end``: close the branch exactly there."""
+        lam_end_h = self._lam_end_h
+        lam_new = yc[-1]
+        a = (lam_end_h - yk[-1]) / (lam_new - yk[-1]) if lam_new != yk[-1] else 1.0
+        guess = yk + a * (yc - yk)
+        yf, Rf, Jf, ef, itf, okf = self._corrector_fixed(guess, lam_end_h)
+        if okf:
+            self._accept(yf, PointInfo(itf, float(np.abs(Rf).max(initial=0.0)),
+                                       float(np.linalg.norm(yf - yk)), tangent(Jf, t), ef))
         else:
-            R, J, extra = F(yh)
-            it = 0
-        t = tangent(J, t_prev)
-        accept(yh, PointInfo(it, float(np.abs(R).max(initial=0.0)), 0.0, t, extra))
-        h = float(step)
+            self._accept(yc, PointInfo(it, float(np.abs(R).max(initial=0.0)), h, t_new, extra))
+        return self._finish(SUCCESS, f"reached lam = {self.lam_end:g} with "
+                                     f"{len(self.points)} points")
+
+    # -- the step -------------------------------------------------------------------
+    def step(self) -> str | None:
+        """Advance the branch by one accepted point.
+
+        Failed correctors are retried with longer steps (once per point), at
+        corners, and with halved steps; the branch fails when the step falls
+        below ``step_min``.
+
+        Returns
+        -------
+        message : str or None
+            Why the branch ended, when this step ended it (``status`` is then
+            ``"finished"`` or ``"failed"``); None when it goes on.
+        """
+        if self.status != "running":
+            raise RuntimeError("attempt to step a finished or failed continuation")
+        yk, t, scale = self._yh, self._t, self.scale
+        direction, step_min, step_max = self.direction, self.step_min, self.step_max
         corner_tries = jump_tries = 0
-        lam_start_h = lam0 / scale[-1]
-        lam_end_h = lam_end / scale[-1]
-        while len(ys) < max_points:
-            yk = yh
+        while True:
+            h = self.h
             # do not aim (much) past the end of the range
             if t[-1] * direction > 0:
-                to_end = (lam_end_h - yk[-1]) / t[-1]
+                to_end = (self._lam_end_h - yk[-1]) / t[-1]
                 if 0 < to_end < h:
                     h = max(to_end * 1.001, step_min)
-            ok, yc, R, J, extra, it = correct(yk, t, h)
+            ok, yc, R, J, extra, it = self._correct(yk, t, h)
             if not ok and jump_tries == 0 and h < step_max:
-                # a kink of the piecewise-smooth residual (a stick/slip or contact
-                # switch crossing a sample) can make Newton cycle near it while a
-                # longer step lands beyond it: try longer steps once per point
                 jump_tries += 1
-                for hj in sorted({min(4.0 * h, step_max), min(16.0 * h, step_max)}):
-                    ok, yc, R, J, extra, it = correct(yk, t, hj)
-                    if ok:
-                        log.debug("%s: stepped over a kink at lam = %.8g (h %.3g -> %.3g)",
-                                  desc, yk[-1] * scale[-1], h, hj)
-                        h = hj
-                        break
+                ok, h, yc, R, J, extra, it = self._try_longer(yk, t, h)
             if not ok and CORNERS and corner_tries < 2 and h < 0.05 * step_max:
-                # a corner of the piecewise-smooth branch: first accept a point
-                # beyond a corner of up to 80 degrees (the hyperplane still cuts
-                # the branch there, but far from the predictor), then take the
-                # tangent of the piece beyond it and try both orientations
                 corner_tries += 1
-                hc = max(h, 1e3 * step_min)
-                ok, yc, R, J, extra, it = correct(yk, t, hc, jump_limit=CORNER_JUMP)
-                if ok:
-                    h = hc
-                    log.debug("%s: passed a corner of the branch at lam = %.8g", desc,
-                              yk[-1] * scale[-1])
-                got = None if ok else _corner(F, yk, t, hc, tol, max_iter, max_jump)
-                if got is not None and retraces(got[0], yk):
-                    got = None
-                if got is not None:
-                    yc, R, J, extra, it = got
-                    ok = True
-                    log.debug("%s: passed a corner of the branch at lam = %.8g", desc,
-                              yk[-1] * scale[-1])
-            if not ok:
-                h *= 0.5
-                if h < step_min:
-                    status = NON_FINITE if not np.isfinite(np.abs(R).max(initial=0.0)) \
-                        else STEP_TOO_SMALL
-                    return finish(status, f"corrector failed with the step shrunk below "
-                                          f"step_min = {step_min:g} at lam = "
-                                          f"{yk[-1] * scale[-1]:.8g} after {len(ys)} points")
-                continue
-            corner_tries = jump_tries = 0
-            t_new = tangent(J, (yc - yk) / max(np.linalg.norm(yc - yk), 1e-300))
-            lam_new = yc[-1]
-            if (lam_new - lam_end_h) * direction >= 0:
-                # passed the end: close the branch exactly at lam_end
-                a = (lam_end_h - yk[-1]) / (lam_new - yk[-1]) if lam_new != yk[-1] else 1.0
-                guess = yk + a * (yc - yk)
-                yf, Rf, Jf, ef, itf, okf = corrector_fixed(guess, lam_end_h)
-                if okf:
-                    accept(yf, PointInfo(itf, float(np.abs(Rf).max(initial=0.0)),
-                                         float(np.linalg.norm(yf - yk)), tangent(Jf, t), ef))
-                else:
-                    accept(yc, PointInfo(it, float(np.abs(R).max(initial=0.0)), h, t_new,
-                                         extra))
-                return finish(SUCCESS, f"reached lam = {lam_end:g} with {len(ys)} points")
-            if (lam_new - lam_start_h) * direction < 0 and len(ys) > 1:
-                accept(yc, PointInfo(it, float(np.abs(R).max(initial=0.0)), h, t_new, extra))
-                return finish(SUCCESS, f"the branch turned back out of the range through "
-                                       f"lam = {lam0:g} after {len(ys)} points")
-            accept(yc, PointInfo(it, float(np.abs(R).max(initial=0.0)), h, t_new, extra))
-            yh, t = yc, t_new
-            fac = np.sqrt(target_iter / max(it, 1))
-            h = float(np.clip(h * np.clip(fac, 0.5, 2.0), step_min, step_max))
-        return finish(NOT_CONVERGED, f"stopped at max_points = {max_points} before lam = "
-                                     f"{lam_end:g} (reached {ys[-1][-1]:.8g})")
-    except BaseException:
+                ok, h, yc, R, J, extra, it = self._try_corner(yk, t, h)
+            if ok:
+                break
+            self.h = h * 0.5
+            if self.h < step_min:
+                status = NON_FINITE if not np.isfinite(np.abs(R).max(initial=0.0)) \
+                    else STEP_TOO_SMALL
+                return self._finish(status, f"corrector failed with the step shrunk below "
+                                            f"step_min = {step_min:g} at lam = "
+                                            f"{yk[-1] * scale[-1]:.8g} after "
+                                            f"{len(self.points)} points")
+        t_new = tangent(J, (yc - yk) / max(np.linalg.norm(yc - yk), 1e-300))
+        lam_new = yc[-1]
+        if (lam_new - self._lam_end_h) * direction >= 0:
+            return self._close_at_end(yk, t, yc, R, extra, it, h, t_new)
+        info = PointInfo(it, float(np.abs(R).max(initial=0.0)), h, t_new, extra)
+        if (lam_new - self._lam_start_h) * direction < 0 and len(self.points) > 1:
+            self._accept(yc, info)
+            return self._finish(SUCCESS, f"the branch turned back out of the range through "
+                                         f"lam = {self.lam0:g} after {len(self.points)} "
+                                         f"points")
+        self._accept(yc, info)
+        self._yh, self._t = yc, t_new
+        fac = np.sqrt(self.target_iter / max(it, 1))
+        self.h = float(np.clip(h * np.clip(fac, 0.5, 2.0), step_min, step_max))
+        self._check_max_points()
+        return self.message
+
+
+def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: float,
+                    step_min: float, step_max: float, max_points: int, tol: float,
+                    max_iter: int = 20, target_iter: int = 4, max_jump: float = 2.0,
+                    backtrack: int = 4, stall: int = 5,
+                    solve_first: bool = True, tangent0=None, on_point=None,
+                    progress: bool = True, desc: str = "continuation") -> Branch:
+    """Follow the solution branch of ``R(z, lam) = 0`` from ``y0`` to ``lam = lam_end``.
+
+    Drives a :class:`Continuation` (whose parameters it takes) to its end.
+
+    Parameters
+    ----------
+    fun, y0, lam_end, scale, rscale, step, step_min, step_max, max_points, tol
+        As for :class:`Continuation`.
+    max_iter, target_iter, max_jump, backtrack, stall, solve_first, tangent0, desc
+        As for :class:`Continuation`.
+    on_point : callable, optional
+        ``on_point(index, y, info: PointInfo)`` for every accepted point, as
+        soon as it is accepted.
+    progress : bool
+        Show a tqdm bar of the progress through the ``lam`` range.
+
+    Returns
+    -------
+    Branch
+        Every accepted point; ``convergence`` says how the branch ended.
+    """
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=1000, desc=desc, disable=(not progress) or None, leave=False,
+               bar_format="{l_bar}{bar}| {postfix}")
+    try:
+        cont = Continuation(fun, y0, lam_end, scale=scale, rscale=rscale, step=step,
+                            step_min=step_min, step_max=step_max, max_points=max_points,
+                            tol=tol, max_iter=max_iter, target_iter=target_iter,
+                            max_jump=max_jump, backtrack=backtrack, stall=stall,
+                            solve_first=solve_first, tangent0=tangent0, desc=desc)
+        span = abs(cont.lam_end - cont.lam0)
+        done = 0
+        while True:
+            for i in range(done, cont.n_points):
+                y, info = cont.points[i], cont.infos[i]
+                if on_point is not None:
+                    on_point(i, y, info)
+                frac = 0.0 if span == 0 else \
+                    min(max((y[-1] - cont.lam0) * cont.direction / span, 0.0), 1.0)
+                bar.n = int(1000 * frac)
+                bar.set_postfix_str(f"{i + 1} pts, lam={y[-1]:.6g}, h={info.step:.2g}")
+                bar.refresh()
+            done = cont.n_points
+            if cont.status != "running":
+                return cont.branch
+            cont.step()
+    finally:
         bar.close()
-        raise

@@ -36,7 +36,8 @@ import logging
 
 import numpy as np
 
-from .hbm import HBMSystem, _dense
+from .condensation import dense_array
+from .hbm import HBMSystem
 from .modes import elastic_mode
 
 log = logging.getLogger(__name__)
@@ -68,7 +69,7 @@ class EPMCSystem:
         self.phi = np.asarray(phi, dtype=float)
         self.F = F
         lin = system.lin
-        Mphi = _dense(system.model.M) @ self.phi
+        Mphi = dense_array(system.model.M) @ self.phi
         self.m_q = lin.Psi.T @ Mphi
         self.m_y = lin.Z.T @ Mphi
 

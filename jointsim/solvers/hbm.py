@@ -9,43 +9,10 @@ The structure ``M x'' + C x' + K x + f_c = f_ext`` with
 ``nu = h w`` and the complex amplitude ``Xh = X_hc - i X_hs``, the linear part
 is the dynamic stiffness ``D_h = K - nu^2 M + i nu C``.
 
-*Condensation onto the contact coordinates.*  The contact forces depend on
-``x`` only through ``q = T x``, the stacked tangential slips ``Tt x`` (when
-there is friction) and normal gap changes ``Tn x`` (when the normal load is
-coupled), ``n_r`` rows of full rank.  With ``Psi = T^T (T T^T)^-1`` (so
-``T Psi = I``) and ``Z`` an orthonormal basis of the null space of ``T``
-(``T Z = 0``), every ``x = Psi q + Z y``, and ``[Psi Z]^T T^T = [I; 0]``, so
-that per harmonic
-
-    [A  B ] [q]   [F_q - phi_h(q)]        A = Psi^T D Psi, B = Psi^T D Z,
-    [B' E ] [y] = [F_y           ]        B' = Z^T D Psi,  E = Z^T D Z,
-
-with ``phi = (f_t, -N)`` the element forces in the contact coordinates.  The
-``y`` equations are linear and are eliminated per harmonic:
-
-    S_h(w) q_h + phi_h(q) = F_q - B E^-1 F_y,     S_h = A - B E^-1 B'
-
-(a dynamic Schur complement; ``y = E^-1 (F_y - B' q)`` rebuilds ``x``).  The
-Newton unknowns are the ``n_coeff x n_r`` harmonic coefficients of ``q`` only:
-one slip (and one gap) per contact element, whatever the number of structural
-DOFs.  ``Z`` is chosen M-orthonormal and K-orthogonal (the modes of the
-structure with the contact coordinates held at zero), so ``E`` is diagonal
-when the damping is too (Rayleigh, or modal in these modes); when the damping
-has low rank (modal damping of a few modes of another basis, e.g. of the
-stuck joint) ``E`` is a diagonal plus a rank-r term and is inverted by
-Woodbury's formula (an r x r solve); otherwise ``E`` is factorised per
-harmonic.  ``E`` is singular only at an undamped resonance of the structure
-with the contacts *welded* (``q = 0``); with damping it is not, and the
-formulation is exact (the linear FRF is reproduced to round-off).
-
-*AFT.*  The coefficients of ``q`` are turned into ``n_t`` samples per period
-(``u = Gam U``), the element laws are marched over the samples from rest,
-period after period, until their state repeats (at least two periods), and
-the last period's forces are transformed back (``F = P f``).  The Jacobian is
-analytic: the instantaneous tangents plus the history terms carried
-forward through the march (see :mod:`jointsim.contact._aft_kernels`).  With
-``effects.normal = "fixed"`` the normal load is ``N0`` and no gap is
-evaluated; with ``"coupled"``, ``N = kn A max(0, -g)`` (or bilateral).
+The linear part is condensed onto the contact coordinates ``q = T x`` per
+harmonic, ``S_h(w) q_h + phi_h(q) = F_q - B E^-1 F_y`` with ``phi`` the element
+forces (:mod:`jointsim.solvers.condensation`), and ``phi`` is evaluated by AFT
+(:mod:`jointsim.solvers.aft`).
 
 The frequency derivative of the residual is analytic too:
 ``dR/dw = A_w q + B_w y + B y_w`` with ``y_w = -E^-1 (B'_w q + E_w y)``.
@@ -56,321 +23,13 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg as sla
 
 from ..harmonics import HarmonicBasis, harmonic_amplitude
+from .aft import AFT, AFTResult
+from .condensation import ReducedLinear, dense_array
 from .newton import NewtonOptions, newton
 
 log = logging.getLogger(__name__)
-
-#: Above this many structural DOFs the dense condensation is refused.
-MAX_DENSE_DOF = 6000
-
-
-# --------------------------------------------------------------------------
-# AFT evaluation of the contact elements
-# --------------------------------------------------------------------------
-@dataclass
-class AFTResult:
-    """Element forces and their derivatives for one set of coefficients.
-
-    Attributes
-    ----------
-    Ft, Nc : ndarray, shape (n_e, n_c)
-        Coefficients of the tangential force and the normal load [N].
-    Juu, Jug, JNN : ndarray, shape (n_e, n_c, n_c) or None
-        ``dFt/dU``, ``dFt/dG`` and ``dNc/dG`` (None when not computed or not
-        applicable).
-    u, f, N : ndarray, shape (n_e, n_t)
-        Slip, tangential force and normal load over the last period.
-    periods : ndarray of int, shape (n_e,)
-        Periods marched until the state repeated.
-    change : ndarray, shape (n_e,)
-        Relative state change over the last period (0 when periodic).
-    """
-
-    Ft: np.ndarray
-    Nc: np.ndarray
-    Juu: np.ndarray | None
-    Jug: np.ndarray | None
-    JNN: np.ndarray | None
-    u: np.ndarray
-    f: np.ndarray
-    N: np.ndarray
-    periods: np.ndarray
-    change: np.ndarray
-
-
-class AFT:
-    """Alternating frequency-time evaluation of a :class:`~jointsim.model.ContactSet`.
-
-    Parameters
-    ----------
-    contacts : jointsim.model.ContactSet
-    basis : HarmonicBasis
-    min_periods, max_periods : int
-        Periods marched at least / at most until the law's state repeats.
-    periodic_tol : float
-        Relative state change below which a period counts as periodic.
-    """
-
-    def __init__(self, contacts, basis: HarmonicBasis, min_periods: int = 2,
-                 max_periods: int = 50, periodic_tol: float = 1e-10):
-        self.contacts = contacts
-        self.basis = basis
-        self.law = contacts.law
-        self.coupled = bool(contacts.coupled)
-        self.min_periods = int(min_periods)
-        self.max_periods = int(max(max_periods, min_periods))
-        self.periodic_tol = float(periodic_tol)
-        self.n_e = contacts.n_elements
-
-    def evaluate(self, U, G=None, jacobian: bool = True) -> AFTResult:
-        """Forces of all elements from slip (and gap-change) coefficients.
-
-        Parameters
-        ----------
-        U : ndarray, shape (n_c, n_e)
-            Coefficients of the tangential slip [m].
-        G : ndarray, shape (n_c, n_e), optional
-            Coefficients of ``Tn x`` (the gap minus ``gap0``) [m]; required
-            when the normal load is coupled.
-        jacobian : bool
-            Compute the derivative blocks.
-        """
-        b = self.basis
-        c = self.contacts
-        ne, nt = self.n_e, b.n_samples
-        u = np.ascontiguousarray((b.Gam @ U).T)
-        if self.coupled:
-            g = c.gap0[:, None] + (b.Gam @ G).T
-            N, dNdg = c.normal.load(g)
-        else:
-            N = np.ascontiguousarray(np.broadcast_to(c.N0[:, None], (ne, nt)), dtype=float)
-            dNdg = np.zeros((ne, nt))
-        f, au, ag, Juu, Jug, periods, change = self.law.aft(
-            u, N, dNdg, b, self.min_periods, self.max_periods, self.periodic_tol, self.coupled)
-        Ft = f @ b.P.T
-        Nc = N @ b.P.T
-        JNN = None
-        if jacobian:
-            nc = b.n_coeff
-            if Juu is None:
-                Juu = np.zeros((ne, nc, nc))
-            if au is not None:
-                b.add_diag_product(Juu, au)
-            if self.coupled:
-                if Jug is None:
-                    Jug = np.zeros((ne, nc, nc))
-                if ag is not None:
-                    b.add_diag_product(Jug, ag)
-                JNN = b.diag_product(dNdg)
-            else:
-                Jug = None
-        if np.any(periods >= self.max_periods) and np.any(change > self.periodic_tol):
-            log.debug("AFT: %d elements not periodic after %d periods (largest change %.1e)",
-                      int(np.sum(change > self.periodic_tol)), self.max_periods, change.max())
-        return AFTResult(Ft=Ft, Nc=Nc, Juu=Juu, Jug=Jug, JNN=JNN, u=u, f=f, N=N,
-                         periods=periods, change=change)
-
-
-# --------------------------------------------------------------------------
-# Linear part condensed onto the contact coordinates
-# --------------------------------------------------------------------------
-def _dense(A):
-    return np.asarray(A.toarray() if hasattr(A, "toarray") else A, dtype=float)
-
-
-class ReducedLinear:
-    """The linear structure seen from the contact coordinates ``q = T x``.
-
-    Parameters
-    ----------
-    M, K, C : array or sparse, shape (n, n)
-        Mass, stiffness and damping of the linear part.
-    T : array or sparse, shape (n_r, n)
-        Contact coordinates (full row rank).
-
-    See the module docstring for the formulation.
-    """
-
-    def __init__(self, M, K, C, T):
-        M, K, C, T = _dense(M), _dense(K), _dense(C), _dense(T)
-        n = M.shape[0]
-        if n > MAX_DENSE_DOF:
-            raise NotImplementedError(
-                f"the harmonic balance condenses the structure densely and the model has {n} "
-                f"DOFs (> {MAX_DENSE_DOF}); reduce it first (Craig-Bampton)")
-        n_r = T.shape[0]
-        self.n, self.n_r, self.n_y = n, n_r, n - n_r
-        if n_r:
-            sv = np.linalg.svd(T, compute_uv=False)
-            if n_r > n or sv.min() <= 1e-10 * sv.max():
-                raise ValueError(
-                    "the contact coordinates are linearly dependent (two contact elements "
-                    "measure the same relative motion, or an element's slip and gap coincide); "
-                    "merge such elements or give them distinct DOFs")
-            Psi = np.linalg.solve(T @ T.T, T).T
-            Qf, _ = np.linalg.qr(T.T, mode="complete")
-            Z0 = Qf[:, n_r:]
-        else:
-            Psi = np.zeros((n, 0))
-            Z0 = np.eye(n)
-        self.kind = "direct"
-        Z = Z0
-        lowrank = None
-        if self.n_y:
-            Kyy = Z0.T @ K @ Z0
-            Myy = Z0.T @ M @ Z0
-            try:
-                lam, Phi = sla.eigh(0.5 * (Kyy + Kyy.T), 0.5 * (Myy + Myy.T))
-                Zm = Z0 @ Phi
-                Cyy = Zm.T @ C @ Zm
-                off = Cyy - np.diag(np.diag(Cyy))
-                ref = max(np.abs(Cyy).max(), 1e-300)
-                sym = (np.allclose(K, K.T, rtol=0, atol=1e-12 * np.abs(K).max())
-                       and np.allclose(M, M.T, rtol=0, atol=1e-12 * np.abs(M).max()))
-                csym = np.allclose(C, C.T, rtol=0, atol=1e-12 * max(np.abs(C).max(), 1e-300))
-                if sym and np.abs(off).max() <= 1e-11 * ref:
-                    Z = Zm
-                    self.kind = "modal"
-                elif sym and csym:
-                    # modal damping of a few modes is a low-rank C: E is then a
-                    # diagonal plus a rank-r term, inverted by Woodbury's formula
-                    c, U = np.linalg.eigh(0.5 * (Cyy + Cyy.T))
-                    keep = np.abs(c) > 1e-12 * max(np.abs(c).max(), 1e-300)
-                    if keep.sum() <= self.n_y // 3:
-                        Z = Zm
-                        self.kind = "lowrank"
-                        lowrank = (U[:, keep], c[keep])
-            except (np.linalg.LinAlgError, ValueError):
-                pass
-        self.modal = self.kind == "modal"
-        self.Psi, self.Z = Psi, Z
-        V = np.hstack([Psi, Z])
-        Kt, Mt, Ct = V.T @ K @ V, V.T @ M @ V, V.T @ C @ V
-        r = slice(0, n_r)
-        y = slice(n_r, n)
-        self.K = {b: Kt[i, j] for b, (i, j) in _blocks(r, y).items()}
-        self.M = {b: Mt[i, j] for b, (i, j) in _blocks(r, y).items()}
-        self.C = {b: Ct[i, j] for b, (i, j) in _blocks(r, y).items()}
-        if self.kind in ("modal", "lowrank"):
-            self.lam = np.diag(self.K["yy"]).copy()
-            self.myy = np.diag(self.M["yy"]).copy()
-            self.cyy = np.diag(self.C["yy"]).copy() if self.modal else None
-        if self.kind == "lowrank":
-            self.U, self.cw = lowrank
-            self.Cyy = self.C["yy"]
-        self._Mfull = M
-
-    # -- blocks of the transformed dynamic stiffness --------------------------
-    def blocks(self, nu: float, xi: float = 0.0):
-        """``A, B, B', E`` at angular frequency ``nu`` with damping ``C - xi M``.
-
-        ``E`` is a 1-D array (its diagonal) when the condensation is modal, a
-        :class:`_LowRankE` when the damping is of low rank, else a matrix.
-        """
-        def mat(b):
-            return (self.K[b] - nu * nu * self.M[b]) + 1j * nu * (self.C[b] - xi * self.M[b])
-        A, B, Bp = mat("qq"), mat("qy"), mat("yq")
-        if self.kind == "modal":
-            E = (self.lam - nu * nu * self.myy) + 1j * nu * (self.cyy - xi * self.myy)
-        elif self.kind == "lowrank":
-            E = _LowRankE((self.lam - nu * nu * self.myy) - 1j * nu * xi * self.myy,
-                          1j * nu * self.cw, self.U, self.Cyy, 1j * nu)
-        else:
-            E = mat("yy")
-        return A, B, Bp, E
-
-    def dblocks(self, nu: float, xi: float, wrt: str, h: int):
-        """Derivatives of ``A, B, B', E`` with respect to ``omega`` (``nu = h omega``) or
-        ``xi``; apply ``dE`` with :meth:`apply_dE`."""
-        if wrt == "omega":
-            def d(b):
-                return h * (-2.0 * nu * self.M[b] + 1j * (self.C[b] - xi * self.M[b]))
-            if self.kind == "modal":
-                dE = h * (-2.0 * nu * self.myy + 1j * (self.cyy - xi * self.myy))
-            elif self.kind == "lowrank":
-                dE = (h * (-2.0 * nu - 1j * xi) * self.myy, 1j * h)
-            else:
-                dE = d("yy")
-        else:
-            def d(b):
-                return -1j * nu * self.M[b]
-            if self.kind == "direct":
-                dE = d("yy")
-            elif self.kind == "lowrank":
-                dE = (-1j * nu * self.myy, 0.0)
-            else:
-                dE = -1j * nu * self.myy
-        return d("qq"), d("qy"), d("yq"), dE
-
-    def apply_dE(self, dE, y):
-        """``dE @ y`` for a ``dE`` from :meth:`dblocks`."""
-        if isinstance(dE, tuple):        # low rank: diagonal + coefficient * Cyy
-            diag, coef = dE
-            out = diag * y
-            if coef != 0.0:
-                out = out + coef * (self.Cyy @ y)
-            return out
-        return dE * y if dE.ndim == 1 else dE @ y
-
-    def solve_E(self, E, rhs, trans: bool = False):
-        """``E^-1 rhs`` (``E^-T rhs`` with ``trans``) for diagonal (1-D), low-rank,
-        full or factorised (:meth:`factor_E`) ``E``."""
-        if isinstance(E, _LowRankE):
-            return E.solve(rhs)          # E is complex symmetric: E^T = E
-        if isinstance(E, tuple):
-            return sla.lu_solve(E, rhs, trans=1 if trans else 0, check_finite=False)
-        if trans and E.ndim == 2:
-            E = E.T
-        if E.ndim == 1:
-            if np.any(E == 0):
-                raise np.linalg.LinAlgError("the structure with welded contacts is singular "
-                                            "at this frequency (an undamped resonance or an "
-                                            "unrestrained rigid-body motion)")
-            return rhs / (E[:, None] if rhs.ndim == 2 else E)
-        return np.linalg.solve(E, rhs)
-
-    def factor_E(self, E):
-        """``E`` prepared for several :meth:`solve_E` calls (LU of a full ``E``)."""
-        if isinstance(E, _LowRankE):
-            E.factor()
-            return E
-        if E.ndim == 1 or E.shape[0] == 0:
-            return E
-        return sla.lu_factor(E, check_finite=False)
-
-
-class _LowRankE:
-    """``E = diag(d) + U diag(s) U^T`` (``U`` real, ``n_y x r``), solved by Woodbury:
-    ``E^-1 = D^-1 - D^-1 U (diag(1/s) + U^T D^-1 U)^-1 U^T D^-1``."""
-
-    def __init__(self, d, s, U, Cyy, coef):
-        self.d, self.s, self.U = d, s, U
-        self.Cyy, self.coef = Cyy, coef
-        self._small = None
-
-    def factor(self):
-        if np.any(self.d == 0):
-            raise np.linalg.LinAlgError("the structure with welded contacts is singular at "
-                                        "this frequency (an undamped resonance or an "
-                                        "unrestrained rigid-body motion)")
-        if self._small is None and np.any(self.s != 0):
-            small = np.diag(1.0 / self.s) + self.U.T @ (self.U / self.d[:, None])
-            self._small = sla.lu_factor(small, check_finite=False)
-
-    def solve(self, rhs):
-        self.factor()
-        d = self.d[:, None] if rhs.ndim == 2 else self.d
-        x = rhs / d
-        if self._small is None:          # no damping term (harmonic 0)
-            return x
-        return x - (self.U @ sla.lu_solve(self._small, self.U.T @ x, check_finite=False)) / d
-
-
-def _blocks(r, y):
-    return {"qq": (r, r), "qy": (r, y), "yq": (y, r), "yy": (y, y)}
 
 
 # --------------------------------------------------------------------------
@@ -410,16 +69,19 @@ class HBMSystem:
     harmonics : sequence of int
     n_samples : int
     min_periods, max_periods : int
-        AFT march periods (see :class:`AFT`).
+        AFT march periods (see :class:`~jointsim.solvers.aft.AFT`).
+    parallel : bool
+        Let the AFT kernels use numba threads (see :class:`~jointsim.solvers.aft.AFT`);
+        False in worker processes.
     """
 
     def __init__(self, model, harmonics, n_samples: int, min_periods: int = 2,
-                 max_periods: int = 50):
+                 max_periods: int = 50, parallel: bool = True):
         self.model = model
         self.basis = HarmonicBasis(harmonics, n_samples)
         c = model.contacts
         self.contacts = c
-        self.aft = AFT(c, self.basis, min_periods, max_periods)
+        self.aft = AFT(c, self.basis, min_periods, max_periods, parallel=parallel)
         ne = c.n_elements
         self.n_e = ne
         self.friction = c.law.has_force
@@ -429,11 +91,11 @@ class HBMSystem:
         self.n_row = np.full(ne, -1, dtype=np.int64)
         nr = 0
         if self.friction and ne:
-            rows.append(_dense(c.Tt))
+            rows.append(dense_array(c.Tt))
             self.t_row = np.arange(ne)
             nr = ne
         if self.coupled and ne:
-            rows.append(_dense(c.Tn))
+            rows.append(dense_array(c.Tn))
             self.n_row = nr + np.arange(ne)
             nr += ne
         T = np.vstack(rows) if rows else np.zeros((0, model.n_dof))
@@ -442,7 +104,7 @@ class HBMSystem:
         self.n_r = nr
         self.n_c = self.basis.n_coeff
         self.n_z = self.n_c * nr
-        self._Tt = _dense(c.Tt) if ne else np.zeros((0, model.n_dof))
+        self._Tt = dense_array(c.Tt) if ne else np.zeros((0, model.n_dof))
         log.debug("HBM system: %d DOFs condensed onto %d contact coordinates x %d "
                   "coefficients (%s condensation)", model.n_dof, nr, self.n_c,
                   self.lin.kind)

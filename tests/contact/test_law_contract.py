@@ -17,7 +17,8 @@ from jointsim.contact.normal import GivenNormal, UnilateralPenalty
 from jointsim.contact.select import FRICTIONLESS, TANGENTIAL_TABLE, tangential_law
 from jointsim.model import ContactSet
 from jointsim.scene import Joint
-from jointsim.solvers.hbm import AFT, HarmonicBasis
+from jointsim.harmonics import HarmonicBasis
+from jointsim.solvers.aft import AFT
 
 from .. import _reference as ref
 

@@ -10,7 +10,8 @@ from jointsim.run import run_scene
 from jointsim.scene import SceneError, load_scene, parse_scene
 from jointsim.solvers.continuation import continue_branch
 from jointsim.harmonics import HarmonicBasis, harmonic_amplitude
-from jointsim.solvers.hbm import AFT, HBMSystem, solve_point
+from jointsim.solvers.aft import AFT
+from jointsim.solvers.hbm import HBMSystem, solve_point
 
 from .._aft_reference import anchor_aft_numpy
 from .._scenes import ROOT, four_dof

@@ -1,0 +1,135 @@
+"""Pseudo-arclength continuation (:mod:`jointsim.solvers.continuation`) on analytic curves."""
+import numpy as np
+import pytest
+
+from jointsim.results import NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL
+from jointsim.solvers.continuation import Continuation, continue_branch
+
+# Duffing oscillator x'' + 2 zeta x' + x + gamma x^3 = F cos(w t), first harmonic:
+# a^2 ((1 - w^2 + 3/4 gamma a^2)^2 + (2 zeta w)^2) = F^2, a fold pair for hardening.
+ZETA, GAMMA, FORCE = 0.02, 1.0, 0.1
+
+
+def duffing(y):
+    """Residual (1,) and Jacobian (1, 2) of the Duffing amplitude curve in (a, w)."""
+    a, w = y
+    d = 1.0 - w * w + 0.75 * GAMMA * a * a
+    c = 2.0 * ZETA * w
+    R = a * a * (d * d + c * c) - FORCE ** 2
+    dRda = 2.0 * a * (d * d + c * c) + a * a * 2.0 * d * 1.5 * GAMMA * a
+    dRdw = a * a * (2.0 * d * (-2.0 * w) + 2.0 * c * 2.0 * ZETA)
+    return np.array([R]), np.array([[dRda, dRdw]]), None
+
+
+SETTINGS = dict(scale=np.ones(2), rscale=FORCE ** 2, step=0.02, step_min=1e-8,
+                step_max=0.05, max_points=2000, tol=1e-12)
+
+
+def duffing_start(w0=0.5):
+    """The (single) solution at ``w0`` below the folds, as a start point."""
+    a = FORCE / (1.0 - w0 * w0)
+    return np.array([a, w0])
+
+
+def test_duffing_folds_are_passed():
+    """The hardening Duffing curve from w = 0.5 to 2.5: two turning points are passed,
+    every point lies on the curve, and the branch closes exactly at w = 2.5."""
+    br = continue_branch(duffing, duffing_start(), 2.5, progress=False, **SETTINGS)
+    assert br.convergence.success and "reached" in br.convergence.message
+    a, w = br.y[:, 0], br.y[:, 1]
+    R = np.array([duffing(y)[0][0] for y in br.y])
+    assert np.abs(R).max() <= 1e-12 * FORCE ** 2 * 10
+    turns = np.flatnonzero(np.diff(np.sign(np.diff(w))) != 0)
+    assert turns.size == 2
+    # the peak: a = F / (2 zeta w) on the backbone w^2 = 1 + 3/4 gamma a^2
+    a_pk = a.max()
+    w_pk = w[np.argmax(a)]
+    assert a_pk == pytest.approx(FORCE / (2 * ZETA * w_pk), rel=1e-3)
+    assert w_pk ** 2 == pytest.approx(1.0 + 0.75 * GAMMA * a_pk ** 2, rel=1e-3)
+    assert w[-1] == 2.5 and len(br.tangents) == a.size
+
+
+def test_circle_turns_back_through_the_start():
+    """R = z^2 + lam^2 - 1 from lam = -0.8 towards 2: the turning point at lam = 1 is
+    passed and the branch leaves the range back through lam = -0.8."""
+    def fun(y):
+        z, lam = y
+        return np.array([z * z + lam * lam - 1.0]), np.array([[2 * z, 2 * lam]]), None
+
+    cont = Continuation(fun, np.array([0.6, -0.8]), 2.0, scale=np.ones(2), rscale=1.0,
+                        step=0.05, step_min=1e-8, step_max=0.1, max_points=500, tol=1e-12)
+    while cont.status == "running":
+        cont.step()
+    assert cont.status == "finished" and "turned back" in cont.message
+    y = np.array(cont.points)
+    assert np.abs(y[:, 0] ** 2 + y[:, 1] ** 2 - 1).max() <= 1e-12
+    assert y[:, 1].max() == pytest.approx(1.0, abs=1e-2) and y[:, 0].min() < -0.5
+    assert y[-1, 1] < -0.8
+
+
+def test_step_by_hand_equals_continue_branch():
+    """Driving the stepper by hand gives the same points, bit for bit."""
+    seen = []
+    br = continue_branch(duffing, duffing_start(), 2.5, progress=False,
+                         on_point=lambda i, y, info: seen.append((i, y.copy(), info.step)),
+                         **SETTINGS)
+    cont = Continuation(duffing, duffing_start(), 2.5, **SETTINGS)
+    messages = []
+    while cont.status == "running":
+        messages.append(cont.step())
+    mine = cont.branch
+    assert np.array_equal(mine.y, br.y)
+    assert np.array_equal(mine.step, br.step) and np.array_equal(mine.iterations,
+                                                                 br.iterations)
+    assert mine.convergence == br.convergence
+    assert [s[0] for s in seen] == list(range(br.y.shape[0]))
+    assert np.array_equal(np.array([s[1] for s in seen]), br.y)
+    # step() answers None while the branch goes on, the reason when it ends
+    assert all(m is None for m in messages[:-1]) and messages[-1] == cont.message
+    assert cont.n_points == br.y.shape[0] and cont.nfev > cont.n_points
+    with pytest.raises(RuntimeError):
+        cont.step()
+
+
+def test_failing_corrector_shrinks_the_step_and_stops_with_a_message():
+    """Past lam = 0.5 the residual is not finite: the step shrinks below step_min, the
+    branch keeps its points and says why."""
+    def fun(y):
+        z, lam = y
+        if lam > 0.5:
+            return np.array([np.nan]), np.array([[np.nan, np.nan]]), None
+        return np.array([z - lam ** 2]), np.array([[1.0, -2 * lam]]), None
+
+    cont = Continuation(fun, np.array([0.0, 0.0]), 1.0, scale=np.ones(2), rscale=1.0,
+                        step=0.05, step_min=1e-5, step_max=0.1, max_points=500, tol=1e-12)
+    steps = []
+    while cont.status == "running":
+        steps.append(cont.h)
+        cont.step()
+    assert cont.status == "failed"
+    assert cont.convergence.status in (STEP_TOO_SMALL, NON_FINITE)
+    assert "step_min" in cont.message and not cont.convergence.success
+    assert cont.h < 1e-5 < max(steps) and cont.n_failed >= 10
+    br = cont.branch
+    assert br.y.shape[0] == cont.n_points >= 5
+    assert 0.49 < br.y[-1, 1] <= 0.5
+    assert np.abs(br.y[:, 0] - br.y[:, 1] ** 2).max() <= 1e-12
+
+
+def test_first_point_that_does_not_converge_ends_the_branch():
+    def fun(y):
+        return np.array([y[0] ** 2 + 1.0]), np.array([[2 * y[0], 0.0]]), None
+
+    cont = Continuation(fun, np.array([0.3, 0.0]), 1.0, scale=np.ones(2), rscale=1.0,
+                        step=0.1, step_min=1e-6, step_max=0.1, max_points=10, tol=1e-12,
+                        max_iter=8)
+    assert cont.status == "failed" and cont.n_points == 0
+    assert cont.convergence.status == NOT_CONVERGED and "first point" in cont.message
+    assert cont.branch.y.shape == (0, 2)
+
+
+def test_max_points_stops_the_branch():
+    br = continue_branch(duffing, duffing_start(), 2.5, progress=False,
+                         **dict(SETTINGS, max_points=7))
+    assert br.y.shape[0] == 7
+    assert not br.convergence.success and "max_points" in br.convergence.message
