@@ -22,6 +22,7 @@ coincident, duplicated nodes along the interface.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -215,3 +216,35 @@ RESOLUTIONS = {
     "coarse": (0.015, 0.030, 1),
     "default": (0.010, 0.020, 2),
 }
+
+
+@functools.lru_cache(maxsize=16)
+def generated_lap_joint(dx_lap: float, dx_full: float, ny_half: int):
+    """The lap-joint mesh of :func:`lap_joint_mesh` as a tagged FEMesh, cached in memory.
+
+    This is what a scene with ``model.dx_lap`` (and ``dx_full``, ``ny_half``)
+    builds instead of reading ``model.mesh``; the same parameters give the
+    same mesh as ``meshes/make_meshes.py --dx-lap ... -o file.msh`` read back.
+    Generating is cheap (milliseconds); the cache makes repeated builds in one
+    process (tests, sweeps run in-process) reuse the object.
+
+    Parameters
+    ----------
+    dx_lap, dx_full : float
+        Element lengths along the lap and the full sections [m].
+    ny_half : int
+        Elements through the half thickness.
+
+    Returns
+    -------
+    jointsim.fem.mesh.FEMesh
+        ``source`` names the parameters.
+
+    Raises
+    ------
+    ValueError
+        When a bolt or a tagged point does not fall on a node.
+    """
+    from .mesh import from_meshio
+    source = f"generated lap joint (dx_lap={dx_lap:g}, dx_full={dx_full:g}, ny_half={ny_half})"
+    return from_meshio(lap_joint_mesh(dx_lap, dx_full, ny_half), source)
