@@ -248,3 +248,32 @@ def generated_lap_joint(dx_lap: float, dx_full: float, ny_half: int):
     from .mesh import from_meshio
     source = f"generated lap joint (dx_lap={dx_lap:g}, dx_full={dx_full:g}, ny_half={ny_half})"
     return from_meshio(lap_joint_mesh(dx_lap, dx_full, ny_half), source)
+
+
+def layered_beam_mesh(length: float, height: float, dx: float, ny_half: int):
+    """Two stacked beams ``[0, length] x [0, height]`` split at ``y = height/2``.
+
+    A cantilever with an interface: the two layers are separate bodies with
+    coincident, duplicated nodes along ``y = height/2``.  Tags: ``beam_lower``
+    and ``beam_upper`` (quads), ``interface_lower`` and ``interface_upper``
+    (the two sides of the interface), ``clamp`` (the edges at x = 0 of both
+    layers), ``tip`` (the node at (length, 0)).
+
+    Returns
+    -------
+    meshio.Mesh
+    """
+    b = _Builder()
+    nx = _count(length, dx)
+    xs = _nodes(0.0, length, nx)
+    hh = height / 2
+    lower = b.body([(xs, _nodes(0.0, hh, ny_half))], "beam_lower", 1e-9)
+    upper = b.body([(xs, _nodes(hh, height, ny_half))], "beam_upper", 1e-9)
+    for x0, x1 in zip(xs[:-1], xs[1:]):
+        b.tag("interface_lower", "line", (lower(x0, hh), lower(x1, hh)))
+        b.tag("interface_upper", "line", (upper(x0, hh), upper(x1, hh)))
+    for node, ys in ((lower, _nodes(0.0, hh, ny_half)), (upper, _nodes(hh, height, ny_half))):
+        for y0, y1 in zip(ys[:-1], ys[1:]):
+            b.tag("clamp", "line", (node(0.0, y0), node(0.0, y1)))
+    b.tag("tip", "vertex", lower(length, 0.0))
+    return b.mesh()
