@@ -193,8 +193,28 @@ class FEModel:
     preloaded and reduced by Craig-Bampton (see the README)."""
 
     kind: str = spec("fe", choices=("fe",))
-    mesh: str = spec(doc="tagged mesh file readable by meshio (gmsh .msh), relative to "
-                         "the scene", path=True)
+    mesh: Optional[str] = spec(None, doc="tagged mesh file readable by meshio (gmsh .msh), "
+                                         "relative to the scene; or give model.dx_lap "
+                                         "(and dx_full, ny_half) to generate the lap joint",
+                               path=True)
+    dx_lap: Optional[float] = spec(
+        None, doc="generate the lap-joint mesh (instead of model.mesh) with this element "
+                  "length along the lap; the bolt positions must fall on nodes (default "
+                  "mesh: 0.01)", unit="m", gt=0)
+    dx_full: Optional[float] = spec(
+        None, doc="generated mesh: element length along the full sections (default 0.02)",
+        unit="m", gt=0)
+    ny_half: Optional[int] = spec(
+        None, doc="generated mesh: elements through the half thickness (default 2)", ge=1)
+    contact_points: str = spec(
+        "nodes", choices=("nodes", "gauss"),
+        doc="contact elements: 'nodes' (node-to-node pairs, consistent nodal areas) or "
+            "'gauss' (model.contact_gauss Gauss points per interface edge, displacements "
+            "interpolated with the edge shape functions; docs/fe.md)")
+    contact_gauss: int = spec(3, doc="Gauss points per interface edge with "
+                                     "contact_points = 'gauss' (3 and more integrate the stuck "
+                                     "interface stiffness of the quadratic edges exactly)",
+                              ge=1, le=6)
     E: float = spec(200e9, doc="Young's modulus", unit="Pa", gt=0)
     nu: float = spec(0.29, doc="Poisson's ratio", ge=0, lt=0.5)
     rho: float = spec(7800.0, doc="density", unit="kg/m^3", gt=0)
@@ -217,6 +237,28 @@ class FEModel:
     preload_tol: float = spec(1e-10, doc="relative residual tolerance of the preload solve",
                               gt=0, lt=1e-2)
     units: str = spec("SI", choices=("SI",))
+
+    #: generation parameters used when only some of them are given
+    GENERATE_DEFAULTS = {"dx_lap": 0.010, "dx_full": 0.020, "ny_half": 2}
+
+    @property
+    def generate(self) -> dict | None:
+        """Lap-joint mesh generation parameters, or None when ``mesh`` is a file."""
+        given = {k: getattr(self, k) for k in self.GENERATE_DEFAULTS}
+        if all(v is None for v in given.values()):
+            return None
+        return {k: (self.GENERATE_DEFAULTS[k] if v is None else v) for k, v in given.items()}
+
+    def check(self):
+        given = [k for k in self.GENERATE_DEFAULTS if getattr(self, k) is not None]
+        if self.mesh and given:
+            return [(given[0], "cannot be given together with model.mesh: give either a mesh "
+                               "file or the generation parameters (dx_lap, dx_full, ny_half); "
+                               "to override a scene's mesh, also set model.mesh = ''")]
+        if not self.mesh and not given:
+            return [("mesh", "is required: a mesh file, or model.dx_lap (and dx_full, "
+                             "ny_half) to generate the lap joint")]
+        return []
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -169,7 +169,8 @@ def _spring(n: int, a: np.ndarray, b: np.ndarray, axis: np.ndarray, k: float):
 
 def build_structure(mesh: FEMesh, *, E: float, nu: float, rho: float, thickness: float,
                     bolts=(), suspension_stiffness: float = 0.0,
-                    interface=("interface_lower", "interface_upper")) -> FEStructure:
+                    interface=("interface_lower", "interface_upper"),
+                    contact_points: str = "nodes", contact_gauss: int = 3) -> FEStructure:
     """Assemble the lap joint from a tagged mesh.
 
     Parameters
@@ -184,6 +185,11 @@ def build_structure(mesh: FEMesh, *, E: float, nu: float, rho: float, thickness:
         with ``suspension`` [N/m].
     interface : (str, str)
         Edge sets of the interface's lower and upper side.
+    contact_points : {"nodes", "gauss"}
+        Contact elements: node pairs or Gauss points per interface edge
+        (:func:`jointsim.fem.interface.pair_interface`).
+    contact_gauss : int
+        Gauss points per edge with ``contact_points = "gauss"``.
 
     Returns
     -------
@@ -218,7 +224,8 @@ def build_structure(mesh: FEMesh, *, E: float, nu: float, rho: float, thickness:
         f_clamp[up] -= b.preload * axis       # and the upper end down
         bolt_list.append(BoltDofs(b.tag, lo, up, axis, b.stiffness, b.preload))
     K = sp.csr_matrix(K + K_bolt)
-    iface = pair_interface(basis, mesh, interface[0], interface[1], thickness)
+    iface = pair_interface(basis, mesh, interface[0], interface[1], thickness,
+                           points=contact_points, n_gauss=contact_gauss)
     points = {name: point_dofs(basis, mesh.point(name)) for name in mesh.point_sets}
     log.info("FE structure: %d nodes, %d quads, %d DOFs, %d contact pairs, %d bolts",
              len(mesh.points), len(mesh.quads), n, iface.n_elements, len(bolt_list))

@@ -2,7 +2,10 @@
 
 The retained (physical) DOFs of the reduced model are, in this order:
 
-1. the interface pairs: for pair ``e``, lower x, lower y, upper x, upper y;
+1. the interface: for node pairs, pair ``e``'s lower x, lower y, upper x,
+   upper y (labels ``interface[e].lower.x`` ...); for Gauss-point elements,
+   every node the points interpolate from, lower side then upper side in the
+   order the points first use them (labels ``interface_node[k].lower.x`` ...);
 2. the bolt ends along the bolt axes (so that the clamping forces and the
    bolt springs act on retained DOFs, which makes the reduced preload exact);
 3. x and y of every point of ``model.retain_points`` (default excitation and
@@ -39,10 +42,20 @@ def retained_dofs(structure, retain_points=("excitation", "response")):
             labels.append(label)
 
     it = structure.interface
-    for e in range(it.n_elements):
+    if it.node_pairs:
+        for e in range(it.n_elements):
+            for side, arr in (("lower", it.lower_dofs), ("upper", it.upper_dofs)):
+                for c, axis in enumerate("xy"):
+                    add(arr[e, c], f"interface[{e}].{side}.{axis}")
+    else:
         for side, arr in (("lower", it.lower_dofs), ("upper", it.upper_dofs)):
-            for c, axis in enumerate("xy"):
-                add(arr[e, c], f"interface[{e}].{side}.{axis}")
+            k = 0
+            for node in arr.reshape(-1, arr.shape[-1]):
+                if int(node[0]) in seen:
+                    continue
+                for c, axis in enumerate("xy"):
+                    add(node[c], f"interface_node[{k}].{side}.{axis}")
+                k += 1
     for b in structure.bolts:
         for side, arr in (("lower", b.lower), ("upper", b.upper)):
             for c, axis in enumerate("xy"):

@@ -22,6 +22,7 @@ coincident, duplicated nodes along the interface.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -215,3 +216,64 @@ RESOLUTIONS = {
     "coarse": (0.015, 0.030, 1),
     "default": (0.010, 0.020, 2),
 }
+
+
+@functools.lru_cache(maxsize=16)
+def generated_lap_joint(dx_lap: float, dx_full: float, ny_half: int):
+    """The lap-joint mesh of :func:`lap_joint_mesh` as a tagged FEMesh, cached in memory.
+
+    This is what a scene with ``model.dx_lap`` (and ``dx_full``, ``ny_half``)
+    builds instead of reading ``model.mesh``; the same parameters give the
+    same mesh as ``meshes/make_meshes.py --dx-lap ... -o file.msh`` read back.
+    Generating is cheap (milliseconds); the cache makes repeated builds in one
+    process (tests, sweeps run in-process) reuse the object.
+
+    Parameters
+    ----------
+    dx_lap, dx_full : float
+        Element lengths along the lap and the full sections [m].
+    ny_half : int
+        Elements through the half thickness.
+
+    Returns
+    -------
+    jointsim.fem.mesh.FEMesh
+        ``source`` names the parameters.
+
+    Raises
+    ------
+    ValueError
+        When a bolt or a tagged point does not fall on a node.
+    """
+    from .mesh import from_meshio
+    source = f"generated lap joint (dx_lap={dx_lap:g}, dx_full={dx_full:g}, ny_half={ny_half})"
+    return from_meshio(lap_joint_mesh(dx_lap, dx_full, ny_half), source)
+
+
+def layered_beam_mesh(length: float, height: float, dx: float, ny_half: int):
+    """Two stacked beams ``[0, length] x [0, height]`` split at ``y = height/2``.
+
+    A cantilever with an interface: the two layers are separate bodies with
+    coincident, duplicated nodes along ``y = height/2``.  Tags: ``beam_lower``
+    and ``beam_upper`` (quads), ``interface_lower`` and ``interface_upper``
+    (the two sides of the interface), ``clamp`` (the edges at x = 0 of both
+    layers), ``tip`` (the node at (length, 0)).
+
+    Returns
+    -------
+    meshio.Mesh
+    """
+    b = _Builder()
+    nx = _count(length, dx)
+    xs = _nodes(0.0, length, nx)
+    hh = height / 2
+    lower = b.body([(xs, _nodes(0.0, hh, ny_half))], "beam_lower", 1e-9)
+    upper = b.body([(xs, _nodes(hh, height, ny_half))], "beam_upper", 1e-9)
+    for x0, x1 in zip(xs[:-1], xs[1:]):
+        b.tag("interface_lower", "line", (lower(x0, hh), lower(x1, hh)))
+        b.tag("interface_upper", "line", (upper(x0, hh), upper(x1, hh)))
+    for node, ys in ((lower, _nodes(0.0, hh, ny_half)), (upper, _nodes(hh, height, ny_half))):
+        for y0, y1 in zip(ys[:-1], ys[1:]):
+            b.tag("clamp", "line", (node(0.0, y0), node(0.0, y1)))
+    b.tag("tip", "vertex", lower(length, 0.0))
+    return b.mesh()

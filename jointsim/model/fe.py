@@ -1,5 +1,9 @@
 """Builder of ``kind = "fe"`` scenes: mesh -> FE lap joint -> Craig-Bampton -> preload.
 
+The mesh is either a file (``model.mesh``) or generated from
+``model.dx_lap``/``dx_full``/``ny_half`` (:func:`fe_mesh`), so that the
+interface resolution is a ``--set`` or a ``jointsim sweep --vary`` away.
+
 The FE part (assembly and reduction) is :mod:`jointsim.fem`; the preload and
 the contact set are :func:`jointsim.model.preload.structural_model`.
 """
@@ -11,6 +15,7 @@ import time
 from .._schema import SceneError
 from ..fem.assembly import build_structure
 from ..fem.build import reduce_structure
+from ..fem.generate import generated_lap_joint
 from ..fem.mesh import read_mesh
 from .preload import structural_model
 from .structural import FEParts, StructuralModel
@@ -42,11 +47,7 @@ def build_fe(scene) -> StructuralModel:
     m = scene.model
     file = str(scene.path)
     t0 = time.perf_counter()
-    path = scene.resolve(m.mesh)
-    try:
-        mesh = read_mesh(path)
-    except (OSError, ValueError) as exc:
-        raise SceneError(file, "model.mesh", f"could not be read: {exc}") from None
+    mesh, mesh_file = fe_mesh(scene)
     for i, b in enumerate(m.bolts):
         for side in ("lower", "upper"):
             if f"{b.tag}_{side}" not in mesh.point_sets:
@@ -63,9 +64,11 @@ def build_fe(scene) -> StructuralModel:
     try:
         structure = build_structure(mesh, E=m.E, nu=m.nu, rho=m.rho, thickness=m.thickness,
                                     bolts=m.bolts, suspension_stiffness=m.suspension_stiffness,
-                                    interface=(m.interface_lower, m.interface_upper))
+                                    interface=(m.interface_lower, m.interface_upper),
+                                    contact_points=m.contact_points,
+                                    contact_gauss=m.contact_gauss)
     except ValueError as exc:
-        raise SceneError(file, "model.mesh", str(exc)) from None
+        raise SceneError(file, "model.mesh" if m.mesh else "model.dx_lap", str(exc)) from None
     t1 = time.perf_counter()
     rom, cb = reduce_structure(structure, m.n_modes, m.retain_points)
     t2 = time.perf_counter()
@@ -73,5 +76,40 @@ def build_fe(scene) -> StructuralModel:
              structure.n_dof, rom.n_dof, cb.n_retained, cb.n_modes, t1 - t0, t2 - t1)
     return structural_model(scene, rom, preload_tangential=m.preload_tangential,
                             preload_tol=m.preload_tol,
-                            fe=FEParts(structure=structure, cb=cb, mesh_file=str(path),
+                            fe=FEParts(structure=structure, cb=cb, mesh_file=mesh_file,
                                        build_time_s=t1 - t0, reduce_time_s=t2 - t1))
+
+
+def fe_mesh(scene):
+    """The tagged mesh of an FE scene: read from ``model.mesh`` or generated.
+
+    Returns
+    -------
+    mesh : jointsim.fem.mesh.FEMesh
+    source : str
+        The mesh file (absolute path), or a description of the generation
+        parameters (``generated lap joint (dx_lap=..., ...)``).
+
+    Raises
+    ------
+    SceneError
+        Naming ``model.mesh`` when the file cannot be read, or ``model.dx_lap``
+        when the parameters cannot place a node at a bolt or tagged point.
+    """
+    m = scene.model
+    file = str(scene.path)
+    gen = m.generate
+    if gen is None:
+        path = scene.resolve(m.mesh)
+        try:
+            return read_mesh(path), str(path)
+        except (OSError, ValueError) as exc:
+            raise SceneError(file, "model.mesh", f"could not be read: {exc}") from None
+    try:
+        mesh = generated_lap_joint(float(gen["dx_lap"]), float(gen["dx_full"]),
+                                   int(gen["ny_half"]))
+    except ValueError as exc:
+        raise SceneError(file, "model.dx_lap", f"(with dx_full = {gen['dx_full']:g}, "
+                                               f"ny_half = {gen['ny_half']}): {exc}") from None
+    log.info("FE mesh: %s, %d nodes, %d quads", mesh.source, len(mesh.points), len(mesh.quads))
+    return mesh, mesh.source

@@ -10,7 +10,10 @@ one place.
 * :func:`loop_points` -- the loops stored by an analysis, with the amplitude
   (or frequency) of the solution point each belongs to;
 * :func:`manifold_fractions` -- per loop set, the fraction of loaded elements
-  on their manifold and on their classical Masing curve;
+  on their manifold and on their classical Masing curve (a count);
+* :func:`weighted_fractions` -- the same shares weighted by contact area or by
+  the slip-limit force ``mu N0`` (:func:`fraction_weights`), which do not
+  depend on the mesh;
 * :func:`condition_confusion` -- whether violating the seed's Eq. 4 / Eq. 6
   predicts leaving the manifold, as a 2 x 2 table over (element, amplitude).
 
@@ -154,6 +157,9 @@ def loop_points(h5: h5py.File, prefix: str = "epmc") -> LoopSets:
 def manifold_fractions(sets: LoopSets):
     """Fraction of loaded elements on their manifold and on classical Masing.
 
+    A count: its meaning changes with the number of elements (the mesh);
+    :func:`weighted_fractions` gives the mesh-independent shares.
+
     Returns
     -------
     on_manifold, on_masing : ndarray, shape (n_sets,)
@@ -161,10 +167,62 @@ def manifold_fractions(sets: LoopSets):
     n_loaded : ndarray of int, shape (n_sets,)
     """
     n = sets.loaded.sum(axis=1)
+    man, mas, _ = weighted_fractions(sets, np.ones(sets.loaded.shape[1]))
+    return man, mas, n
+
+
+def weighted_fractions(sets: LoopSets, weights):
+    """Weighted share of the loaded elements on their manifold and on classical Masing.
+
+    ``sum(w_e over loaded elements on the manifold) / sum(w_e over loaded
+    elements)``, per loop set.  With the contact area as weight it is the
+    share of the loaded contact area; with the slip-limit force ``mu N0``,
+    the share of the joint's friction capacity.  Both converge with the
+    mesh, unlike the element count.
+
+    Parameters
+    ----------
+    sets : LoopSets
+    weights : array_like, shape (n_e,)
+        Non-negative weight of each element.
+
+    Returns
+    -------
+    on_manifold, on_masing : ndarray, shape (n_sets,)
+        NaN for a set whose loaded elements weigh nothing.
+    total : ndarray, shape (n_sets,)
+        Total weight of the loaded elements.
+    """
+    w = np.asarray(weights, dtype=float)
+    if w.shape != (sets.loaded.shape[1],):
+        raise ValueError(f"weights must have shape ({sets.loaded.shape[1]},), got {w.shape}")
+    lw = sets.loaded * w
+    total = lw.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        man = (sets.on_manifold & sets.loaded).sum(axis=1) / n
-        mas = (sets.on_masing & sets.loaded).sum(axis=1) / n
-    return np.where(n > 0, man, np.nan), np.where(n > 0, mas, np.nan), n
+        man = (sets.on_manifold * lw).sum(axis=1) / total
+        mas = (sets.on_masing * lw).sum(axis=1) / total
+    return np.where(total > 0, man, np.nan), np.where(total > 0, mas, np.nan), total
+
+
+def fraction_weights(h5: h5py.File, n_elements: int) -> dict:
+    """Element weights for :func:`weighted_fractions` available in a result file.
+
+    Returns
+    -------
+    dict
+        ``"area"``: ``/contacts/area`` [m^2]; ``"mu N0"``: ``/contacts/mu``
+        times ``/static/N`` [N] (the slip-limit force at the preload).  Only
+        the ones the file has, with ``n_elements`` entries.
+    """
+    out = {}
+    if "contacts/area" in h5 and h5["contacts/area"].shape == (n_elements,):
+        out["area"] = h5["contacts/area"][()]
+    if "contacts/mu" in h5 and "static/N" in h5 and h5["static/N"].shape == (n_elements,):
+        mu = np.broadcast_to(np.asarray(h5["contacts/mu"][()], dtype=float).reshape(-1)
+                             if np.size(h5["contacts/mu"]) in (1, n_elements)
+                             else np.nan, (n_elements,))
+        out["mu N0"] = mu * np.maximum(h5["static/N"][()], 0.0)
+    return out
 
 
 @dataclass(frozen=True)
@@ -234,17 +292,23 @@ def study_text(h5: h5py.File) -> str:
                          f"{100 * r.dzeta_rel:>7.1f}%")
     if sets is not None and sets.u.shape[0]:
         man, mas, n = manifold_fractions(sets)
-        lines.append(f"  Masing manifold ({prefix or 'root'} loops; loaded elements):")
-        lines.append(f"    {sets.parameter_name:>15} {'loaded':>7} {'on manifold':>12} "
-                     f"{'on Masing':>10} {'max dev_man':>12}")
+        weighted = {name: weighted_fractions(sets, w)
+                    for name, w in fraction_weights(h5, sets.loaded.shape[1]).items()}
+        lines.append(f"  Masing manifold ({prefix or 'root'} loops; loaded elements; "
+                     "fractions on the manifold / on classical Masing by element count"
+                     + "".join(f", by {name}" for name in weighted) + "):")
+        head = f"    {sets.parameter_name:>15} {'loaded':>7} {'count':>11}"
+        head += "".join(f" {'by ' + name:>11}" for name in weighted)
+        lines.append(head + f" {'max dev_man':>12}")
         n_sets = sets.u.shape[0]
         shown = np.unique(np.linspace(0, n_sets - 1, min(n_sets, 12)).astype(int))
         if shown.size < n_sets:
             lines.append(f"    ({shown.size} of {n_sets} loop sets shown)")
         for i in shown:
             dm = sets.dev_manifold[i][sets.loaded[i]]
-            lines.append(f"    {sets.parameter[i]:>15.4g} {n[i]:>7d} {man[i]:>12.2f} "
-                         f"{mas[i]:>10.2f} {dm.max() if dm.size else 0.0:>12.3g}")
+            row = f"    {sets.parameter[i]:>15.4g} {n[i]:>7d} {man[i]:>5.2f}/{mas[i]:<5.2f}"
+            row += "".join(f" {wm[i]:>5.2f}/{ws[i]:<5.2f}" for wm, ws, _ in weighted.values())
+            lines.append(row + f" {dm.max() if dm.size else 0.0:>12.3g}")
         lines.append("  Do Eq. 4 / Eq. 6 violations predict leaving the manifold?")
         lines.extend("    " + s for s in condition_confusion(sets).table().splitlines())
     return "\n".join(lines)

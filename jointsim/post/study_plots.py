@@ -101,11 +101,16 @@ def plot_masing_study(h5: h5py.File, outdir: Path) -> list[Path]:
     # fraction on the manifold against amplitude
     man, mas, n = study.manifold_fractions(sets)
     fig, ax = plt.subplots(figsize=(7, 4))
-    ax.semilogx(sets.parameter, man, "o-", label="on its Masing manifold")
-    ax.semilogx(sets.parameter, mas, "s--", label="on the classical Masing curve")
+    ax.semilogx(sets.parameter, man, "o-", color="C0", label="on its Masing manifold (count)")
+    ax.semilogx(sets.parameter, mas, "s--", color="C1",
+                label="on the classical Masing curve (count)")
+    for (name, w), ls in zip(study.fraction_weights(h5, ne).items(), (":", "-.")):
+        wm, ws, _ = study.weighted_fractions(sets, w)
+        ax.semilogx(sets.parameter, wm, ls, color="C0", label=f"manifold, by {name}")
+        ax.semilogx(sets.parameter, ws, ls, color="C1", label=f"classical Masing, by {name}")
     ax.set_ylim(-0.05, 1.05)
     ax.set_xlabel(sets.parameter_name)
-    ax.set_ylabel(f"fraction of loaded elements (tol {tol:g})")
+    ax.set_ylabel(f"share of loaded elements (tol {tol:g})")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
     fig.tight_layout()
