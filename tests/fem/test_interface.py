@@ -22,7 +22,7 @@ from jointsim.fem.assembly import build_structure
 from jointsim.fem.generate import LapJointGeometry, generated_lap_joint
 from jointsim.scene import load_scene
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SCENE = ROOT / "models" / "lap_joint.toml"
 GEO = LapJointGeometry()
 
