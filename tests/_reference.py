@@ -9,7 +9,7 @@ import numpy as np
 
 
 def anchor_bank(u, N, k, g, w0):
-    """Parallel Jenkins sliders with anchors; arrays as in bank_anchor_march."""
+    """Parallel Jenkins sliders with anchors; arrays as in march_bank(BANK_ANCHOR, ...)."""
     u, N = np.atleast_2d(u), np.atleast_2d(N)
     w = np.array(w0, dtype=float, copy=True)
     f = np.zeros(u.shape)

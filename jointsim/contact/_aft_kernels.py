@@ -87,10 +87,8 @@ def _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, cou
     for t in range(nt):
         umax = max(umax, abs(u[e, t]))
     for p in range(max_periods):
-        for kk in range(nc):
-            for j in range(nc):
-                Juu[e, kk, j] = 0.0
-                Jug[e, kk, j] = 0.0
+        Juu[e, :, :] = 0.0
+        Jug[e, :, :] = 0.0
         for i in range(ns):
             start[i] = 0
             wstart[i] = w[i]
@@ -231,10 +229,8 @@ def _scaled_one(e, u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, t
     newu = np.zeros(nc)
     newg = np.zeros(nc)
     for p in range(max_periods):
-        for kk in range(nc):
-            for j in range(nc):
-                Juu[e, kk, j] = 0.0
-                Jug[e, kk, j] = 0.0
+        Juu[e, :, :] = 0.0
+        Jug[e, :, :] = 0.0
         for i in range(ns):
             for kk in range(nc):
                 Aur[i, kk] = 0.0

@@ -46,6 +46,11 @@ SC_SHARED = 5
 PARALLEL_MIN_WORK = 200_000
 
 
+#: Codes of the slider-bank laws in the shared march drivers (``_bank_serial``,
+#: ``_bank_parallel``).
+BANK_ANCHOR, BANK_SCALED, BANK_MANIFOLD = 0, 1, 2
+
+
 def _threaded(u, k) -> bool:
     return u.shape[0] > 1 and u.size * k.shape[1] >= PARALLEL_MIN_WORK
 
@@ -114,152 +119,69 @@ def slider_scaled_force(u, N, u_r, N_r, f_r, k, g):
     return ft, k, dN, -k, dNr, dfr
 
 
-@njit(cache=True)
-def _anchor_element(e, u, N, k, g, w, f, dfdu, dfdN):
-    """March element ``e`` of a bank of anchored sliders (see bank_anchor_march)."""
-    nt = u.shape[1]
-    ns = k.shape[1]
-    for t in range(nt):
-        ut = u[e, t]
-        Nt = N[e, t]
-        fe = 0.0
-        de = 0.0
-        dn = 0.0
-        for i in range(ns):
-            fi, dfi, dni, _dw, w1, _a, _b, _c = slider_anchor_step(ut, Nt, w[e, i],
-                                                                    k[e, i], g[e, i])
-            w[e, i] = w1
-            fe += fi
-            de += dfi
-            dn += dni
-        f[e, t] = fe
-        dfdu[e, t] = de
-        dfdN[e, t] = dn
-
-
-@njit(cache=True)
-def _bank_anchor_serial(u, N, k, g, w0):
-    ne, nt = u.shape
-    f, dfdu, dfdN = np.zeros((ne, nt)), np.zeros((ne, nt)), np.zeros((ne, nt))
-    w = w0.copy()
-    for e in range(ne):
-        _anchor_element(e, u, N, k, g, w, f, dfdu, dfdN)
-    return f, dfdu, dfdN, w
-
-
-@njit(cache=True, parallel=True)
-def _bank_anchor_parallel(u, N, k, g, w0):
-    ne, nt = u.shape
-    f, dfdu, dfdN = np.zeros((ne, nt)), np.zeros((ne, nt)), np.zeros((ne, nt))
-    w = w0.copy()
-    for e in prange(ne):
-        _anchor_element(e, u, N, k, g, w, f, dfdu, dfdN)
-    return f, dfdu, dfdN, w
-
-
-def bank_anchor_march(u, N, k, g, w0):
-    """March banks of anchored sliders over samples.
+@njit(cache=True, inline="always")
+def anchor_bank_point(u, N, w, w_new, k, g):
+    """One sample of a bank of anchored sliders.
 
     Parameters
     ----------
-    u, N : ndarray, shape (n_e, n_t)
-        Tangential displacement [m] and normal load [N] at each sample.
-    k, g : ndarray, shape (n_e, n_s)
-        Slider stiffness [N/m] and slip force per unit normal load [-].
-    w0 : ndarray, shape (n_e, n_s)
-        Anchors at the start [m].
+    u, N : float
+        Slip [m] and normal load [N].
+    w, w_new : ndarray, shape (n_s,)
+        Anchors before the sample and where to put them after it [m] (may be
+        the same array).
+    k, g : ndarray, shape (n_s,)
 
     Returns
     -------
-    f, dfdu, dfdN : ndarray, shape (n_e, n_t)
-        Force [N] and its tangents [N/m], [-].
-    w : ndarray, shape (n_e, n_s)
-        Anchors after the last sample [m].
+    f, dfdu, dfdN : float
+        Force [N] and its tangents at fixed anchors [N/m], [-].
     """
-    if _threaded(u, k):
-        return _bank_anchor_parallel(u, N, k, g, w0)
-    return _bank_anchor_serial(u, N, k, g, w0)
+    fe = 0.0
+    de = 0.0
+    dn = 0.0
+    for i in range(k.shape[0]):
+        fi, dfi, dni, _dw, w1, _a, _b, _c = slider_anchor_step(u, N, w[i], k[i], g[i])
+        w_new[i] = w1
+        fe += fi
+        de += dfi
+        dn += dni
+    return fe, de, dn
 
 
-@njit(cache=True)
-def _scaled_element(e, u, N, k, g, s, f, dfdu, dfdN):
-    """March element ``e`` of a bank of scaled-reversal sliders (see bank_scaled_march)."""
-    nt = u.shape[1]
+
+
+
+@njit(cache=True, inline="always")
+def scaled_bank_point(e, ut, Nt, k, g, s):
+    """One sample of element ``e`` of a bank of scaled-reversal sliders: the
+    reversal memory in row ``e`` of ``s`` is updated; returns ``(f, dfdu, dfdN)``."""
     ns = k.shape[1]
-    for t in range(nt):
-        ut = u[e, t]
-        Nt = N[e, t]
-        du = ut - s[e, SC_U_PREV]
-        if du != 0.0:
-            d = 1.0 if du > 0.0 else -1.0
-            if s[e, SC_DIR] != 0.0 and d != s[e, SC_DIR]:
-                # reversal at the previous sample
-                s[e, SC_U_R] = s[e, SC_U_PREV]
-                s[e, SC_N_R] = s[e, SC_N_PREV]
-                for i in range(ns):
-                    s[e, SC_SHARED + ns + i] = s[e, SC_SHARED + i]
-            s[e, SC_DIR] = d
-        fe = 0.0
-        de = 0.0
-        dn = 0.0
-        for i in range(ns):
-            fi, dfi, dni, _a, _b, _c = slider_scaled_force(
-                ut, Nt, s[e, SC_U_R], s[e, SC_N_R], s[e, SC_SHARED + ns + i],
-                k[e, i], g[e, i])
-            s[e, SC_SHARED + i] = fi
-            fe += fi
-            de += dfi
-            dn += dni
-        s[e, SC_U_PREV] = ut
-        s[e, SC_N_PREV] = Nt
-        f[e, t] = fe
-        dfdu[e, t] = de
-        dfdN[e, t] = dn
+    du = ut - s[e, SC_U_PREV]
+    if du != 0.0:
+        d = 1.0 if du > 0.0 else -1.0
+        if s[e, SC_DIR] != 0.0 and d != s[e, SC_DIR]:
+            # reversal at the previous sample
+            s[e, SC_U_R] = s[e, SC_U_PREV]
+            s[e, SC_N_R] = s[e, SC_N_PREV]
+            for i in range(ns):
+                s[e, SC_SHARED + ns + i] = s[e, SC_SHARED + i]
+        s[e, SC_DIR] = d
+    fe = 0.0
+    de = 0.0
+    dn = 0.0
+    for i in range(ns):
+        fi, dfi, dni, _a, _b, _c = slider_scaled_force(
+            ut, Nt, s[e, SC_U_R], s[e, SC_N_R], s[e, SC_SHARED + ns + i],
+            k[e, i], g[e, i])
+        s[e, SC_SHARED + i] = fi
+        fe += fi
+        de += dfi
+        dn += dni
+    s[e, SC_U_PREV] = ut
+    s[e, SC_N_PREV] = Nt
+    return fe, de, dn
 
-
-@njit(cache=True)
-def _bank_scaled_serial(u, N, k, g, s0):
-    ne, nt = u.shape
-    f, dfdu, dfdN = np.zeros((ne, nt)), np.zeros((ne, nt)), np.zeros((ne, nt))
-    s = s0.copy()
-    for e in range(ne):
-        _scaled_element(e, u, N, k, g, s, f, dfdu, dfdN)
-    return f, dfdu, dfdN, s
-
-
-@njit(cache=True, parallel=True)
-def _bank_scaled_parallel(u, N, k, g, s0):
-    ne, nt = u.shape
-    f, dfdu, dfdN = np.zeros((ne, nt)), np.zeros((ne, nt)), np.zeros((ne, nt))
-    s = s0.copy()
-    for e in prange(ne):
-        _scaled_element(e, u, N, k, g, s, f, dfdu, dfdN)
-    return f, dfdu, dfdN, s
-
-
-def bank_scaled_march(u, N, k, g, s0):
-    """March banks of scaled-reversal sliders over samples.
-
-    Parameters
-    ----------
-    u, N : ndarray, shape (n_e, n_t)
-        Tangential displacement [m] and normal load [N].
-    k, g : ndarray, shape (n_e, n_s)
-        Slider stiffness [N/m] and slip force per unit normal load [-].
-    s0 : ndarray, shape (n_e, 5 + 2 n_s)
-        State: previous u [m], previous N [N], direction of motion (-1, 0, 1),
-        u_r [m], N_r [N], then the previous force of each slider and its force
-        at the last reversal [N].
-
-    Returns
-    -------
-    f, dfdu, dfdN : ndarray, shape (n_e, n_t)
-    s : ndarray, shape (n_e, 5 + 2 n_s)
-        State after the last sample.
-    """
-    if _threaded(u, k):
-        return _bank_scaled_parallel(u, N, k, g, s0)
-    return _bank_scaled_serial(u, N, k, g, s0)
 
 
 @njit(cache=True)
@@ -452,63 +374,85 @@ def manifold_force(s, e, ut, Nt, k, g):
     return f, kst, dN0 + c * sg * gsl
 
 
+@njit(cache=True, inline="always")
+def manifold_point(e, ut, Nt, k, g, s):
+    """One sample of element ``e`` of the manifold law: the reversal stack in
+    row ``e`` of ``s`` is updated; returns ``(f, dfdu, dfdN)``."""
+    manifold_memory(s, e, ut)
+    fe, de, dn = manifold_force(s, e, ut, Nt, k, g)
+    s[e, MF_U_PREV] = ut
+    s[e, MF_N_PREV] = Nt
+    s[e, MF_F_PREV] = fe
+    return fe, de, dn
+
+
+
 @njit(cache=True)
-def _manifold_element(e, u, N, k, g, s, f, dfdu, dfdN):
-    """March element ``e`` of the manifold law (see bank_manifold_march)."""
+def _bank_element(code, e, u, N, k, g, s, f, dfdu, dfdN):
+    """March element ``e`` of the law ``code`` over all samples (state row ``e`` of ``s``)."""
     for t in range(u.shape[1]):
-        ut = u[e, t]
-        Nt = N[e, t]
-        manifold_memory(s, e, ut)
-        fe, de, dn = manifold_force(s, e, ut, Nt, k, g)
-        s[e, MF_U_PREV] = ut
-        s[e, MF_N_PREV] = Nt
-        s[e, MF_F_PREV] = fe
+        if code == BANK_ANCHOR:
+            fe, de, dn = anchor_bank_point(u[e, t], N[e, t], s[e], s[e], k[e], g[e])
+        elif code == BANK_SCALED:
+            fe, de, dn = scaled_bank_point(e, u[e, t], N[e, t], k, g, s)
+        else:
+            fe, de, dn = manifold_point(e, u[e, t], N[e, t], k, g, s)
         f[e, t] = fe
         dfdu[e, t] = de
         dfdN[e, t] = dn
 
 
 @njit(cache=True)
-def _bank_manifold_serial(u, N, k, g, s0):
+def _bank_serial(code, u, N, k, g, s0):
     ne, nt = u.shape
     f, dfdu, dfdN = np.zeros((ne, nt)), np.zeros((ne, nt)), np.zeros((ne, nt))
     s = s0.copy()
     for e in range(ne):
-        _manifold_element(e, u, N, k, g, s, f, dfdu, dfdN)
+        _bank_element(code, e, u, N, k, g, s, f, dfdu, dfdN)
     return f, dfdu, dfdN, s
 
 
 @njit(cache=True, parallel=True)
-def _bank_manifold_parallel(u, N, k, g, s0):
+def _bank_parallel(code, u, N, k, g, s0):
     ne, nt = u.shape
     f, dfdu, dfdN = np.zeros((ne, nt)), np.zeros((ne, nt)), np.zeros((ne, nt))
     s = s0.copy()
     for e in prange(ne):
-        _manifold_element(e, u, N, k, g, s, f, dfdu, dfdN)
+        _bank_element(code, e, u, N, k, g, s, f, dfdu, dfdN)
     return f, dfdu, dfdN, s
 
 
-def bank_manifold_march(u, N, k, g, s0):
-    """March elements of the manifold reversal law over samples.
+def march_bank(code, u, N, k, g, s0):
+    """March every element of a slider-bank law over samples.
+
+    On threads above a work threshold (:data:`PARALLEL_MIN_WORK`), else on the
+    calling thread; the result does not depend on it.
 
     Parameters
     ----------
+    code : int
+        ``BANK_ANCHOR``, ``BANK_SCALED`` or ``BANK_MANIFOLD``.
     u, N : ndarray, shape (n_e, n_t)
-        Tangential displacement [m] and normal load [N].
+        Tangential displacement [m] and normal load [N] at each sample.
     k, g : ndarray, shape (n_e, n_s)
-        Slider stiffness [N/m] and slip force per unit normal load [-] of the
-        bank whose backbone ``f_bb(x; N) = sum_i min(k_i x, g_i N)`` the law uses.
-    s0 : ndarray, shape (n_e, MF_SHARED + 3 MF_DEPTH)
-        State: previous u [m], previous N [N], direction (-1, 0, 1), previous
-        force [N], number of open reversals, rest position u_0 [m], then the
-        stack of open reversals ``(u_r, N_r, f_r)``, oldest first.
+        Slider stiffness [N/m] and slip force per unit normal load [-] (for the
+        manifold law: of the bank whose backbone it follows).
+    s0 : ndarray, shape (n_e, state size)
+        State at the start (not modified).  Anchored: the anchor of every
+        slider [m].  Scaled: previous u [m], previous N [N], direction of
+        motion (-1, 0, 1), u_r [m], N_r [N], then the previous force of each
+        slider and its force at the last reversal [N] (``5 + 2 n_s``).
+        Manifold: previous u [m], previous N [N], direction, previous force
+        [N], number of open reversals, rest position u_0 [m], then the stack of
+        open reversals ``(u_r, N_r, f_r)``, oldest first
+        (``MF_SHARED + 3 MF_DEPTH``).
 
     Returns
     -------
     f, dfdu, dfdN : ndarray, shape (n_e, n_t)
-    s : ndarray
+        Force [N] and its tangents [N/m], [-].
+    s : ndarray, shape of ``s0``
         State after the last sample.
     """
-    if _threaded(u, k):
-        return _bank_manifold_parallel(u, N, k, g, s0)
-    return _bank_manifold_serial(u, N, k, g, s0)
+    run = _bank_parallel if _threaded(u, k) else _bank_serial
+    return run(code, u, N, k, g, s0)

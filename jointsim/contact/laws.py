@@ -280,13 +280,29 @@ def _no_history(u):
 
 
 @dataclass(frozen=True)
-class AnchoredBank(TangentialLaw):
+class SliderBank(TangentialLaw):
+    """A friction law marched by :func:`jointsim.contact._kernels.march_bank`.
+
+    Class attributes: ``bank_code``, the law's code in that kernel.
+    """
+
+    bank_code: ClassVar[int] = -1
+
+    def march(self, u, N, state):
+        return K.march_bank(self.bank_code, np.ascontiguousarray(u, dtype=float),
+                            np.ascontiguousarray(N, dtype=float), self.k, self.g,
+                            np.ascontiguousarray(state))
+
+
+@dataclass(frozen=True)
+class AnchoredBank(SliderBank):
     """Physical elastic dry friction (seed Eq. 1/3): anchored Jenkins sliders.
 
     State per element: the anchor ``w`` of every slider [m].
     """
 
     name: ClassVar[str] = "bank_anchor"
+    bank_code: ClassVar[int] = K.BANK_ANCHOR
     fused_code: ClassVar[int | None] = FUSED_ANCHOR
 
     def state_size(self) -> int:
@@ -297,18 +313,13 @@ class AnchoredBank(TangentialLaw):
         s[:] = np.asarray(u0, dtype=float)[:, None]
         return s
 
-    def march(self, u, N, state):
-        return K.bank_anchor_march(np.ascontiguousarray(u, dtype=float),
-                                   np.ascontiguousarray(N, dtype=float), self.k, self.g,
-                                   np.ascontiguousarray(state))
-
     def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled, parallel=True):
         return AK.anchor_aft(u, N, dNdg, self.k, self.g, basis.CP, basis.Gam, min_periods,
                              max_periods, tol, coupled, parallel)
 
 
 @dataclass(frozen=True)
-class ScaledBank(TangentialLaw):
+class ScaledBank(SliderBank):
     """The seed's Eq. 7 reversal law: reversal force scaled by ``N / N_r``.
 
     State per element: the shared reversal memory (``SC_SHARED`` entries) and,
@@ -316,6 +327,7 @@ class ScaledBank(TangentialLaw):
     """
 
     name: ClassVar[str] = "bank_scaled"
+    bank_code: ClassVar[int] = K.BANK_SCALED
 
     def state_size(self) -> int:
         return K.SC_SHARED + 2 * self.n_sliders
@@ -334,11 +346,6 @@ class ScaledBank(TangentialLaw):
         s[:, K.SC_U_R] = u0
         return s
 
-    def march(self, u, N, state):
-        return K.bank_scaled_march(np.ascontiguousarray(u, dtype=float),
-                                   np.ascontiguousarray(N, dtype=float), self.k, self.g,
-                                   np.ascontiguousarray(state))
-
     def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled, parallel=True):
         return AK.scaled_aft(u, N, dNdg, self.k, self.g, np.ascontiguousarray(N[:, 0]),
                              basis.P, basis.Gam, min_periods, max_periods, tol, coupled,
@@ -346,7 +353,7 @@ class ScaledBank(TangentialLaw):
 
 
 @dataclass(frozen=True)
-class ManifoldBank(TangentialLaw):
+class ManifoldBank(SliderBank):
     """Seed Eq. 7's scaled reversal force with the Masing manifold's own memory.
 
     After a reversal ``(u_r, N_r, f_r)`` the force is the manifold's,
@@ -367,13 +374,14 @@ class ManifoldBank(TangentialLaw):
     two-reversal loops whose reversals are reached in slip.
 
     State per element: ``MF_SHARED`` entries and a stack of ``MF_DEPTH`` open
-    reversals (see :func:`jointsim.contact._kernels.bank_manifold_march`).  On
+    reversals (see :func:`jointsim.contact._kernels.march_bank`).  On
     overflow the oldest open reversal is forgotten.  Like Eq. 7 the law is not
     path-continuous (a micro-reversal re-scales the reference force), and it
     has no AFT kernel: harmonic balance with it is refused.
     """
 
     name: ClassVar[str] = "bank_manifold"
+    bank_code: ClassVar[int] = K.BANK_MANIFOLD
     has_aft: ClassVar[bool] = False
 
     def state_size(self) -> int:
@@ -390,11 +398,6 @@ class ManifoldBank(TangentialLaw):
         s[:, K.MF_U_PREV] = u0
         s[:, K.MF_U0] = u0
         return s
-
-    def march(self, u, N, state):
-        return K.bank_manifold_march(np.ascontiguousarray(u, dtype=float),
-                                     np.ascontiguousarray(N, dtype=float), self.k, self.g,
-                                     np.ascontiguousarray(state))
 
     def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled,
             parallel=True):

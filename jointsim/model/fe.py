@@ -24,20 +24,13 @@ log = logging.getLogger(__name__)
 
 
 def build_fe(scene) -> StructuralModel:
-    """Structural model of a ``kind = "fe"`` scene: the reduced, preloaded lap joint.
+    """Structural model of a ``kind = "fe"`` scene: the reduced, preloaded lap joint
+    (a builder of :data:`jointsim.model.BUILDERS`).
 
-    Parameters
-    ----------
-    scene : jointsim.scene.Scene
-
-    Returns
-    -------
-    StructuralModel
-        ``fe`` holds the full :class:`~jointsim.fem.assembly.FEStructure`, the
-        :class:`~jointsim.fem.reduction.CraigBampton` basis, the mesh file and
-        the build and reduction times; ``preload``, ``rom`` and
-        ``linearisation`` are set by
-        :func:`jointsim.model.preload.structural_model`.
+    ``fe`` of the model holds the full :class:`~jointsim.fem.assembly.FEStructure`,
+    the :class:`~jointsim.fem.reduction.CraigBampton` basis, the mesh file and the
+    build and reduction times; ``preload``, ``rom`` and ``linearisation`` are set
+    by :func:`jointsim.model.preload.structural_model`.
 
     Raises
     ------

@@ -20,7 +20,7 @@ import numba
 import numpy as np
 from numba import njit
 
-from ..contact._kernels import normal_point, slider_anchor_step
+from ..contact._kernels import anchor_bank_point, normal_point
 from ..contact.laws import FUSED_ANCHOR as T_ANCHOR
 from ..contact.laws import FUSED_LINEAR as T_LINEAR
 from ..contact.normal import FUSED_GIVEN as N_GIVEN
@@ -51,13 +51,12 @@ def _contact_sample(y, state, tkind, nkind, k, g, gap0, kn, N0, phi, duu, dug, d
     """Contact forces and tangent blocks at contact coordinates ``y`` (one sample).
 
     The tangential law is the anchored slider bank of
-    :func:`jointsim.contact._kernels.slider_anchor_step` (or a linear spring),
+    :func:`jointsim.contact._kernels.anchor_bank_point` (or a linear spring),
     the normal load the penalty ``N = kn max(0, -g)`` (unilateral) or
     ``-kn g`` (bilateral), as in :func:`~jointsim.contact._kernels.normal_penalty`.
     Outputs are written into the given arrays; ``state`` is not modified.
     """
     ne = k.shape[0]
-    ns = k.shape[1]
     for e in range(ne):
         ue = y[e]
         if nkind == N_GIVEN:
@@ -69,13 +68,7 @@ def _contact_sample(y, state, tkind, nkind, k, g, gap0, kn, N0, phi, duu, dug, d
         de = 0.0
         dn = 0.0
         if tkind == T_ANCHOR:
-            for i in range(ns):
-                fi, dfi, dni, _dw, w1, _a, _b, _c = slider_anchor_step(ue, Ne, state[e, i],
-                                                                        k[e, i], g[e, i])
-                new_state[e, i] = w1
-                fe += fi
-                de += dfi
-                dn += dni
+            fe, de, dn = anchor_bank_point(ue, Ne, state[e], new_state[e], k[e], g[e])
         elif tkind == T_LINEAR:
             fe = k[e, 0] * ue
             de = k[e, 0]

@@ -48,7 +48,7 @@ def test_anchor_kernel_matches_numpy(ns):
     N = random_N(rng, 6, 400)
     k, g = bank(rng, 6, ns)
     w0 = rng.normal(scale=0.1, size=(6, ns))
-    f, _dfdu, _dfdN, w = K.bank_anchor_march(u, N, k, g, w0)
+    f, _dfdu, _dfdN, w = K.march_bank(K.BANK_ANCHOR, u, N, k, g, w0)
     f_ref, w_ref = ref.anchor_bank(u, N, k, g, w0)
     np.testing.assert_allclose(f, f_ref, rtol=1e-13, atol=1e-13)
     np.testing.assert_allclose(w, w_ref, rtol=1e-13, atol=1e-13)
@@ -63,7 +63,7 @@ def test_scaled_kernel_matches_numpy(ns):
     k, g = bank(rng, 5, ns)
     law = ScaledBank(k, g, g.sum(axis=1))
     s0 = law.rest_state(N[:, 0])
-    f, _dfdu, _dfdN, _s = K.bank_scaled_march(u, N, k, g, s0)
+    f, _dfdu, _dfdN, _s = K.march_bank(K.BANK_SCALED, u, N, k, g, s0)
     np.testing.assert_allclose(f, ref.scaled_bank(u, N, k, g, N[:, 0]), rtol=1e-13, atol=1e-13)
 
 
@@ -194,9 +194,9 @@ def test_threaded_and_serial_drivers_agree(kind):
     k, g = bank(rng, 64, 3)
     if kind == "anchor":
         s0 = rng.normal(scale=0.1, size=(64, 3))
-        serial, threaded = K._bank_anchor_serial, K._bank_anchor_parallel
+        code = K.BANK_ANCHOR
     else:
         s0 = ScaledBank(k, g, g.sum(axis=1)).rest_state(N[:, 0])
-        serial, threaded = K._bank_scaled_serial, K._bank_scaled_parallel
-    for a, b in zip(serial(u, N, k, g, s0), threaded(u, N, k, g, s0)):
+        code = K.BANK_SCALED
+    for a, b in zip(K._bank_serial(code, u, N, k, g, s0), K._bank_parallel(code, u, N, k, g, s0)):
         np.testing.assert_array_equal(a, b)
