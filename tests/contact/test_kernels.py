@@ -124,6 +124,18 @@ def test_tangents_match_finite_differences(kind):
     assert checked > 150
 
 
+def central_differences(fun, x, h):
+    """Central differences of every output of ``fun(*x)`` by each input: a list,
+    one array of output derivatives per input."""
+    out = []
+    for i in range(len(x)):
+        xp, xm = list(x), list(x)
+        xp[i] += h
+        xm[i] -= h
+        out.append((np.array(fun(*xp)) - np.array(fun(*xm))) / (2 * h))
+    return out
+
+
 def test_slider_step_full_jacobian():
     """slider_anchor_step's derivatives by u, N and the anchor w, incl. the new anchor."""
     rng = np.random.default_rng(5)
@@ -135,14 +147,7 @@ def test_slider_step_full_jacobian():
         k, g = rng.uniform(0.5, 2.0), rng.uniform(0.05, 0.3)
         out = np.array(K.slider_anchor_step(u, N, w, k, g))
         f, dfdu, dfdN, dfdw, w1, dw1du, dw1dN, dw1dw = out
-        fdiff = []
-        for i, x in enumerate((u, N, w)):
-            args = [u, N, w]
-            args[i] = x + h
-            p = np.array(K.slider_anchor_step(*args, k, g))
-            args[i] = x - h
-            m = np.array(K.slider_anchor_step(*args, k, g))
-            fdiff.append((p - m) / (2 * h))
+        fdiff = central_differences(lambda *x: K.slider_anchor_step(*x, k, g), (u, N, w), h)
         # away from the switches |k(u-w)| = gN and N = 0
         if abs(abs(k * (u - w)) - g * max(N, 0)) < 1e-5 or abs(N) < 1e-5:
             continue
@@ -169,12 +174,8 @@ def test_scaled_force_full_jacobian():
         if abs(abs(trial) - g * N) < 1e-5:
             continue
         checked += 1
-        for i in range(5):
-            xp, xm = x.copy(), x.copy()
-            xp[i] += h
-            xm[i] -= h
-            fd = (K.slider_scaled_force(*xp, k, g)[0] - K.slider_scaled_force(*xm, k, g)[0]) / (2 * h)
-            assert out[1 + i] == pytest.approx(fd, abs=1e-6)
+        fd = central_differences(lambda *y: K.slider_scaled_force(*y, k, g), x, h)
+        np.testing.assert_allclose(out[1:6], [d[0] for d in fd], rtol=0, atol=1e-6)
     assert checked > 300
 
 

@@ -51,20 +51,12 @@ def march_periods(law, u, N, periods=4):
 
 @SETTINGS
 @given(periodic_inputs(separating=True), st.sampled_from(LAWS))
-def test_force_never_exceeds_slip_limit(inputs, law_spec):
+def test_force_within_slip_limit_and_zero_while_separated(inputs, law_spec):
     u, N = inputs
     law = make_law(*law_spec)
     res = march_periods(law, u, N)
     limit = law.slip_force(res.N)
     assert np.all(np.abs(res.f) <= limit * (1 + 1e-12) + 1e-15)
-
-
-@SETTINGS
-@given(periodic_inputs(separating=True), st.sampled_from(LAWS))
-def test_no_force_while_separated(inputs, law_spec):
-    u, N = inputs
-    law = make_law(*law_spec)
-    res = march_periods(law, u, N)
     assert np.all(res.f[res.N <= 0.0] == 0.0)
 
 
