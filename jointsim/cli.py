@@ -8,7 +8,8 @@
 ``jointsim info OUT.h5``
     Print a summary table.
 ``jointsim check SCENE [--set key=value ...]``
-    Validate a scene and print the kernels it selects.
+    Validate a scene and print the kernels it selects, the model sizes, the
+    analyses that will run and the effects that are off (with what that skips).
 ``jointsim sweep SCENE --vary key=v1,v2,... [--scheduler ADDRESS]``
     Run every combination of parameter values on dask.distributed.
 ``jointsim keys``
@@ -46,6 +47,8 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("results", nargs="+", help="result files (HDF5)")
     q.add_argument("-d", "--outdir", help="figure folder (default: <stem>_figures/ "
                                           "next to each file)")
+    q.add_argument("--rad-s", action="store_true",
+                   help="frequency response figures in rad/s (default: Hz)")
 
     i = sub.add_parser("info", parents=[common], help="print a summary of a result file")
     i.add_argument("result", help="result file (HDF5)")
@@ -72,6 +75,98 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _model_size(scene) -> str:
+    """The sizes of the scene's model that are known without building it."""
+    m = scene.model
+    loads = len(scene.excitation.loads)
+    if m.kind == "prescribed":
+        return (f"prescribed motion of one contact element, {m.n_periods} periods x "
+                f"{m.n_samples} samples ({m.units} units)")
+    if m.kind == "lumped":
+        return (f"lumped, {m.n_dof} DOFs, {len(m.contacts)} contact element(s), {loads} "
+                f"load(s) ({m.units} units)")
+    if m.kind == "fe":
+        size = ""
+        try:
+            from .fem.mesh import read_mesh
+            mesh = read_mesh(scene.resolve(m.mesh))
+            n_nodes = mesh.points.shape[0]
+            size = (f"{n_nodes} nodes ({2 * n_nodes} DOFs before reduction), "
+                    f"{mesh.quads.shape[0]} quads; ")
+        except Exception as exc:  # a check reports, it does not fail on a mesh reader
+            size = f"mesh not read ({type(exc).__name__}: {exc}); "
+        return (f"FE lap joint, {size}Craig-Bampton keeps {m.n_modes} fixed-interface "
+                f"modes plus the interface, bolt and {len(m.retain_points)} retained point "
+                f"DOFs; {len(m.bolts)} bolt(s), {loads} load(s)")
+    return f"{m.kind} model from {m.file}, {loads} load(s) ({m.units} units)"
+
+
+def _analysis_line(name: str, sec, scene) -> str:
+    """One line of ``jointsim check`` for an analysis the scene runs."""
+    if name == "hbm":
+        from .analyses.hbm import loop_rule
+        return (f"hbm: {len(sec.force_scale)} branch(es) (force x "
+                f"{', '.join(f'{v:g}' for v in sec.force_scale)}), omega {sec.omega_start:g} "
+                f"to {sec.omega_end:g} rad/s, harmonics {list(sec.harmonics)}, "
+                f"{sec.n_samples} samples; amplitude: {sec.amplitude}; loops kept: "
+                f"{loop_rule(scene)}")
+    if name == "epmc":
+        extra = f"; solved at amplitudes {list(sec.amplitudes)}" if sec.amplitudes else ""
+        return (f"epmc: mode {sec.mode}, modal amplitude 10^{sec.log10_amplitude_start:g} to "
+                f"10^{sec.log10_amplitude_end:g}, harmonics {list(sec.harmonics)}{extra}")
+    if name == "qsma":
+        return (f"qsma: mode {sec.mode}, modal amplitude 10^{sec.log10_amplitude_start:g} to "
+                f"10^{sec.log10_amplitude_end:g}, {sec.n_steps} steps")
+    if name == "transient":
+        what = f"steady at omega = {sec.omega:g} rad/s" if sec.omega > 0 else \
+            f"free decay of mode {sec.mode} from amplitude {sec.amplitude:g}"
+        return f"transient: {what}, {sec.steps_per_period} steps per period"
+    if name == "modes":
+        return f"modes: {sec.n_modes} linear modes of the stuck joint"
+    return name
+
+
+def check_text(scene, file: str) -> str:
+    """What ``jointsim check`` prints: kernels, model sizes, the analyses that will
+    run, and the effects that are off with what that skips."""
+    k = scene.kernels()
+    lines = [f"{file}: valid ({scene.model.kind} model, kernels {k.tangential}/{k.normal})",
+             f"  model: {_model_size(scene)}"]
+    if scene.model.kind == "prescribed":
+        lines.append("  analyses: the prescribed march of the element (model.*) and its "
+                     "Masing check")
+    else:
+        from .analyses import ORDER
+        run = [(n, getattr(scene.analysis, n)) for n in ORDER
+               if getattr(scene.analysis, n, None) is not None]
+        if run:
+            lines.append("  analyses, in run order:")
+            lines += [f"    {_analysis_line(n, sec, scene)}" for n, sec in run]
+        else:
+            lines.append("  analyses: none (add an [analysis.<name>] table; nothing will "
+                         "be computed but the static state)")
+    fx, j = scene.effects, scene.joint
+    off = []
+    if not fx.friction:
+        off.append("effects.friction = false: no tangential contact force (frictionless); "
+                   "no friction damping, no hysteresis loops, no Masing checks")
+    elif j.law == "stuck":
+        off.append("joint.law = 'stuck': the joint never slips; no friction damping, "
+                   "the response is linear in the tangential direction")
+    if fx.normal == "fixed":
+        off.append("effects.normal = 'fixed': the normal load is given and does not follow "
+                   "the gap; no normal-tangential coupling, no separation")
+    elif not fx.separation:
+        off.append("effects.separation = false: the normal spring is bilateral; the "
+                   "contact never opens (no loss of contact, no impacts)")
+    if off:
+        lines.append("  effects off:")
+        lines += [f"    {t}" for t in off]
+    else:
+        lines.append("  effects off: none")
+    return "\n".join(lines)
+
+
 def default_output(scene_path: str) -> Path:
     return Path("results") / (Path(scene_path).stem + ".h5")
 
@@ -89,8 +184,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command in ("run", "check"):
             scene = load_scene(args.scene, args.overrides)
             if args.command == "check":
-                print(f"{args.scene}: valid ({scene.model.kind} model, kernels "
-                      f"{scene.kernels().tangential}/{scene.kernels().normal})")
+                print(check_text(scene, args.scene))
                 return 0
             from .run import run_scene
             out = Path(args.output) if args.output else default_output(args.scene)
@@ -108,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
                 outdir = args.outdir
                 if outdir and several:  # keep each file's figures apart
                     outdir = Path(outdir) / Path(res).stem
-                for fig in make_figures(res, outdir):
+                for fig in make_figures(res, outdir, "rad/s" if args.rad_s else "Hz"):
                     print(fig)
             if len(args.results) > 1:
                 from .post import combined_figures

@@ -124,17 +124,30 @@ class LumpedContact:
     """A contact element of a lumped model.
 
     Tangential slip ``u_t = x[t_dof] - x[t_ref]`` and, for coupled normal load,
-    normal gap ``g = gap0 + x[n_dof] - x[n_ref]``.  A reference of -1 is ground.
+    normal gap ``g = gap0 + n_sign (x[n_dof] - x[n_ref])``, negative in contact.
+    A reference of -1 is ground.  ``n_sign = -1`` is for a normal coordinate that
+    is positive *into* contact (the gap closes as ``x[n_dof]`` grows), so the
+    model needs no rewriting with sign-flipped DOFs and negated loads.
+
+    Units: with ``area = 1`` (the default) the joint's per-area stiffnesses
+    ``kt``, ``kn`` [N/m^3] act as plain springs [N/m] (in a nondimensional
+    scene: force per length), and ``N0`` is a force.
     """
 
     t_dof: int = spec(doc="DOF index (0-based) of the tangential motion", ge=0)
     t_ref: int = spec(-1, doc="DOF index the slip is measured against (-1: ground)", ge=-1)
     n_dof: int = spec(-1, doc="DOF index of the normal gap (-1: none)", ge=-1)
     n_ref: int = spec(-1, doc="DOF index the gap is measured against (-1: ground)", ge=-1)
+    n_sign: int = spec(1, choices=(1, -1),
+                       doc="normal direction: g = gap0 + n_sign (x[n_dof] - x[n_ref]); "
+                           "1: x[n_dof] positive away from contact (opens the gap), "
+                           "-1: positive into contact (closes it)")
     gap0: float = spec(0.0, doc="normal gap at x = 0 (negative: interference)", unit="m")
     N0: Optional[float] = spec(None, doc="normal load used when effects.normal = 'fixed'",
                                unit="N", ge=0)
-    area: float = spec(1.0, doc="contact area", unit="m^2", gt=0)
+    area: float = spec(1.0, doc="contact area; with the default 1 the joint's kt and kn "
+                                "[N/m^3] read as plain springs [N/m] (nondimensional: "
+                                "force/length)", unit="m^2", gt=0)
 
     def check(self):
         if self.t_ref == self.t_dof:
@@ -299,8 +312,12 @@ class Joint:
                              "'manifold': Eq. 7's scaling with Masing's memory rule (on the "
                              "Masing manifold where it lies within mu N; no HBM/EPMC)")
     mu: float = spec(0.1, doc="friction coefficient", ge=0)
-    kt: float = spec(1.0, doc="tangential stiffness per unit area", unit="N/m^3", gt=0)
-    kn: float = spec(1.0, doc="normal stiffness per unit area", unit="N/m^3", gt=0)
+    kt: float = spec(1.0, doc="tangential stiffness per unit area; lumped and prescribed "
+                              "models: area defaults to 1, so kt is a plain spring [N/m, "
+                              "or force/length when nondimensional]", unit="N/m^3", gt=0)
+    kn: float = spec(1.0, doc="normal stiffness per unit area; lumped and prescribed "
+                              "models: area defaults to 1, so kn is a plain spring [N/m, "
+                              "or force/length when nondimensional]", unit="N/m^3", gt=0)
     chi: float = spec(-0.5, doc="Iwan exponent of the slider density", gt=-1, le=1)
     beta: float = spec(0.1, doc="Iwan ratio of the macroslip spike to the power-law part",
                        ge=0)
@@ -388,8 +405,10 @@ class HBMAnalysis:
     n_samples: int = spec(128, doc="AFT time samples per period", ge=4)
     omega_start: float = spec(doc="start of the sweep", unit="rad/s", gt=0)
     omega_end: float = spec(doc="end of the sweep", unit="rad/s", gt=0)
-    force_scale: tuple[float, ...] = spec((1.0,), doc="multipliers of the excitation; "
-                                                      "one branch each")
+    force_scale: tuple[float, ...] = spec((1.0,), doc="multipliers of the harmonic "
+                                                      "excitation; one branch each. Static "
+                                                      "loads (the constant part of a force, "
+                                                      "bolt preload) are NOT scaled")
     response_dof: int = spec(0, doc="DOF whose amplitude the FRC plots", ge=0)
     response_point: str = spec("", doc="named model point whose amplitude the FRC plots "
                                        "(FE/ROM, e.g. 'response'; overrides response_dof)")
@@ -407,10 +426,19 @@ class HBMAnalysis:
     workers: int = spec(0, doc="branches (force levels) computed at once in worker "
                                "processes; 0: one per core, up to the number of branches; "
                                "1: one after the other in this process", ge=0)
-    loops: str = spec("masing.points", choices=("masing.points", "peaks"),
-                      doc="points whose element loops and Masing checks are kept: those of "
-                          "analysis.masing.points (empty: every point), or each branch's "
-                          "largest-amplitude point")
+    loops: str = spec("auto", choices=("auto", "peaks", "all", "masing.points"),
+                      doc="points whose element loops and Masing checks are kept: 'auto' "
+                          "(default): those of analysis.masing.points when it is set, else "
+                          "'peaks'; 'peaks': each branch's largest-amplitude point (cheap); "
+                          "'all': every point (costly: on small FRCs the loops and checks "
+                          "take about 40% of the run, e.g. 6.2 s against 3.7 s); "
+                          "'masing.points': those of analysis.masing.points (empty: every "
+                          "point)")
+    amplitude: str = spec("fundamental", choices=("fundamental", "rms", "peak_to_peak"),
+                          doc="measure of /hbm/amplitude and the refined peak at the response "
+                              "DOF: 'fundamental' sqrt(X_1c^2 + X_1s^2), 'rms' the RMS of "
+                              "x(t) over all harmonics kept (the mean included), "
+                              "'peak_to_peak' max x(t) - min x(t) over the AFT samples")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -443,6 +471,18 @@ class EPMCAnalysis:
         (), doc="modal amplitudes at which the element loops and Masing checks are kept "
                 "(the first point at or past each); empty: the points of "
                 "analysis.masing.points (every point when that is empty too)", gt=0)
+    amplitudes: tuple[float, ...] = spec(
+        (), doc="modal amplitudes at which the mode is also solved exactly (Newton at fixed "
+                "amplitude from the neighbouring branch points), written to "
+                "/epmc/at_amplitudes; each within 10^log10_amplitude_start .. "
+                "10^log10_amplitude_end", unit="m kg^0.5", gt=0)
+    max_damping_change: float = spec(
+        0.002, doc="step control: largest change of the damping ratio from one point to "
+                   "the next (a step that changes it more is shrunk; resolves the slip "
+                   "onset); 0: no limit", ge=0)
+    max_frequency_change: float = spec(
+        0.01, doc="step control: largest relative change of the frequency from one point "
+                  "to the next; 0: no limit", ge=0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -744,6 +784,13 @@ def _check_cross(scene: Scene, ctx: Context) -> None:
     if a.epmc is not None and a.epmc.log10_amplitude_end == a.epmc.log10_amplitude_start:
         raise ctx.error("analysis.epmc.log10_amplitude_end",
                         "must differ from log10_amplitude_start")
+    if a.epmc is not None:
+        lo, hi = sorted((a.epmc.log10_amplitude_start, a.epmc.log10_amplitude_end))
+        for i, amp in enumerate(a.epmc.amplitudes):
+            if not 10.0 ** lo <= amp <= 10.0 ** hi:
+                raise ctx.error(f"analysis.epmc.amplitudes[{i}]",
+                                f"= {amp:g} lies outside the branch, 10^{lo:g} .. 10^{hi:g} "
+                                f"(log10_amplitude_start .. log10_amplitude_end)")
     tr = a.transient
     if tr is not None:
         if isinstance(m, PrescribedModel):

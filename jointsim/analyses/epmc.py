@@ -8,6 +8,11 @@ normalised), ``/epmc/iterations``, ``/epmc/residual``, ``/epmc/step``,
 ``/epmc/y`` and ``/epmc/tangent`` (for ``--resume``); once:
 ``/epmc/harmonics``, ``/epmc/mode_shape``.  Loops and Masing checks go to
 ``/epmc/loops`` and ``/epmc/masing``.
+
+With ``analysis.epmc.amplitudes`` the mode is also solved exactly at those
+modal amplitudes (:func:`solve_at_amplitudes`), in ``/epmc/at_amplitudes/``:
+``amplitude``, ``omega``, ``frequency_hz``, ``damping_ratio``, ``xi``, ``X``,
+``converged``, ``iterations``, ``residual``.
 """
 from __future__ import annotations
 
@@ -90,7 +95,7 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
                          step=h0, step_min=a.step_min, step_max=a.step_max,
                          max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
                          solve_first=solve_first, tangent0=t0, on_point=on_point,
-                         desc=f"epmc mode {a.mode}")
+                         desc=f"epmc mode {a.mode}", monitor=step_monitor(a, system.n_z))
     conv = br.convergence
     g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
     g.attrs["n_points"] = writer.rows("epmc/omega")
@@ -98,6 +103,8 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     for k, v in conv.as_attrs().items():
         g.attrs[k] = v
     log.info("epmc mode %d: %s", a.mode, conv.message)
+    if a.amplitudes:
+        solve_at_amplitudes(writer, a, system, ep, F, scale, rscale)
     if not conv.success:
         raise RuntimeError(f"epmc: {conv.message}")
 
@@ -194,3 +201,120 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
             writer.h5["epmc/loops"].attrs["analysis"] = "epmc"
 
     return on_point
+
+
+def step_monitor(a, nz: int):
+    """The step-control monitor of the EPMC branch (see
+    :class:`~jointsim.solvers.continuation.Continuation`): the damping ratio
+    divided by ``analysis.epmc.max_damping_change`` and ``log(omega)`` divided
+    by ``max_frequency_change``; None when both limits are 0.
+
+    Parameters
+    ----------
+    a : jointsim.scene.EPMCAnalysis
+    nz : int
+        Number of shape unknowns (``y = (zh, omega, xi, lam)``).
+    """
+    dz, dw = a.max_damping_change, a.max_frequency_change
+    if dz <= 0.0 and dw <= 0.0:
+        return None
+
+    def monitor(y):
+        omega, xi = float(y[nz]), float(y[nz + 1])
+        out = []
+        if dz > 0.0:
+            out.append(xi / (2.0 * omega) / dz)
+        if dw > 0.0:
+            out.append(np.log(abs(omega)) / dw)
+        return np.array(out)
+
+    return monitor
+
+
+def solve_at_amplitudes(writer, a, system, ep, F, scale, rscale) -> dict:
+    """Solve the nonlinear mode exactly at the modal amplitudes ``a.amplitudes``.
+
+    For each amplitude the stored branch (``/epmc/y``) is interpolated linearly
+    in ``log10 a`` between the two points around it, and Newton corrects
+    ``(zh, omega, xi)`` at that fixed amplitude (scaled as the continuation;
+    tolerance ``a.tol`` on ``max|R| / rscale``).  An amplitude the branch did
+    not reach is reported as not converged.  Writes ``/epmc/at_amplitudes/*``.
+
+    Parameters
+    ----------
+    writer : jointsim.io.hdf5.ResultWriter
+    a : jointsim.scene.EPMCAnalysis
+    system : jointsim.solvers.hbm.HBMSystem
+    ep : jointsim.solvers.epmc.EPMCSystem
+    F : ndarray, shape (n_c, n_dof)
+        Static force coefficients.
+    scale : ndarray, shape (n_z + 3,)
+        Variable scales of the continuation.
+    rscale : float
+        Residual scale.
+
+    Returns
+    -------
+    dict
+        The arrays written (``amplitude``, ``omega``, ``xi``, ``damping_ratio``,
+        ``X`` [n_amp, n_coeff, n_dof], ``converged``, ``iterations``, ``residual``).
+    """
+    from ..solvers.newton import NewtonOptions, newton
+
+    nz = system.n_z
+    Y = writer.h5["epmc/y"][()] if "epmc/y" in writer.h5 else np.zeros((0, nz + 3))
+    lam = Y[:, -1]
+    n_amp = len(a.amplitudes)
+    n_dof = system.model.n_dof
+    out = dict(amplitude=np.array(a.amplitudes, dtype=float), omega=np.full(n_amp, np.nan),
+               xi=np.full(n_amp, np.nan), X=np.full((n_amp, system.n_c, n_dof), np.nan),
+               converged=np.zeros(n_amp, dtype=bool), iterations=np.zeros(n_amp, np.int64),
+               residual=np.full(n_amp, np.nan))
+    sz = scale[:nz + 2]
+    for k, amp in enumerate(a.amplitudes):
+        lt = float(np.log10(amp))
+        seg = np.flatnonzero((lam[:-1] - lt) * (lam[1:] - lt) <= 0.0)
+        if seg.size == 0:
+            log.warning("epmc: modal amplitude %g was not reached by the branch", amp)
+            continue
+        i = int(seg[0])
+        w = 0.0 if lam[i + 1] == lam[i] else (lt - lam[i]) / (lam[i + 1] - lam[i])
+        guess = (1.0 - w) * Y[i] + w * Y[i + 1]
+
+        def fun(zs, lt=lt):
+            R, J, ev = ep.fun(np.append(zs * sz, lt))
+            return R / rscale, J[:, :nz + 2] * sz[None, :] / rscale, ev
+
+        res = newton(fun, guess[:nz + 2] / sz, NewtonOptions(a.tol, max(a.max_iter, 30),
+                                                             check_start=True))
+        y = np.append(res.x * sz, lt)
+        out["iterations"][k] = res.iterations
+        out["residual"][k] = float(np.abs(res.R).max(initial=np.nan))
+        if not res.success:
+            log.warning("epmc: Newton at modal amplitude %g did not converge: %s", amp,
+                        res.message)
+            continue
+        omega, xi = float(y[nz]), float(y[nz + 1])
+        out["omega"][k], out["xi"][k], out["converged"][k] = omega, xi, True
+        out["X"][k] = system.reconstruct(ep.z0 + amp * y[:nz], omega, F, xi=xi)
+    out["damping_ratio"] = out["xi"] / (2.0 * out["omega"])
+    units = system.model.units
+    amp_unit = "m kg^0.5" if units == "SI" else "length mass^0.5"
+    g = "epmc/at_amplitudes"
+    writer.write(f"{g}/amplitude", out["amplitude"], amp_unit,
+                 "modal amplitude asked for (analysis.epmc.amplitudes)")
+    writer.write(f"{g}/omega", out["omega"], unit("angular_frequency", units),
+                 "angular frequency (NaN: not converged)")
+    writer.write(f"{g}/frequency_hz", out["omega"] / (2 * np.pi), unit("frequency", units),
+                 "frequency of the nonlinear mode")
+    writer.write(f"{g}/damping_ratio", out["damping_ratio"], "1", "xi / (2 omega)")
+    writer.write(f"{g}/xi", out["xi"], unit("angular_frequency", units),
+                 "self-excitation (negative mass-proportional damping)")
+    writer.write(f"{g}/X", out["X"], unit("displacement", units),
+                 "harmonic coefficients [n_amp, n_coeff, n_dof]")
+    writer.write(f"{g}/converged", out["converged"], "1", "Newton converged at the amplitude")
+    writer.write(f"{g}/iterations", out["iterations"], "1", "Newton iterations")
+    writer.write(f"{g}/residual", out["residual"], "1", "max |R| / residual scale")
+    log.info("epmc: solved at %d of %d given modal amplitudes", int(out["converged"].sum()),
+             n_amp)
+    return out

@@ -12,9 +12,15 @@ File layout (all per solution point unless said otherwise):
 * once: ``/hbm/harmonics``, ``/hbm/force_scale`` [n_branches], and per
   branch ``/hbm/peak_omega``, ``/hbm/peak_amplitude``, ``/hbm/peak_refined``;
   group attributes ``branch<b>_status`` / ``branch<b>_message``;
-* ``/hbm/loops/*``, ``/hbm/masing/*`` for every point (or those listed in
-  ``analysis.masing.points``, global point indices; or, with
-  ``analysis.hbm.loops = "peaks"``, each branch's largest-amplitude point).
+* ``/hbm/loops/*``, ``/hbm/masing/*`` for the points :func:`loop_rule` names:
+  each branch's largest-amplitude point (``analysis.hbm.loops = "peaks"``, and
+  the default ``"auto"`` when ``analysis.masing.points`` is empty), every
+  point (``"all"``), or those listed in ``analysis.masing.points`` (global
+  point indices).
+
+``/hbm/amplitude`` and the peak use the measure ``analysis.hbm.amplitude``
+(:func:`response_amplitude`), named in the group attribute
+``amplitude_measure`` and in ``amplitude_definition``.
 
 Branches run in forked worker processes when there are several (the parent
 writes every point as it arrives).  The runner returns the solution points
@@ -69,7 +75,8 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
     g = _write_header(writer, a, model, system, dof)
     out = _Output(writer, scene, model, system, dof)
     todo = _branches_to_run(writer, a, g)
-    job_args = dict(system=system, a=a, dof=dof, want_aft=a.loops == "masing.points",
+    job_args = dict(system=system, a=a, dof=dof,
+                    want_aft=loop_rule(scene) in ("all", "masing.points"),
                     n_branches=len(a.force_scale))
     n_workers = a.workers or min(len(todo), os.cpu_count() or 1)
     if n_workers > 1 and len(todo) > 1 and _can_fork():
@@ -88,6 +95,61 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
     if failures:
         raise RuntimeError("hbm: " + "; ".join(failures))
     return out.solutions()
+
+
+#: analysis.hbm.amplitude -> its definition (the ``amplitude_definition`` attribute)
+AMPLITUDE_MEASURES = {
+    "fundamental": "fundamental harmonic amplitude sqrt(X_1c^2 + X_1s^2) at the response DOF",
+    "rms": "RMS of x(t) over one period at the response DOF, all harmonics kept "
+           "(sqrt(X_0^2 + sum_h (X_hc^2 + X_hs^2) / 2))",
+    "peak_to_peak": "max x(t) - min x(t) at the response DOF over the AFT time samples",
+}
+
+
+def response_amplitude(basis, x, measure: str = "fundamental") -> float:
+    """Amplitude of one DOF's periodic response by a named measure.
+
+    Parameters
+    ----------
+    basis : jointsim.harmonics.HarmonicBasis
+    x : ndarray, shape (n_coeff,)
+        Harmonic coefficients of the DOF, order ``[0, 1c, 1s, ...]`` [m].
+    measure : {'fundamental', 'rms', 'peak_to_peak'}
+        See :data:`AMPLITUDE_MEASURES`.
+
+    Returns
+    -------
+    float
+        The amplitude [m].
+    """
+    x = np.asarray(x, dtype=float)
+    if measure == "fundamental":
+        return float(harmonic_amplitude(basis, x))
+    if measure == "rms":
+        w = np.where(np.asarray(basis.hk) == 0, 1.0, 0.5)
+        return float(np.sqrt(np.sum(w * x * x)))
+    if measure == "peak_to_peak":
+        t = basis.samples(x)
+        return float(t.max() - t.min())
+    raise ValueError(f"unknown amplitude measure {measure!r}; known: "
+                     f"{', '.join(AMPLITUDE_MEASURES)}")
+
+
+def loop_rule(scene) -> str:
+    """Which FRC points keep their element loops and Masing checks.
+
+    Returns
+    -------
+    str
+        ``"peaks"`` (each branch's largest point), ``"all"`` or
+        ``"masing.points"``; ``analysis.hbm.loops = "auto"`` is
+        ``"masing.points"`` when ``analysis.masing.points`` is set, else
+        ``"peaks"`` (the loops of every point cost about 40 % of a small FRC).
+    """
+    rule = scene.analysis.hbm.loops
+    if rule == "auto":
+        return "masing.points" if scene.analysis.masing.points else "peaks"
+    return rule
 
 
 def _system(model, a, parallel: bool = True) -> HBMSystem:
@@ -122,8 +184,8 @@ def _write_header(writer, a, model, system, dof):
                      response_label=str(model.dof_labels[dof]) if model.dof_labels else "",
                      omega_start=a.omega_start, omega_end=a.omega_end,
                      n_contact_coordinates=system.n_r, condensation=system.lin.kind,
-                     amplitude_definition="fundamental harmonic amplitude "
-                     "sqrt(X_1c^2 + X_1s^2) at the response DOF")
+                     amplitude_measure=a.amplitude,
+                     amplitude_definition=AMPLITUDE_MEASURES[a.amplitude])
     if "hbm/harmonics" not in writer.h5:
         writer.write("hbm/harmonics", np.array(a.harmonics, dtype=np.int64), "1",
                      "harmonics kept; coefficient order [0, 1c, 1s, 2c, 2s, ...]")
@@ -150,7 +212,9 @@ class _Output:
             writer, scene, model, system, dof
         self.a = a
         self.units = model.units
-        self.masing_points = set(scene.analysis.masing.points)
+        self.rule = loop_rule(scene)
+        self.masing_points = set(scene.analysis.masing.points) \
+            if self.rule == "masing.points" else set()
         n_br = len(a.force_scale)
         self.peaks = {k: np.full(n_br, np.nan) for k in ("omega", "amplitude")}
         self.refined = np.zeros(n_br, dtype=bool)
@@ -177,7 +241,7 @@ class _Output:
         writer.append("hbm/branch", np.int64(rec["branch"]), "1",
                       "branch (force level) of the point")
         writer.append("hbm/amplitude", rec["amplitude"], d_u,
-                      "fundamental amplitude at the response DOF")
+                      f"amplitude ({self.a.amplitude}) at the response DOF")
         writer.append("hbm/max_abs", rec["max_abs"], d_u,
                       "max |x(t)| at the response DOF over the AFT samples")
         writer.append("hbm/iterations", np.int64(rec["iterations"]), "1",
@@ -214,12 +278,15 @@ class _Output:
             amp = np.asarray(self.points["amplitude"])[rows]
             Z = np.asarray(self.points["q"])[rows]
             if a.refine_peak:
-                pw, pa, ok = refine_peak(system, F, om, Z, amp, self.dof, min(a.tol, 1e-10))
+                pw, pa, ok = refine_peak(
+                    system, F, om, Z, amp, self.dof, min(a.tol, 1e-10),
+                    amplitude_of=lambda X: response_amplitude(system.basis, X[:, self.dof],
+                                                              a.amplitude))
             else:
                 i = int(np.argmax(amp))
                 pw, pa, ok = float(om[i]), float(amp[i]), False
             self.peaks["omega"][ib], self.peaks["amplitude"][ib], self.refined[ib] = pw, pa, ok
-            if a.loops == "peaks":
+            if self.rule == "peaks":
                 # the element loops and Masing checks of the branch's largest point
                 i = int(np.argmax(amp))
                 ev = system.evaluate(Z[i], float(om[i]), F, jacobian=False)
@@ -229,7 +296,7 @@ class _Output:
             writer.write("hbm/peak_omega", self.peaks["omega"], w_u, "frequency of the largest "
                          "amplitude of each branch")
             writer.write("hbm/peak_amplitude", self.peaks["amplitude"], d_u,
-                         "largest fundamental amplitude of each branch")
+                         f"largest amplitude ({a.amplitude}) of each branch")
             writer.write("hbm/peak_refined", self.refined, "1", "peak refined by maximising "
                          "over frequency (false: largest computed point, e.g. at a fold)")
         log.info("hbm branch %d (force scale %g): %s; peak %.6g at omega = %.6g", ib, fs,
@@ -281,14 +348,14 @@ class _BranchJob:
     start: tuple | None  # (y0, tangent, step, rows already stored) when resuming
 
 
-def _point_record(system, F, y, info, ib, dof, want_aft) -> dict:
+def _point_record(system, F, y, info, ib, dof, want_aft, measure="fundamental") -> dict:
     """Everything written for one solution point (plain arrays, picklable)."""
     b = system.basis
     w = float(y[-1])
     X = system.reconstruct(y[:-1], w, F)
     aft = info.extra.aft if info.extra is not None else None
     return dict(omega=w, X=X, q=np.array(y[:-1]), branch=ib,
-                amplitude=float(harmonic_amplitude(b, X[:, dof])),
+                amplitude=float(response_amplitude(b, X[:, dof], measure)),
                 max_abs=float(np.abs(b.samples(X[:, dof])).max()),
                 iterations=int(info.iterations), residual=float(info.residual),
                 step=float(info.step), tangent=np.array(info.tangent),
@@ -323,7 +390,7 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
     def on_point(i, y, info):
         if not solve_first and i == 0:
             return
-        on_record(_point_record(system, F, y, info, job.ib, dof, want_aft))
+        on_record(_point_record(system, F, y, info, job.ib, dof, want_aft, a.amplitude))
 
     br = continue_branch(
         fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,

@@ -24,7 +24,8 @@ def build_lumped(scene) -> StructuralModel:
     C0 = None if m.C is None else np.array(m.C, dtype=float)
     ne = len(m.contacts)
     Tt = _selector(ne, n, [c.t_dof for c in m.contacts], [c.t_ref for c in m.contacts])
-    Tn = _selector(ne, n, [c.n_dof for c in m.contacts], [c.n_ref for c in m.contacts])
+    Tn = _selector(ne, n, [c.n_dof for c in m.contacts], [c.n_ref for c in m.contacts],
+                   [c.n_sign for c in m.contacts])
     N0 = np.array([c.N0 if c.N0 is not None else 0.0 for c in m.contacts])
     gap0 = np.array([c.gap0 for c in m.contacts])
     area = np.array([c.area for c in m.contacts])
@@ -41,12 +42,18 @@ def build_lumped(scene) -> StructuralModel:
         points={}, units=m.units)
 
 
-def _selector(n_rows: int, n_cols: int, plus, minus) -> sp.csr_matrix:
-    """Rows of +1/-1 picking ``x[plus] - x[minus]``; index -1 means ground."""
+def _selector(n_rows: int, n_cols: int, plus, minus, sign=None) -> sp.csr_matrix:
+    """Rows picking ``sign * (x[plus] - x[minus])``; index -1 means ground.
+
+    ``sign`` (one +1 or -1 per row, default +1) orients the row: the normal
+    gap of a contact whose coordinate is positive into contact has ``-1``
+    (``model.contacts[].n_sign``).
+    """
+    sign = [1.0] * n_rows if sign is None else [float(v) for v in sign]
     rows, cols, vals = [], [], []
     for r, (a, b) in enumerate(zip(plus, minus)):
         if a >= 0:
-            rows.append(r), cols.append(a), vals.append(1.0)
+            rows.append(r), cols.append(a), vals.append(sign[r])
         if b >= 0:
-            rows.append(r), cols.append(b), vals.append(-1.0)
+            rows.append(r), cols.append(b), vals.append(-sign[r])
     return sp.csr_matrix((vals, (rows, cols)), shape=(n_rows, n_cols))

@@ -39,7 +39,7 @@ def plotters() -> dict[str, Callable]:
     }
 
 
-def make_figures(result, outdir=None) -> list[Path]:
+def make_figures(result, outdir=None, frequency: str = "Hz") -> list[Path]:
     """Write every figure that applies to a result file.
 
     Parameters
@@ -48,6 +48,8 @@ def make_figures(result, outdir=None) -> list[Path]:
         Result file.
     outdir : str or Path, optional
         Figure folder.
+    frequency : {'Hz', 'rad/s'}
+        Frequency axis of the FRC figures.
 
     Returns
     -------
@@ -59,7 +61,8 @@ def make_figures(result, outdir=None) -> list[Path]:
     with h5py.File(result, "r") as h5:
         for group, plotter in plotters().items():
             if group in h5:
-                written.extend(plotter(h5, d))
+                written.extend(plotter(h5, d, frequency=frequency) if group == "hbm"
+                               else plotter(h5, d))
     if not written:
         log.warning("%s: nothing to plot", result)
     return written

@@ -7,39 +7,101 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from ..io.hdf5 import unit
 from .common import backbone_section, pyplot, quantity_label
 
 log = logging.getLogger(__name__)
 
 
-def plot_frc(h5: h5py.File, outdir: Path) -> list[Path]:
-    """Amplitude at the response DOF against frequency, one curve per force level."""
+def excitation_amplitude(h5) -> float:
+    """First-harmonic force amplitude of the scene's excitation at force scale 1
+    (the largest over the loads) [N], from the scene stored in the file; NaN
+    when the loads have no harmonic 1 (then no receptance is drawn)."""
+    from .. import _toml
+    try:
+        loads = _toml.loads(h5.attrs["scene"]).get("excitation", {}).get("loads", [])
+    except Exception:  # an old or foreign file: no receptance
+        return float("nan")
+    amps = []
+    for ld in loads:
+        force = ld.get("force", {})
+        if isinstance(force, dict):
+            for hm in force.get("harmonics", []):
+                if int(hm.get("h", 0)) == 1:
+                    amps.append(float(np.hypot(hm.get("cos", 0.0), hm.get("sin", 0.0))))
+    return max(amps) if amps and max(amps) > 0 else float("nan")
+
+
+def plot_frc(h5: h5py.File, outdir: Path, frequency: str = "Hz") -> list[Path]:
+    """Amplitude at the response DOF against frequency, one curve per force level.
+
+    Writes ``frc.png`` (amplitude on a linear axis) and, when the excitation
+    has a first harmonic, ``frc_receptance.png``: the receptance ``|X| / F``
+    on a log axis (``F`` the first-harmonic force amplitude of the branch),
+    where small and large force levels can be compared.  The frequency axis
+    is in Hz (``frequency="rad/s"`` on request: ``jointsim post --rad-s``).
+    A branch that gave up is marked with an x at its last point.
+
+    Parameters
+    ----------
+    h5 : h5py.File
+    outdir : Path
+    frequency : {'Hz', 'rad/s'}
+    """
     plt = pyplot()
     g = h5["hbm"]
     if "omega" not in g or g["omega"].shape[0] == 0:
         return []
+    if frequency not in ("Hz", "rad/s"):
+        raise ValueError(f"frequency must be 'Hz' or 'rad/s', got {frequency!r}")
     units = h5.attrs.get("units", "SI")
     om, amp, br = g["omega"][()], g["amplitude"][()], g["branch"][()]
     scales = g["force_scale"][()]
-    fig, ax = plt.subplots(figsize=(7, 4.6))
-    for b in np.unique(br):
-        m = br == b
-        line, = ax.plot(om[m], amp[m], ".-", ms=2.5, lw=1.2,
-                        label=f"force x {scales[b]:g} ({int(m.sum())} points)")
-        if "peak_amplitude" in g and np.isfinite(g["peak_amplitude"][b]):
-            ax.plot(g["peak_omega"][b], g["peak_amplitude"][b], "o", mfc="none",
-                    color=line.get_color())
-    ax.set_xlabel(quantity_label("omega", "angular_frequency", units))
+    to_x = (1.0 / (2 * np.pi)) if frequency == "Hz" else 1.0
+    xlabel = quantity_label("f", "frequency", units) if frequency == "Hz" else \
+        quantity_label("omega", "angular_frequency", units)
+    measure = str(g.attrs.get("amplitude_measure", "fundamental"))
+    sym = {"fundamental": "|X_1|", "rms": "x_rms", "peak_to_peak": "x_pp"}.get(measure, "|X|")
     where = str(g.attrs.get("response_label", "")) or f"DOF {int(g.attrs.get('response_dof', 0))}"
-    ax.set_ylabel(quantity_label(f"|X_1| at {where}", "displacement", units))
-    ax.set_title("frequency response (fundamental amplitude); circles: peaks", fontsize=9)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    path = outdir / "frc.png"
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return [path]
+    F1 = excitation_amplitude(h5)
+    kinds = [("frc.png", 1.0, False)]
+    if np.isfinite(F1):
+        kinds.append(("frc_receptance.png", F1, True))
+    paths = []
+    for name, F1k, receptance in kinds:
+        fig, ax = plt.subplots(figsize=(7, 4.6))
+        for b in np.unique(br):
+            m = br == b
+            div = F1k * scales[b] if receptance else 1.0
+            gave_up = str(g.attrs.get(f"branch{b}_status", "")) == "gave up"
+            line, = ax.plot(om[m] * to_x, amp[m] / div, ".-", ms=2.5, lw=1.2,
+                            label=f"force x {scales[b]:g} ({int(m.sum())} points"
+                                  f"{', gave up' if gave_up else ''})")
+            if gave_up:
+                ax.plot(om[m][-1] * to_x, amp[m][-1] / div, "x", ms=8, mew=2,
+                        color=line.get_color())
+            if "peak_amplitude" in g and np.isfinite(g["peak_amplitude"][b]):
+                ax.plot(g["peak_omega"][b] * to_x, g["peak_amplitude"][b] / div, "o",
+                        mfc="none", color=line.get_color())
+        ax.set_xlabel(xlabel)
+        if receptance:
+            ax.set_yscale("log")
+            d_u, f_u = unit("displacement", units), unit("force", units)
+            ax.set_ylabel(f"{sym} / F at {where} [{d_u}/{f_u}]")
+            ax.set_title(f"receptance ({measure} amplitude / force amplitude F = "
+                         f"{F1:g} x scale); circles: peaks", fontsize=9)
+        else:
+            ax.set_ylabel(quantity_label(f"{sym} at {where}", "displacement", units))
+            ax.set_title(f"frequency response ({measure} amplitude); circles: peaks",
+                         fontsize=9)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        path = outdir / name
+        fig.savefig(path, dpi=130)
+        plt.close(fig)
+        paths.append(path)
+    return paths
 
 
 def plot_epmc(h5: h5py.File, outdir: Path) -> list[Path]:

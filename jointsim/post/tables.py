@@ -76,7 +76,7 @@ def info_text(path) -> str:
                 text = fn(h5)
                 if text:
                     lines.append(text)
-        if "masing" in h5:
+        if "masing" in h5 and h5["masing/dev_manifold"].shape[0]:
             lines.append(masing_table(h5))
     return "\n".join(lines)
 

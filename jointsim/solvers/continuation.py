@@ -21,6 +21,13 @@ tolerances refer to the scaled quantities.
   beyond it), then the corner rules below, then halves the step and retries;
   below ``step_min`` the branch gives up and returns what it has with the
   reason.
+* Monitored change (optional ``monitor(y) -> array``, values already divided
+  by their largest allowed change per step): a corrected point whose
+  monitored values changed by more than 1 is rejected and the step shrunk in
+  proportion (down to ``2 step_min``), and the next step is kept below that
+  limit too.  EPMC monitors the damping ratio and the log of the frequency,
+  so the corner of the backbone at the slip onset is resolved without a
+  small step everywhere.
 * Corners (when the step is already small): a point beyond a corner of
   the branch of up to 80 degrees is accepted although it lies far from the
   predictor (``CORNER_JUMP``); failing that, the tangent of the piece beyond
@@ -211,6 +218,9 @@ class Continuation:
         Tangent guess at the start (scaled); default ``+-e_lam`` towards the end.
     desc : str
         Name of the branch in log messages.
+    monitor : callable, optional
+        ``monitor(y) -> ndarray`` of quantities (unscaled ``y``) divided by
+        their largest allowed change per step (see the module docstring).
 
     Attributes
     ----------
@@ -246,8 +256,9 @@ class Continuation:
                  step_min: float, step_max: float, max_points: int, tol: float,
                  max_iter: int = 20, target_iter: int = 4, max_jump: float = 2.0,
                  backtrack: int = 4, stall: int = 5, solve_first: bool = True,
-                 tangent0=None, desc: str = "continuation"):
+                 tangent0=None, desc: str = "continuation", monitor=None):
         y0 = np.asarray(y0, dtype=float).copy()
+        self.monitor = monitor
         self.fun = fun
         self.scale = np.asarray(scale, dtype=float)
         self.rscale = float(rscale)
@@ -391,6 +402,15 @@ class Continuation:
             self.n_failed += 1
         return ok, yc, R, J, extra, it
 
+    def _monitor_change(self, yk, yc) -> float:
+        """Largest change of the monitored quantities from ``yk`` to ``yc`` (scaled
+        points; 0 without a monitor)."""
+        if self.monitor is None:
+            return 0.0
+        d = np.asarray(self.monitor(yc * self.scale)) - np.asarray(self.monitor(yk * self.scale))
+        c = float(np.abs(d).max(initial=0.0))
+        return c if np.isfinite(c) else 0.0
+
     def _try_longer(self, yk, t, h):
         """Longer steps (4 and 16 times, at most ``step_max``) over a kink.
 
@@ -480,6 +500,14 @@ class Continuation:
             if not ok and CORNERS and corner_tries < 2 and h < 0.05 * step_max:
                 corner_tries += 1
                 ok, h, yc, R, J, extra, it = self._try_corner(yk, t, h)
+            change = self._monitor_change(yk, yc) if ok else 0.0
+            if ok and change > 1.0 and h > 2.0 * step_min:
+                # too large a change of a monitored quantity (e.g. damping at the
+                # slip onset): shrink in proportion and retry
+                self.n_failed += 1
+                self.h = max(h * max(0.9 / change, 0.05), 2.0 * step_min)
+                corner_tries, jump_tries = 2, 1  # no longer steps or corner tricks now
+                continue
             if ok:
                 break
             self.h = h * 0.5
@@ -503,6 +531,8 @@ class Continuation:
         self._accept(yc, info)
         self._yh, self._t = yc, t_new
         fac = np.sqrt(self.target_iter / max(it, 1))
+        if change > 0.0:
+            fac = min(fac, 0.9 / change)
         self.h = float(np.clip(h * np.clip(fac, 0.5, 2.0), step_min, step_max))
         self._check_max_points()
         return self.message
@@ -513,7 +543,8 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                     max_iter: int = 20, target_iter: int = 4, max_jump: float = 2.0,
                     backtrack: int = 4, stall: int = 5,
                     solve_first: bool = True, tangent0=None, on_point=None,
-                    progress: bool = True, desc: str = "continuation") -> Branch:
+                    progress: bool = True, desc: str = "continuation",
+                    monitor=None) -> Branch:
     """Follow the solution branch of ``R(z, lam) = 0`` from ``y0`` to ``lam = lam_end``.
 
     Drives a :class:`Continuation` (whose parameters it takes) to its end.
@@ -522,7 +553,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
     ----------
     fun, y0, lam_end, scale, rscale, step, step_min, step_max, max_points, tol
         As for :class:`Continuation`.
-    max_iter, target_iter, max_jump, backtrack, stall, solve_first, tangent0, desc
+    max_iter, target_iter, max_jump, backtrack, stall, solve_first, tangent0, desc, monitor
         As for :class:`Continuation`.
     on_point : callable, optional
         ``on_point(index, y, info: PointInfo)`` for every accepted point, as
@@ -544,7 +575,8 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                             step_min=step_min, step_max=step_max, max_points=max_points,
                             tol=tol, max_iter=max_iter, target_iter=target_iter,
                             max_jump=max_jump, backtrack=backtrack, stall=stall,
-                            solve_first=solve_first, tangent0=tangent0, desc=desc)
+                            solve_first=solve_first, tangent0=tangent0, desc=desc,
+                            monitor=monitor)
         span = abs(cont.lam_end - cont.lam0)
         done = 0
         while True:

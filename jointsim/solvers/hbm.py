@@ -402,8 +402,12 @@ def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: in
     return scale, rref
 
 
-def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float):
+def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,
+                amplitude_of=None):
     """Refine the largest amplitude of a branch by maximising over frequency.
+
+    ``amplitude_of(X) -> float`` is the measure maximised (default: the
+    fundamental amplitude at ``dof``; ``amplitude`` must use the same one).
 
     Only where the branch is single-valued around its largest point (the
     frequency increases through it); at a fold the largest computed point is
@@ -426,6 +430,8 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float)
         if not sol.convergence.success:
             return -float(amplitude[i])
         zs["z"] = sol.z
+        if amplitude_of is not None:
+            return -float(amplitude_of(sol.X))
         return -float(harmonic_amplitude(system.basis, sol.X[:, dof]))
 
     lo, hi = float(omega[i - 1]), float(omega[i + 1])

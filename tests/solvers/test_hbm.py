@@ -201,7 +201,8 @@ def test_chain_stuck_branch_peak_equals_linear_frf_peak(tmp_path):
     the refined peak equals its peak; F = 0.2 slips and its peak is lower."""
     from scipy.optimize import minimize_scalar
     out = tmp_path / "chain.h5"
-    sc = load_scene(MODELS / "chain2_jenkins.toml", ["analysis.hbm.force_scale=[0.01, 0.2]"])
+    sc = load_scene(MODELS / "chain2_jenkins.toml", ["analysis.hbm.force_scale=[0.01, 0.2]",
+                                                    "analysis.hbm.loops=all"])
     run_scene(sc, out)
     K = np.array([[2.0, -1.0], [-1.0, 2.25]])
     C = 0.01 * np.eye(2)
