@@ -321,7 +321,15 @@ class Joint:
     chi: float = spec(-0.5, doc="Iwan exponent of the slider density", gt=-1, le=1)
     beta: float = spec(0.1, doc="Iwan ratio of the macroslip spike to the power-law part",
                        ge=0)
-    n_sliders: int = spec(40, doc="Iwan sliders per element", ge=2, le=10_000)
+    n_sliders: Optional[int] = spec(
+        None, doc="Iwan sliders per element; default: the fewest (geometric spacing) whose "
+                  "dissipation per cycle is within joint.iwan_rtol of Segalman's closed form "
+                  "from 0.01 phi_max to macroslip (uniform spacing: 40)", ge=2, le=10_000)
+    iwan_spacing: str = spec("geometric", choices=("geometric", "uniform"),
+                             doc="Iwan slider bins: 'geometric' (resolves deep microslip) or "
+                                 "'uniform' (equal width in slip displacement)")
+    iwan_rtol: float = spec(0.01, doc="Iwan dissipation accuracy that sets the default slider "
+                                      "count (geometric spacing)", gt=0, lt=1)
 
 
 @dataclass(frozen=True, kw_only=True)

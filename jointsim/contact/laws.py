@@ -20,6 +20,7 @@ Every law is a *slider bank* (see :mod:`jointsim.contact._kernels`): slider
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -29,15 +30,20 @@ from . import _aft_kernels as AK
 from . import _kernels as K
 
 
-def iwan4_sliders(KT: float, Fs: float, chi: float, beta: float, n: int):
+def iwan4_sliders(KT: float, Fs: float, chi: float, beta: float, n: int,
+                  spacing: str = "uniform", lowest: float = 1e-3):
     """Discretise Segalman's 4-parameter Iwan element into ``n`` Jenkins sliders.
 
     The power-law part of the slider density, ``R phi^chi`` on
-    ``[0, phi_max]``, is split into ``n - 1`` equal-width bins; each bin
-    becomes one slider with the bin's exact stiffness and a slip displacement
-    at the bin's centroid, so that the total stiffness ``KT`` and the total
-    slip force ``Fs`` are exact.  The spike ``S delta(phi - phi_max)`` is the
-    last slider.
+    ``[0, phi_max]``, is split into ``n - 1`` bins; each bin becomes one slider
+    with the bin's exact stiffness and a slip displacement at the bin's
+    centroid, so that the total stiffness ``KT`` and the total slip force
+    ``Fs`` are exact.  The spike ``S delta(phi - phi_max)`` is the last slider.
+    Bins of equal width (``spacing = "uniform"``) resolve deep microslip
+    badly (no slider slips below ``phi_max / (n - 1)``); geometric bins
+    (``[0, lowest phi_max]`` then a geometric sequence up to ``phi_max``) keep
+    the relative dissipation error about constant down to small amplitudes
+    (:func:`iwan4_dissipation_error`, :func:`iwan4_design`).
 
     Parameters
     ----------
@@ -51,6 +57,10 @@ def iwan4_sliders(KT: float, Fs: float, chi: float, beta: float, n: int):
         Ratio of the spike to the power-law part (>= 0).
     n : int
         Number of sliders (>= 2).
+    spacing : {"uniform", "geometric"}
+        Bin edges.
+    lowest : float
+        Geometric spacing: the first bin edge above 0, relative to ``phi_max``.
 
     Returns
     -------
@@ -62,16 +72,92 @@ def iwan4_sliders(KT: float, Fs: float, chi: float, beta: float, n: int):
     if n < 2:
         raise ValueError("an Iwan element needs at least 2 sliders")
     _c, phimax, R, S = iwan4_constants(KT, Fs, chi, beta)
-    edges = np.linspace(0.0, phimax, n)
-    p1 = edges ** (chi + 1.0)
-    p2 = edges ** (chi + 2.0)
+    edges = phimax * _iwan4_edges(n, spacing, lowest)
     k = np.empty(n)
     fs = np.empty(n)
-    k[:-1] = R * np.diff(p1) / (chi + 1.0)
-    fs[:-1] = R * np.diff(p2) / (chi + 2.0)
+    k[:-1] = R * np.diff(edges ** (chi + 1.0)) / (chi + 1.0)
+    fs[:-1] = R * np.diff(edges ** (chi + 2.0)) / (chi + 2.0)
     k[-1] = S  # beta = 0 leaves a slider of zero stiffness and strength
     fs[-1] = S * phimax
     return k, fs
+
+
+def _iwan4_edges(n: int, spacing: str, lowest: float) -> np.ndarray:
+    """Bin edges of the power-law part relative to ``phi_max``, shape (n,)."""
+    if spacing == "uniform" or n == 2:
+        return np.linspace(0.0, 1.0, n)
+    if spacing == "geometric":
+        return np.concatenate([[0.0], np.geomspace(lowest, 1.0, n - 1)])
+    raise ValueError(f"unknown slider spacing {spacing!r}")
+
+
+def iwan4_dissipation_error(chi: float, n: int, spacing: str = "geometric",
+                            lowest: float = 1e-3, a_min: float = 0.01,
+                            n_check: int = 200) -> float:
+    """Largest relative error of the discretised Iwan element's dissipation per cycle.
+
+    Against Segalman's closed form ``D = 4 R A^(chi+3) / ((chi+2)(chi+3))``
+    (DESIGN §5) at amplitudes ``A`` from ``a_min phi_max`` to ``phi_max``
+    (log-spaced), under constant normal load: there each slider is a Jenkins
+    element, whose dissipation is ``4 fs (A - fs/k)`` once it slips.  The
+    error does not depend on ``KT``, ``Fs`` or ``beta``.  In macroslip the
+    relative error only falls (the spike's dissipation is exact).
+
+    Returns
+    -------
+    float
+        ``max |D_discrete / D - 1|`` [-].
+    """
+    KT, Fs, beta = 1.0, 1.0, 0.0
+    _c, phimax, R, _S = iwan4_constants(KT, Fs, chi, beta)
+    k, fs = iwan4_sliders(KT, Fs, chi, beta, n, spacing, lowest)
+    k, fs = k[:-1], fs[:-1]
+    phi = fs / k
+    A = np.geomspace(a_min, 1.0, n_check)[:, None] * phimax
+    D = 4.0 * np.sum(np.where(A > phi, fs * (A - phi), 0.0), axis=1)
+    exact = 4.0 * R * A[:, 0] ** (chi + 3.0) / ((chi + 2.0) * (chi + 3.0))
+    return float(np.max(np.abs(D / exact - 1.0)))
+
+
+#: First geometric bin edges tried by :func:`iwan4_design` (relative to phi_max).
+IWAN_LOWEST = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2)
+
+
+@functools.lru_cache(maxsize=64)
+def iwan4_design(chi: float, rtol: float, a_min: float = 0.01, n: int | None = None):
+    """The Iwan discretisation that meets a dissipation accuracy.
+
+    Parameters
+    ----------
+    chi : float
+        Exponent of the slider density.
+    rtol : float
+        Largest relative dissipation error wanted from ``a_min phi_max`` to
+        macroslip (:func:`iwan4_dissipation_error`).
+    a_min : float
+        Smallest amplitude of interest, relative to ``phi_max``.
+    n : int, optional
+        A given slider count: then only the spacing is chosen.
+
+    Returns
+    -------
+    n : int
+        The fewest sliders (geometric spacing) that meet ``rtol`` (at most 2000).
+    lowest : float
+        The first geometric bin edge, relative to ``phi_max``.
+    error : float
+        The error reached.
+    """
+    counts = [n] if n is not None else list(range(4, 41)) + list(range(44, 2001, 4))
+    best = None
+    for m in counts:
+        for lo in IWAN_LOWEST:
+            err = iwan4_dissipation_error(chi, m, "geometric", lo, a_min)
+            if best is None or err < best[2]:
+                best = (m, lo, err)
+        if best[2] <= rtol and best[0] == m:
+            return best
+    return best
 
 
 def iwan4_constants(KT: float, Fs: float, chi: float, beta: float):
@@ -464,12 +550,18 @@ def iwan4_parameters(joint, KT, mu):
 
     The slider stiffnesses do not depend on N; the slip forces scale with it,
     so the element is discretised at N = 1 (slip forces per unit normal load).
+    With ``joint.iwan_spacing = "geometric"`` (default) the slider count, when
+    not given, is the fewest that meets ``joint.iwan_rtol`` (:func:`iwan4_design`).
     """
     ne = KT.size
-    k = np.empty((ne, joint.n_sliders))
-    g = np.empty((ne, joint.n_sliders))
+    n, lowest = joint.n_sliders or 40, 1e-3
+    if joint.iwan_spacing == "geometric":
+        n, lowest, _err = iwan4_design(joint.chi, joint.iwan_rtol, n=joint.n_sliders)
+    k = np.empty((ne, n))
+    g = np.empty((ne, n))
     for e in range(ne):
-        k[e], g[e] = iwan4_sliders(KT[e], joint.mu, joint.chi, joint.beta, joint.n_sliders)
+        k[e], g[e] = iwan4_sliders(KT[e], joint.mu, joint.chi, joint.beta, n,
+                                   joint.iwan_spacing, lowest)
     return k, g
 
 
