@@ -369,6 +369,11 @@ class HBMAnalysis:
                       doc="points whose element loops and Masing checks are kept: those of "
                           "analysis.masing.points (empty: every point), or each branch's "
                           "largest-amplitude point")
+    linear_solver: str = spec("auto", choices=("auto", "direct", "krylov"),
+                              doc="Newton linear solves: dense LU ('direct', the reference), "
+                                  "preconditioned GMRES on the structured Jacobian without "
+                                  "forming it ('krylov'), or 'auto' (Krylov from 1200 "
+                                  "unknowns on); see docs/hbm.md")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -397,6 +402,8 @@ class EPMCAnalysis:
     max_iter: int = spec(20, doc="Newton iterations per corrector", ge=1)
     min_periods: int = spec(2, doc="AFT: periods the laws are marched at least", ge=2)
     max_periods: int = spec(50, doc="AFT: periods marched at most", ge=2)
+    linear_solver: str = spec("auto", choices=("auto", "direct", "krylov"),
+                              doc="as analysis.hbm.linear_solver")
     loop_amplitudes: tuple[float, ...] = spec(
         (), doc="modal amplitudes at which the element loops and Masing checks are kept "
                 "(the first point at or past each); empty: the points of "
