@@ -55,6 +55,8 @@ KRYLOV_MAXITER = 400
 #: Unknowns ``n_z`` from which ``linear_solver = "auto"`` chooses Krylov.
 KRYLOV_MIN_UNKNOWNS = 1200
 LINEAR_SOLVERS = ("auto", "direct", "krylov")
+#: Add the element-block stage to the harmonic preconditioner.
+TWO_STAGE = True
 
 
 @dataclass
@@ -241,24 +243,37 @@ class HBMJacobian:
         self._ic = np.array([basis.index[k][0] for k in h])
         self._is = np.array([basis.index[k][1] if k else basis.index[k][0] for k in h])
         self._h0 = np.array([k == 0 for k in h])
+        self._S = [None] * len(blocks)        # S_h once formed (shared by scaled copies)
 
     # -- pieces -------------------------------------------------------------------
     def scaled(self, col) -> "HBMJacobian":
         """``J diag(col)`` (same pieces, same cache)."""
-        return HBMJacobian(self.basis, self.lin, self.blocks, self.t_row, self.n_row,
-                           self.Juu, self.Jug, self.JNN, self.col * col, self.stats, self.cache)
+        out = HBMJacobian(self.basis, self.lin, self.blocks, self.t_row, self.n_row,
+                          self.Juu, self.Jug, self.JNN, self.col * col, self.stats, self.cache)
+        out._S = self._S
+        return out
+
+    def form_schur(self) -> None:
+        """Form and keep every ``S_h`` (n_r x n_r each), for fast products."""
+        for i in range(len(self.blocks)):
+            self.schur(i)
 
     def schur(self, i: int) -> np.ndarray:
-        """``S_h`` (complex, n_r x n_r) of the ``i``-th harmonic (formed)."""
-        A, B, Bp, Ef = self.blocks[i]
-        if not self.lin.n_y:
-            return np.array(A, dtype=complex)
-        return A - B @ self.lin.solve_E(Ef, Bp)
+        """``S_h`` (complex, n_r x n_r) of the ``i``-th harmonic (formed once, then kept)."""
+        if self._S[i] is None:
+            A, B, Bp, Ef = self.blocks[i]
+            self._S[i] = np.array(A, dtype=complex) if not self.lin.n_y \
+                else A - B @ self.lin.solve_E(Ef, Bp)
+        return self._S[i].copy()
 
     def _apply_S(self, Xc, herm: bool = False):
         """``S_h x_h`` (or ``S_h^H x_h``) for every harmonic; ``Xc`` (n_h, n_r) complex."""
         lin = self.lin
         out = np.empty_like(Xc)
+        if all(S is not None for S in self._S):
+            for i, S in enumerate(self._S):      # formed (n_r^2 per harmonic)
+                out[i] = (S.conj().T @ Xc[i]) if herm else S @ Xc[i]
+            return out
         for i, (A, B, Bp, Ef) in enumerate(self.blocks):
             x = Xc[i]
             if herm:
@@ -364,7 +379,7 @@ class HBMJacobian:
     def solve(self, b) -> np.ndarray:
         """``J^-1 b`` by preconditioned GMRES (see :func:`krylov_solve`)."""
         return krylov_solve(self, self.matvec, np.asarray(b, dtype=float),
-                            lambda P: (lambda v: P.solve(v) / self.col))
+                            lambda P: (lambda v: P.apply(v, self)))
 
 
 def add_element_blocks(J, nr, nc, t_row, n_row, Juu, Jug, JNN):
@@ -418,6 +433,59 @@ class HarmonicPreconditioner:
             if h == 0:
                 P = P.real
             self.lu.append(sla.lu_factor(P, check_finite=False))
+        self._element_blocks()
+
+    def _element_blocks(self):
+        """Inverse of each element's own block of ``J`` (its slip and gap rows over all
+        coefficients, contact tangent with its harmonic coupling plus the diagonal of
+        ``S_h``): the second stage of the preconditioner."""
+        jac = self.jac
+        nc, ne = jac.n_c, len(jac.t_row)
+        rows = [jac.t_row] + ([jac.n_row] if jac.JNN is not None else [])
+        if jac.Juu is None:
+            rows = [jac.n_row]
+        nb = len(rows)
+        Bk = np.zeros((ne, nb * nc, nb * nc))
+        for a, ra in enumerate(rows):
+            for b, rb in enumerate(rows):
+                for i, h in enumerate(jac.basis.harmonics):
+                    S = jac._S[i][ra, rb] if jac._S[i] is not None else jac.schur(i)[ra, rb]
+                    ic, is_ = jac._ic[i], jac._is[i]
+                    Bk[:, a * nc + ic, b * nc + ic] += S.real
+                    if h:
+                        Bk[:, a * nc + ic, b * nc + is_] += S.imag
+                        Bk[:, a * nc + is_, b * nc + ic] -= S.imag
+                        Bk[:, a * nc + is_, b * nc + is_] += S.real
+        if jac.Juu is not None:
+            Bk[:, :nc, :nc] += jac.Juu
+            if jac.Jug is not None and nb == 2:
+                Bk[:, :nc, nc:] += jac.Jug
+        if jac.JNN is not None:
+            Bk[:, -nc:, -nc:] -= jac.JNN
+        self.rows = np.concatenate(rows)
+        self.nb = nb
+        self.Binv = np.linalg.inv(Bk)
+
+    def apply(self, v, jac) -> np.ndarray:
+        """The preconditioner of the scaled ``jac = J diag(col)``: ``diag(col)^-1 P^-1 v``
+        (two-stage when ``TWO_STAGE``)."""
+        if TWO_STAGE:
+            return self.solve2(v, lambda x: jac.matvec(x / jac.col)) / jac.col
+        return self.solve(v) / jac.col
+
+    def solve2(self, v, matvec) -> np.ndarray:
+        """Two-stage: ``x = P^-1 v``, then ``x += B^-1 (v - J x)`` (element blocks)."""
+        jac = self.jac
+        x = self.solve(v)
+        r = (v - matvec(x)).reshape(jac.n_c, jac.n_r)
+        ne = len(jac.t_row)
+        rb = r[:, self.rows].T.reshape(self.nb, ne, jac.n_c).transpose(1, 0, 2) \
+            .reshape(ne, -1)
+        d = np.einsum("eij,ej->ei", self.Binv, rb)
+        d = d.reshape(ne, self.nb, jac.n_c).transpose(1, 0, 2).reshape(-1, jac.n_c).T
+        X = x.reshape(jac.n_c, jac.n_r).copy()
+        X[:, self.rows] += d
+        return X.ravel()
 
     def solve(self, v) -> np.ndarray:
         """``P^-1 v`` for the unscaled ``J``, shape (n_z,)."""
@@ -435,14 +503,17 @@ class HarmonicPreconditioner:
 def krylov_solve(core: HBMJacobian, matvec, b, make_psolve):
     """GMRES for ``A x = b`` with the preconditioner of ``core`` (cached or rebuilt).
 
-    A solve that fails with a reused preconditioner is repeated with one built
-    from ``core``.  Raises ``RuntimeError`` when GMRES does not reach
+    A reused preconditioner gets ``2 refresh_iterations`` GMRES iterations;
+    when they do not suffice the solve is repeated with one built from ``core``.  Raises ``RuntimeError`` when GMRES does not reach
     ``KRYLOV_RTOL`` and reduces the residual by less than ``1e-6`` (Newton
     treats that as a singular Jacobian).
     """
     cache, stats = core.cache, core.stats
+    core.form_schur()
     P, fresh = cache.get(core)
-    x, it, rel = gmres(matvec, b, make_psolve(P))
+    # a reused preconditioner gets a short budget before it is rebuilt
+    x, it, rel = gmres(matvec, b, make_psolve(P),
+                       maxiter=KRYLOV_MAXITER if fresh else 2 * cache.refresh_iterations)
     total = it
     if rel > KRYLOV_RTOL and not fresh:
         P = cache.refresh(core)
@@ -523,7 +594,7 @@ class BorderedJacobian:
 
         def make_psolve(P):
             def pj(v):
-                return P.solve(v) / J.col
+                return P.apply(v, J)
             X = np.column_stack([pj(c) for c in C.T])
             Sm = D - R @ X
             Sinv = np.linalg.pinv(Sm)
