@@ -1,7 +1,8 @@
 """Scaling of the harmonic balance with the number of contact elements (issue 10).
 
-For each interface resolution (25, 60, 120, 240, 480 node-to-node pairs: lap
-meshes from ``meshes/make_meshes.py`` with ``--dx-lap = 0.24 / (n - 1)``), the
+For each interface resolution (25, 57, 121, 241, 481 node-to-node pairs: lap
+meshes from ``meshes/make_meshes.py`` with ``--dx-lap = 0.03 / k``, ``n = 8 k + 1``
+pairs, the spacing having to place nodes at the lap's ends and at +-30 mm), the
 default lap-joint scene (coupled N with separation, H = 0..7, Nt = 128) runs
 
 * one FRC branch (force scale 2, the microslip level) for ``--points`` points;
@@ -14,12 +15,12 @@ once with ``"direct"``.  Printed per case: unknowns, Newton iterations, GMRES
 iterations, time per point (analysis time / points) of both paths, their
 ratio, the largest relative difference of ``X`` between the two paths over
 the points they share, and peak memory; then the fitted exponent ``p`` of
-time per point ~ n^p (Krylov path, least squares over the sizes from 60 on).
+time per point ~ n^p (Krylov path, least squares over the sizes from 57 on).
 
 Usage::
 
     python benchmarks/scale.py                      # all sizes (long)
-    python benchmarks/scale.py --elements 25 60 120 --points 6
+    python benchmarks/scale.py --elements 25 57 121 --points 6
 """
 from __future__ import annotations
 
@@ -43,7 +44,7 @@ def _mesh(n: int, cache: Path) -> Path:
         return ROOT / "meshes" / "lap_joint_default.msh"
     if not path.exists():
         subprocess.run([sys.executable, str(ROOT / "meshes" / "make_meshes.py"), "--dx-lap",
-                        f"{0.24 / (n - 1):.6g}", "--dx-full", "0.01", "--ny-half", "2",
+                        f"{0.03 / round((n - 1) / 8):.8g}", "--dx-full", "0.01", "--ny-half", "2",
                         "-o", str(path)], check=True, capture_output=True)
     return path
 
@@ -100,7 +101,7 @@ def _run_child(mesh, analysis, solver, points, tmp) -> dict:
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--elements", type=int, nargs="+", default=[25, 60, 120, 240, 480])
+    p.add_argument("--elements", type=int, nargs="+", default=[25, 57, 121, 241, 481])
     p.add_argument("--points", type=int, default=6)
     p.add_argument("--dense-limit", type=float, default=120.0,
                    help="run the dense path while its estimated time is below this [s]")
@@ -142,7 +143,7 @@ def main(argv=None) -> None:
                 print(f"{n:>5} {k['n_z']:>6} {k['points']:>4} {k['newton']:>6} "
                       f"{k['krylov']:>6} {kt:>11.3f} {dt:>10.3f} {dt / kt:>6.2f} {dx:>8.1e} "
                       f"{k['rss_mb']:>9.0f} {d['rss_mb'] if d else np.nan:>8.0f}", flush=True)
-            sel = [i for i, n in enumerate(sizes) if n >= 60]
+            sel = [i for i, n in enumerate(sizes) if n >= 57]
             if len(sel) >= 2:
                 pfit = np.polyfit(np.log([sizes[i] for i in sel]),
                                   np.log([tpp[i] for i in sel]), 1)[0]
