@@ -447,6 +447,11 @@ class HBMAnalysis:
                               "DOF: 'fundamental' sqrt(X_1c^2 + X_1s^2), 'rms' the RMS of "
                               "x(t) over all harmonics kept (the mean included), "
                               "'peak_to_peak' max x(t) - min x(t) over the AFT samples")
+    linear_solver: str = spec("auto", choices=("auto", "direct", "krylov"),
+                              doc="Newton linear solves: dense LU ('direct', the reference), "
+                                  "preconditioned GMRES on the structured Jacobian without "
+                                  "forming it ('krylov'), or 'auto' (Krylov from 1200 "
+                                  "unknowns on); see docs/hbm.md")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -475,6 +480,8 @@ class EPMCAnalysis:
     max_iter: int = spec(20, doc="Newton iterations per corrector", ge=1)
     min_periods: int = spec(2, doc="AFT: periods the laws are marched at least", ge=2)
     max_periods: int = spec(50, doc="AFT: periods marched at most", ge=2)
+    linear_solver: str = spec("auto", choices=("auto", "direct", "krylov"),
+                              doc="as analysis.hbm.linear_solver")
     loop_amplitudes: tuple[float, ...] = spec(
         (), doc="modal amplitudes at which the element loops and Masing checks are kept "
                 "(the first point at or past each); empty: the points of "

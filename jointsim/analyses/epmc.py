@@ -79,7 +79,8 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     """
     t_start = time.perf_counter()
     a = scene.analysis.epmc
-    system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods)
+    system = HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods,
+                        linear_solver=a.linear_solver)
     em = elastic_mode(model, a.mode, a.rigid_cutoff_hz)
     F = system.force_coefficients(0.0)
     ep = EPMCSystem(system, em.phi, F)
@@ -90,6 +91,9 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
         return
     y0, t0, h0, solve_first, max_pts = _start(writer, a, system, em, xi0)
     scale, rscale = _scales(ep, y0, em.omega)
+    system.stats.take()
+    writer.h5["epmc"].attrs["linear_solver"] = system.linear_solver
+    writer.h5["epmc"].attrs["n_unknowns"] = system.n_z
     on_point = _point_writer(writer, scene, model, system, ep, F, solve_first)
     br = continue_branch(ep.fun, y0, a.log10_amplitude_end, scale=scale, rscale=rscale,
                          step=h0, step_min=a.step_min, step_max=a.step_max,
@@ -155,7 +159,8 @@ def _scales(ep, y0, w0):
     zscale = max(float(np.abs(y0[:nz]).max(initial=0.0)), 1e-300) if nz else 1.0
     scale = np.concatenate([np.full(nz, zscale), [w0, w0, 1.0]])
     R0, J0, _ = ep.fun(y0)
-    rscale = max(float(np.abs(J0[:nz, :nz]).max(initial=0.0)) * zscale, 1e-300) if nz else 1.0
+    jmax = J0.J.max_abs() if hasattr(J0, "J") else float(np.abs(J0[:nz, :nz]).max(initial=0.0))
+    rscale = max(jmax * zscale, 1e-300) if nz else 1.0
     return scale, rscale
 
 
@@ -193,6 +198,13 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
         writer.append("epmc/step", info.step, "1", "scaled arclength step")
         writer.append("epmc/y", y, "1", "unknowns (shape, omega, xi, log10 a), for --resume")
         writer.append("epmc/tangent", info.tangent, "1", "unit tangent (scaled)")
+        solves, krylov_it, factorizations = system.stats.take()
+        writer.append("epmc/linear_solves", np.int64(solves), "1",
+                      "linear solves since the previous point")
+        writer.append("epmc/krylov_iterations", np.int64(krylov_it), "1",
+                      "GMRES iterations summed over those solves (0: direct solver)")
+        writer.append("epmc/preconditioners", np.int64(factorizations), "1",
+                      "harmonic preconditioners factorised since the previous point")
         ev = info.extra
         if ev is not None and ev.aft is not None and keep(p, amp):
             u = system.slips(X)

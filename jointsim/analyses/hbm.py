@@ -8,6 +8,9 @@ File layout (all per solution point unless said otherwise):
   amplitude at the response DOF), ``/hbm/max_abs`` (``max_t |x(t)|`` there),
   ``/hbm/iterations``, ``/hbm/residual``, ``/hbm/step``,
   ``/hbm/aft_periods`` (largest number of periods the laws were marched),
+  ``/hbm/linear_solves``, ``/hbm/krylov_iterations``, ``/hbm/preconditioners``
+  (linear-algebra counts since the previous point; group attribute
+  ``linear_solver``: ``"direct"`` or ``"krylov"``),
   ``/hbm/tangent``;
 * once: ``/hbm/harmonics``, ``/hbm/force_scale`` [n_branches], and per
   branch ``/hbm/peak_omega``, ``/hbm/peak_amplitude``, ``/hbm/peak_refined``;
@@ -42,6 +45,7 @@ from ..solvers.continuation import continue_branch
 from ..solvers.crosscheck import HBMSolutions
 from ..harmonics import harmonic_amplitude
 from ..solvers.hbm import HBMSystem, frc_scales, refine_peak
+from ..solvers.jacobian import BorderedJacobian
 
 log = logging.getLogger(__name__)
 
@@ -158,7 +162,7 @@ def _system(model, a, parallel: bool = True) -> HBMSystem:
     ``parallel=False`` keeps the AFT kernels off numba threads (worker processes).
     """
     return HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods,
-                     parallel=parallel)
+                     parallel=parallel, linear_solver=a.linear_solver)
 
 
 def _response_dof(scene, model) -> int:
@@ -184,6 +188,7 @@ def _write_header(writer, a, model, system, dof):
                      response_label=str(model.dof_labels[dof]) if model.dof_labels else "",
                      omega_start=a.omega_start, omega_end=a.omega_end,
                      n_contact_coordinates=system.n_r, condensation=system.lin.kind,
+                     linear_solver=system.linear_solver, n_unknowns=system.n_z,
                      amplitude_measure=a.amplitude,
                      amplitude_definition=AMPLITUDE_MEASURES[a.amplitude])
     if "hbm/harmonics" not in writer.h5:
@@ -252,6 +257,12 @@ class _Output:
         writer.append("hbm/tangent", rec["tangent"], "1", "unit tangent (scaled variables)")
         writer.append("hbm/aft_periods", np.int64(rec["aft_periods"]), "1",
                       "largest number of periods the laws were marched")
+        writer.append("hbm/linear_solves", np.int64(rec["linear_solves"]), "1",
+                      "linear solves (Newton steps and tangents) since the previous point")
+        writer.append("hbm/krylov_iterations", np.int64(rec["krylov_iterations"]), "1",
+                      "GMRES iterations summed over those solves (0: direct solver)")
+        writer.append("hbm/preconditioners", np.int64(rec["preconditioners"]), "1",
+                      "harmonic preconditioners factorised since the previous point")
         for k in self.points:
             self.points[k].append(rec[k])
         if rec.get("f") is not None and (not self.masing_points or p in self.masing_points):
@@ -354,7 +365,9 @@ def _point_record(system, F, y, info, ib, dof, want_aft, measure="fundamental") 
     w = float(y[-1])
     X = system.reconstruct(y[:-1], w, F)
     aft = info.extra.aft if info.extra is not None else None
-    return dict(omega=w, X=X, q=np.array(y[:-1]), branch=ib,
+    solves, krylov_it, factorizations = system.stats.take()
+    return dict(linear_solves=solves, krylov_iterations=krylov_it,
+                preconditioners=factorizations, omega=w, X=X, q=np.array(y[:-1]), branch=ib,
                 amplitude=float(response_amplitude(b, X[:, dof], measure)),
                 max_abs=float(np.abs(b.samples(X[:, dof])).max()),
                 iterations=int(info.iterations), residual=float(info.residual),
@@ -373,6 +386,7 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
     """
     F = system.force_coefficients(job.fs)
     scale, rscale = frc_scales(system, F, a.omega_start, a.omega_end)
+    system.stats.take()          # the scales' solves are not a point's
     if job.start is not None:
         y0, t0, h0, n_stored = job.start
         solve_first, max_pts = False, a.max_points - n_stored + 1
@@ -382,6 +396,9 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
     nz = system.n_z
 
     def fun(y):
+        if system.krylov:
+            ev = system.evaluate(y[:-1], y[-1], F)
+            return ev.R, BorderedJacobian(ev.J, ev.dR["omega"]), ev
         J = np.zeros((nz, nz + 1))
         ev = system.evaluate(y[:-1], y[-1], F, J_out=J[:, :nz])
         J[:, nz] = ev.dR["omega"]

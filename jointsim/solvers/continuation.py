@@ -55,7 +55,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..results import (NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS, Convergence)
-from .newton import NewtonOptions, newton, solve_or_lstsq
+from .jacobian import append_row, drop_last_column, scale_columns, solve
+from .newton import NewtonOptions, newton
 
 log = logging.getLogger(__name__)
 
@@ -125,7 +126,7 @@ def _bordered(F, t, yk, h):
         return np.concatenate([R, [t @ (y - yk) - h]]), (R, J, extra)
 
     def jacobian(_y, _r, got):
-        return np.vstack([got[1], t[None, :]])
+        return append_row(got[1], t)
 
     def measure(_r, got):
         return np.abs(got[0]).max(initial=0.0)
@@ -136,10 +137,13 @@ def _bordered(F, t, yk, h):
 def tangent(J, t_prev):
     """Unit tangent of ``J t = 0`` oriented like ``t_prev`` (scaled variables)."""
     n1 = J.shape[1]
-    A = np.vstack([J, t_prev[None, :]])
+    A = append_row(J, t_prev)
     rhs = np.zeros(n1)
     rhs[-1] = 1.0
-    t = solve_or_lstsq(A, rhs)
+    try:
+        t = solve(A, rhs)
+    except (np.linalg.LinAlgError, RuntimeError):
+        return t_prev.copy()
     nt = np.linalg.norm(t)
     if not np.isfinite(nt) or nt == 0.0:
         return t_prev.copy()
@@ -306,7 +310,7 @@ class Continuation:
         """Scaled residual and Jacobian at the scaled point ``yh``."""
         self.nfev += 1
         R, J, extra = self.fun(yh * self.scale)
-        return R / self.rscale, J * self._col[None, :], extra
+        return R / self.rscale, scale_columns(J, self._col), extra
 
     def _accept(self, yh, info: PointInfo) -> None:
         self.points.append(yh * self.scale)
@@ -351,9 +355,10 @@ class Continuation:
         """Newton in z at fixed lam (scaled)."""
         def fun(z):
             R, J, extra = self._F(np.concatenate([z, [lam_h]]))
-            return R, J[:, :-1], (J, extra)
+            return R, drop_last_column(J), (J, extra)
 
-        res = newton(fun, yh[:-1], NewtonOptions(self.tol, self.max_iter, line_search="none"))
+        res = newton(fun, yh[:-1], NewtonOptions(self.tol, self.max_iter, line_search="none"),
+                     solve=solve)
         J, extra = res.extra
         return (np.concatenate([res.x, [lam_h]]), res.R, J, extra, res.iterations,
                 res.success)

@@ -38,6 +38,7 @@ import numpy as np
 
 from .condensation import dense_array
 from .hbm import HBMSystem
+from .jacobian import BorderedJacobian
 from .modes import elastic_mode
 
 log = logging.getLogger(__name__)
@@ -97,7 +98,11 @@ class EPMCSystem:
         return q1, ell, d
 
     def fun(self, y):
-        """Residual (n_z + 2,) and Jacobian (n_z + 2, n_z + 3) at ``y``, plus the evaluation."""
+        """Residual (n_z + 2,) and Jacobian (n_z + 2, n_z + 3) at ``y``, plus the evaluation.
+
+        The Jacobian is dense on the direct path and a
+        :class:`~jointsim.solvers.jacobian.BorderedJacobian` on the Krylov path.
+        """
         s = self.s
         nz = s.n_z
         zh, omega, xi, lam = y[:nz], y[nz], y[nz + 1], y[nz + 2]
@@ -105,27 +110,30 @@ class EPMCSystem:
             # a diverged Newton iterate: report it as non-finite, not as a warning
             return np.full(nz + 2, np.nan), np.full((nz + 2, nz + 3), np.nan), None
         a = 10.0 ** lam
-        J = np.zeros((nz + 2, nz + 3))
+        structured = s.krylov
+        J = None if structured else np.zeros((nz + 2, nz + 3))
         ev = s.evaluate(self.z0 + a * zh, omega, self.F, xi=xi, wrt=("omega", "xi"),
-                        J_out=J[:nz, :nz])
+                        J_out=None if structured else J[:nz, :nz])
         Rt = ev.R / a
         Q = zh.reshape(s.n_c, s.n_r)
         q1, ell, d = self._modal(Q, omega, xi, True)
         R = np.concatenate([Rt, [q1.real - 1.0, q1.imag]])
-        J[:nz, nz] = ev.dR["omega"] / a
-        J[:nz, nz + 1] = ev.dR["xi"] / a
-        J[:nz, nz + 2] = LN10 * (ev.J @ zh - Rt)
+        C = np.column_stack([ev.dR["omega"] / a, ev.dR["xi"] / a, LN10 * (ev.J @ zh - Rt)])
         ic, is_ = s.basis.index[1]
         nr = s.n_r
         cols_c = ic * nr + np.arange(nr)
         cols_s = is_ * nr + np.arange(nr)
         # q1 = ell . (qc - i qs)
-        J[nz, cols_c] = ell.real
-        J[nz, cols_s] = ell.imag
-        J[nz + 1, cols_c] = ell.imag
-        J[nz + 1, cols_s] = -ell.real
-        J[nz, nz] = d["omega"].real
-        J[nz + 1, nz] = d["omega"].imag
-        J[nz, nz + 1] = d["xi"].real
-        J[nz + 1, nz + 1] = d["xi"].imag
+        rows = np.zeros((2, nz))
+        rows[0, cols_c] = ell.real
+        rows[0, cols_s] = ell.imag
+        rows[1, cols_c] = ell.imag
+        rows[1, cols_s] = -ell.real
+        D = np.array([[d["omega"].real, d["xi"].real, 0.0],
+                      [d["omega"].imag, d["xi"].imag, 0.0]])
+        if structured:
+            return R, BorderedJacobian(ev.J, C, rows, D), ev
+        J[:nz, nz:] = C
+        J[nz:, :nz] = rows
+        J[nz:, nz:] = D
         return R, J, ev

@@ -27,6 +27,8 @@ import numpy as np
 from ..harmonics import HarmonicBasis, harmonic_amplitude
 from .aft import AFT, AFTResult
 from .condensation import ReducedLinear, dense_array
+from .jacobian import (KRYLOV_MIN_UNKNOWNS, LINEAR_SOLVERS, HBMJacobian, LinearStats,
+                       PreconditionerCache, add_element_blocks, solve)
 from .newton import NewtonOptions, newton
 
 log = logging.getLogger(__name__)
@@ -43,8 +45,8 @@ class Evaluation:
     ----------
     R : ndarray, shape (n_c * n_r,)
         Residual [N] (harmonic-major: index ``k * n_r + r``).
-    J : ndarray, shape (n_c * n_r, n_c * n_r) or None
-        ``dR/dz``.
+    J : ndarray, shape (n_c * n_r, n_c * n_r), or HBMJacobian, or None
+        ``dR/dz`` (dense on the direct path, structured on the Krylov path).
     dR : dict of str -> ndarray, shape (n_c * n_r,)
         Derivatives with respect to ``omega`` and/or ``xi``.
     aft : AFTResult or None
@@ -73,10 +75,16 @@ class HBMSystem:
     parallel : bool
         Let the AFT kernels use numba threads (see :class:`~jointsim.solvers.aft.AFT`);
         False in worker processes.
+    linear_solver : str
+        ``"direct"``: dense Jacobians and LU (the reference); ``"krylov"``:
+        structured Jacobians (:class:`~jointsim.solvers.jacobian.HBMJacobian`)
+        solved by preconditioned GMRES, no ``n_z x n_z`` matrix formed;
+        ``"auto"``: Krylov from ``KRYLOV_MIN_UNKNOWNS`` unknowns on.  The
+        choice is ``self.linear_solver``; ``self.stats`` counts the solves.
     """
 
     def __init__(self, model, harmonics, n_samples: int, min_periods: int = 2,
-                 max_periods: int = 50, parallel: bool = True):
+                 max_periods: int = 50, parallel: bool = True, linear_solver: str = "auto"):
         self.model = model
         self.basis = HarmonicBasis(harmonics, n_samples)
         c = model.contacts
@@ -105,9 +113,18 @@ class HBMSystem:
         self.n_c = self.basis.n_coeff
         self.n_z = self.n_c * nr
         self._Tt = dense_array(c.Tt) if ne else np.zeros((0, model.n_dof))
-        log.debug("HBM system: %d DOFs condensed onto %d contact coordinates x %d "
-                  "coefficients (%s condensation)", model.n_dof, nr, self.n_c,
-                  self.lin.kind)
+        if linear_solver not in LINEAR_SOLVERS:
+            raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, "
+                             f"got {linear_solver!r}")
+        if linear_solver == "auto":
+            linear_solver = "krylov" if self.n_z >= KRYLOV_MIN_UNKNOWNS else "direct"
+        self.linear_solver = linear_solver
+        self.krylov = linear_solver == "krylov"
+        self.stats = LinearStats()
+        self.preconditioner = PreconditionerCache()
+        log.info("HBM system: %d DOFs condensed onto %d contact coordinates x %d "
+                 "coefficients = %d unknowns (%s condensation, %s linear solver)",
+                 model.n_dof, nr, self.n_c, self.n_z, self.lin.kind, self.linear_solver)
 
     # -- static state ----------------------------------------------------------
     def static_coordinates(self):
@@ -169,12 +186,16 @@ class HBMSystem:
             Parameters to differentiate by: ``"omega"``, ``"xi"``.
         J_out : ndarray, shape (n_z, n_z), optional
             Zero-filled array (e.g. a block of a bordered matrix) that receives
-            ``dR/dz``; it is returned as ``J``.
+            ``dR/dz``; it is returned as ``J``.  Without it, the Krylov path
+            returns a structured :class:`~jointsim.solvers.jacobian.HBMJacobian`.
         """
         nr, nc = self.n_r, self.n_c
         Q = np.asarray(z, dtype=float).reshape(nc, nr)
         R = np.zeros((nc, nr))
-        J = (np.zeros((self.n_z, self.n_z)) if J_out is None else J_out) if jacobian else None
+        structured = jacobian and self.krylov and J_out is None
+        blocks = []
+        J = (np.zeros((self.n_z, self.n_z)) if J_out is None else J_out) \
+            if jacobian and not structured else None
         dR = {p: np.zeros((nc, nr)) for p in wrt} if jacobian else {}
         lin = self.lin
         for h in self.basis.harmonics:
@@ -185,7 +206,7 @@ class HBMSystem:
             Fh = self._complex(F, h)
             Fq = lin.Psi.T @ Fh
             Fy = lin.Z.T @ Fh
-            if lin.n_y and jacobian:
+            if lin.n_y and jacobian and not structured:
                 both = lin.solve_E(Ef, np.column_stack([Fy - Bp @ qh, Bp]))
                 y, EinvBp = both[:, 0], both[:, 1:]
             elif lin.n_y:
@@ -195,10 +216,15 @@ class HBMSystem:
             self._store(R, h, A @ qh + B @ y - Fq)
             if not jacobian:
                 continue
-            S = A - B @ EinvBp
+            if structured:
+                blocks.append((A, B, Bp, Ef))
+            else:
+                S = A - B @ EinvBp
             ic, is_ = self.basis.index[h]
             rc = ic * nr + np.arange(nr)
-            if h == 0:
+            if structured:
+                pass
+            elif h == 0:
                 J[np.ix_(rc, rc)] = S.real
             else:
                 rs = is_ * nr + np.arange(nr)
@@ -226,26 +252,22 @@ class HBMSystem:
                 R[:, self.t_row] += aft.Ft.T
             if self.coupled:
                 R[:, self.n_row] -= aft.Nc.T
-            if jacobian:
+            if jacobian and not structured:
                 self._add_element_blocks(J, aft)
+        if structured:
+            J = HBMJacobian(self.basis, self.lin, blocks, self.t_row, self.n_row,
+                            aft.Juu if (aft is not None and self.friction) else None,
+                            aft.Jug if (aft is not None and self.friction and self.coupled)
+                            else None,
+                            aft.JNN if (aft is not None and self.coupled) else None,
+                            stats=self.stats, cache=self.preconditioner)
         return Evaluation(R=R.ravel(), J=J, dR={p: v.ravel() for p, v in dR.items()}, aft=aft)
 
     def _add_element_blocks(self, J, aft):
-        nr, nc = self.n_r, self.n_c
-        k = np.arange(nc)
-        def idx(rows):
-            return rows[:, None, None] + nr * k[None, :, None], \
-                rows[:, None, None] + nr * k[None, None, :]
-        if self.friction:
-            ri, ci = idx(self.t_row)
-            J[ri, ci] += aft.Juu
-            if self.coupled:
-                ri2, _ = idx(self.t_row)
-                _, cj = idx(self.n_row)
-                J[ri2, cj] += aft.Jug
-        if self.coupled:
-            ri, ci = idx(self.n_row)
-            J[ri, ci] -= aft.JNN
+        add_element_blocks(J, self.n_r, self.n_c, self.t_row, self.n_row,
+                           aft.Juu if self.friction else None,
+                           aft.Jug if (self.friction and self.coupled) else None,
+                           aft.JNN if self.coupled else None)
 
     # -- reconstruction ----------------------------------------------------------
     def reconstruct(self, z, omega: float, F, xi: float = 0.0):
@@ -328,7 +350,7 @@ def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
         return ev.R, ev.J, ev
 
     res = newton(fun, z0, NewtonOptions(tol, max_iter, line_search="decrease", max_tries=6),
-                 measure=lambda R, _ev: np.abs(R).max(initial=0.0) / rscale)
+                 solve=solve, measure=lambda R, _ev: np.abs(R).max(initial=0.0) / rscale)
     z, R, ev, it, ok = res.x, res.R, res.extra, res.iterations, res.success
     rn = float(np.abs(R).max(initial=0.0))
     conv = Convergence(ok, SUCCESS if ok else NOT_CONVERGED,
@@ -378,8 +400,8 @@ def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: in
         if not system.n_z:
             continue
         try:
-            dz = np.linalg.solve(ev.J, -ev.R)
-        except np.linalg.LinAlgError:
+            dz = solve(ev.J, -ev.R)
+        except (np.linalg.LinAlgError, RuntimeError):
             continue
         d = float(np.abs(dz).max())
         if w in res:

@@ -120,7 +120,14 @@ def max_norm(R, extra=None) -> float:
 
 
 def solve_or_lstsq(A, b):
-    """``A^-1 b``; least squares when ``A`` is singular."""
+    """``A^-1 b``; least squares when ``A`` is singular.
+
+    A structured Jacobian (:mod:`jointsim.solvers.jacobian`: anything with a
+    ``solve`` method) solves itself (preconditioned GMRES; it raises
+    ``RuntimeError`` when GMRES fails).
+    """
+    if not isinstance(A, np.ndarray) and hasattr(A, "solve"):
+        return A.solve(b)
     try:
         return np.linalg.solve(A, b)
     except np.linalg.LinAlgError:

@@ -1,0 +1,137 @@
+"""Structured HBM Jacobian and its Krylov path (issue 10): against the dense reference."""
+
+import h5py
+import numpy as np
+import pytest
+
+from jointsim.analyses.hbm import _BranchJob, _run_branch, _system
+from jointsim.model import build_model
+from jointsim.run import run_scene
+from jointsim.scene import load_scene
+from jointsim.solvers.hbm import HBMSystem, solve_point
+from jointsim.solvers.jacobian import BorderedJacobian, HarmonicPreconditioner, gmres
+
+from .._scenes import COUPLED, ROOT, four_dof, lap_scene
+
+MODELS = ROOT / "models" / "hbm"
+
+
+def _pair(model, harmonics=(0, 1, 2, 3), n_samples=64):
+    return (HBMSystem(model, harmonics, n_samples, linear_solver="direct"),
+            HBMSystem(model, harmonics, n_samples, linear_solver="krylov"))
+
+
+@pytest.mark.parametrize("law,normal", [("jenkins", "coupled"), ("iwan4", "coupled"),
+                                        ("jenkins", "fixed")])
+def test_structured_products_equal_the_dense_jacobian(law, normal):
+    """J v, J^T v, to_dense, max_abs and the (bordered) GMRES solves of the structured
+    Jacobian against the dense Jacobian of the direct path, at a state with stick, slip
+    and separation."""
+    sd, sk = _pair(build_model(four_dof(law, "anchor", normal)))
+    F = sd.force_coefficients(0.3)
+    rng = np.random.default_rng(1)
+    z = rng.normal(size=sd.n_z) * 0.4
+    ed = sd.evaluate(z, 1.1, F, xi=0.05, wrt=("omega", "xi"))
+    ek = sk.evaluate(z, 1.1, F, xi=0.05, wrt=("omega", "xi"))
+    assert np.array_equal(ed.R, ek.R)
+    Jd, Jk = ed.J, ek.J
+    assert not isinstance(Jk, np.ndarray)
+    v = rng.normal(size=sd.n_z)
+    ref = np.abs(Jd).max() * np.abs(v).sum()
+    assert np.abs(Jk.matvec(v) - Jd @ v).max() <= 1e-13 * ref
+    assert np.abs(Jk.rmatvec(v) - Jd.T @ v).max() <= 1e-13 * ref
+    assert np.abs(Jk.to_dense() - Jd).max() <= 1e-14 * np.abs(Jd).max()
+    assert Jk.max_abs() == pytest.approx(np.abs(Jd).max(), rel=1e-14)
+    x = Jk.solve(v)
+    assert np.abs(Jd @ x - v).max() <= 1e-9 * np.abs(v).max()
+    # bordered: [J, c; t^T, 0] with a scaling of the columns, as in the continuation
+    c = ed.dR["omega"]
+    t = rng.normal(size=sd.n_z + 1)
+    col = rng.uniform(0.5, 2.0, sd.n_z + 1)
+    Bk = BorderedJacobian(Jk, c).with_row(t).scaled(col)
+    Bd = np.vstack([np.column_stack([Jd, c]), t[None, :]]) * col[None, :]
+    assert np.abs(Bk.to_dense() - Bd).max() <= 1e-14 * np.abs(Bd).max()
+    b = rng.normal(size=sd.n_z + 1)
+    xb = Bk.solve(b)
+    xd = np.linalg.solve(Bd, b)
+    assert np.abs(xb - xd).max() <= 1e-7 * np.abs(xd).max()
+
+
+def test_preconditioner_is_exact_for_linear_contact():
+    """With a constant contact tangent (stuck law, fixed normal load) the harmonic
+    preconditioner is the inverse of J: GMRES converges in one iteration."""
+    _sd, sk = _pair(build_model(four_dof("stuck", "anchor", "fixed")))
+    F = sk.force_coefficients(0.3)
+    z = np.random.default_rng(2).normal(size=sk.n_z)
+    J = sk.evaluate(z, 1.3, F).J
+    P = HarmonicPreconditioner(J)
+    v = np.random.default_rng(3).normal(size=sk.n_z)
+    assert np.abs(J.matvec(P.solve(v)) - v).max() <= 1e-12 * np.abs(v).max()
+    x, it, rel = gmres(J.matvec, v, P.solve, rtol=1e-12)
+    assert it == 1 and rel <= 1e-12
+
+
+def test_gmres_solves_a_nonsymmetric_system():
+    """The GMRES (with restarts) against a dense solve, unpreconditioned."""
+    rng = np.random.default_rng(4)
+    A = np.eye(150) * 4 + rng.normal(size=(150, 150)) / 10
+    b = rng.normal(size=150)
+    x, it, rel = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-12, restart=20, maxiter=500)
+    assert rel <= 1e-12 and it > 20
+    assert np.abs(x - np.linalg.solve(A, b)).max() <= 1e-10 * np.abs(x).max()
+
+
+def _run(tmp_path, path, solver):
+    scene = load_scene(path, [f"analysis.{'epmc' if 'epmc' in path.name else 'hbm'}"
+                              f".linear_solver='{solver}'"])
+    out = run_scene(scene, tmp_path / f"{path.stem}_{solver}.h5")
+    return h5py.File(out, "r")
+
+
+@pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.slow)
+                                  if p.stem == "sdof_clearance_fold" else p
+                                  for p in sorted(MODELS.glob("*.toml"))], ids=lambda p: p.stem)
+def test_krylov_path_equals_direct_path_on_lumped_cases(tmp_path, path):
+    """Every lumped HBM/EPMC scene (two with turning points) forced onto the Krylov
+    path gives the branch of the dense direct path, point by point, to 1e-8 in X."""
+    with _run(tmp_path, path, "direct") as fd, _run(tmp_path, path, "krylov") as fk:
+        g = "epmc" if "epmc" in fd else "hbm"
+        assert fd[g].attrs["linear_solver"] == "direct"
+        assert fk[g].attrs["linear_solver"] == "krylov"
+        Xd, Xk = fd[f"{g}/X"][()], fk[f"{g}/X"][()]
+        if g == "hbm":        # branches computed in worker processes interleave
+            Xd = Xd[np.argsort(fd["hbm/branch"][()], kind="stable")]
+            Xk = Xk[np.argsort(fk["hbm/branch"][()], kind="stable")]
+        assert Xd.shape == Xk.shape
+        scale = np.abs(Xd).max(axis=(1, 2))[:, None, None]
+        assert np.abs(Xd - Xk).max() <= 1e-8 * scale.max()
+        assert (np.abs(Xd - Xk) <= 1e-8 * scale).all()
+        assert fk[f"{g}/krylov_iterations"][()].sum() > 0
+        assert fd[f"{g}/krylov_iterations"][()].sum() == 0
+
+
+def test_krylov_path_equals_direct_path_on_the_coarse_lap_joint():
+    """The coarse FE lap joint (coupled N with separation): an FRC branch piece through
+    microslip, and fixed-frequency solves at the high force level, direct vs Krylov."""
+    recs = {}
+    for solver in ("direct", "krylov"):
+        sc = lap_scene(ROOT / "models" / "lap_joint.toml", ("modes", "hbm"),
+                       ["analysis.hbm.max_points=6", "analysis.hbm.harmonics=[0,1,2,3]",
+                        "analysis.hbm.n_samples=64", "analysis.hbm.step=0.05",
+                        f"analysis.hbm.linear_solver='{solver}'"])
+        m = build_model(sc)
+        a = sc.analysis.hbm
+        s = _system(m, a)
+        assert s.linear_solver == solver
+        out = []
+        _run_branch(_BranchJob(0, 2.0, None), system=s, a=a, dof=0, want_aft=False,
+                    n_branches=1, on_record=out.append, progress=False)
+        F = s.force_coefficients(20.0)
+        pts = [solve_point(s, w, F) for w in (900.0, 960.0)]
+        recs[solver] = ([r["X"] for r in out], [p.X for p in pts],
+                        [p.convergence.iterations for p in pts])
+    (bd, pd, itd), (bk, pk, itk) = recs["direct"], recs["krylov"]
+    assert len(bd) == len(bk) == 6
+    for Xd, Xk in zip(bd + pd, bk + pk):
+        assert np.abs(Xd - Xk).max() <= 1e-8 * np.abs(Xd).max()
+    assert itd == itk and max(itd) > 2          # nonlinear points, same Newton path
