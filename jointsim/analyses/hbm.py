@@ -72,7 +72,9 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
     job_args = dict(system=system, a=a, dof=dof, want_aft=a.loops == "masing.points",
                     n_branches=len(a.force_scale))
     n_workers = a.workers or min(len(todo), os.cpu_count() or 1)
-    if n_workers > 1 and len(todo) > 1 and _can_fork():
+    if not (n_workers > 1 and len(todo) > 1 and _can_fork() and not _in_daemon()):
+        n_workers = 1
+    if n_workers > 1:
         failures = _run_branches_forked(todo, job_args, min(n_workers, len(todo)),
                                         out.write_point, out.finish_branch)
     else:
@@ -339,6 +341,15 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         solve_first=solve_first, tangent0=t0, on_point=on_point, progress=progress,
         desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})", lam_start=a.omega_start)
     return br.convergence
+
+
+def _in_daemon() -> bool:
+    """In a daemonic process (a dask or multiprocessing worker), which may not fork workers."""
+    import multiprocessing as mp
+    if mp.current_process().daemon:
+        log.info("hbm: in a daemonic worker process; branches run serially")
+        return True
+    return False
 
 
 def _can_fork() -> bool:

@@ -43,6 +43,7 @@ import fcntl
 import io
 import logging
 import os
+import signal
 from pathlib import Path
 
 import h5py
@@ -142,6 +143,27 @@ def release_inherited() -> None:
                 with contextlib.suppress(OSError):
                     os.close(fd)
     _OPEN_WRITERS.clear()
+
+
+_DEFERRED = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """Hold SIGINT/SIGTERM/SIGHUP until the block is done (a commit is not cut in half).
+
+    The signals are blocked in this thread and delivered, to their Python
+    handlers, when the block ends.
+    """
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, _DEFERRED)
+    except (AttributeError, OSError, ValueError):  # no POSIX signal masks
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _extendable_datasets(h5) -> list:
@@ -367,6 +389,10 @@ class ResultWriter:
         if not self.h5.id.valid:
             self._release()
             return
+        with _signals_deferred():
+            self._finish_now(status, message)
+
+    def _finish_now(self, status: str, message: str) -> None:
         self._txn = None
         torn = torn_groups(self.h5)
         if torn:
@@ -410,7 +436,12 @@ class ResultWriter:
 
         A group whose extendable datasets all have the same committed rows
         (one row per point: ``/hbm``, ``/hbm/loops``, ...) gets that count too.
+        SIGINT and SIGTERM wait until it is done.
         """
+        with _signals_deferred():
+            self._commit_now(names)
+
+    def _commit_now(self, names) -> None:
         self.h5.flush()
         groups = set()
         for name in sorted(names):
