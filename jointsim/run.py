@@ -23,7 +23,7 @@ log = logging.getLogger(__name__)
 
 @contextlib.contextmanager
 def _signals_interrupt():
-    """SIGTERM (and SIGHUP) raise :class:`KeyboardInterrupt`, as SIGINT does, while inside.
+    """SIGINT, SIGTERM and SIGHUP raise :class:`KeyboardInterrupt` while inside (never mid-commit).
 
     The writer then marks the file ``interrupted`` with its committed point
     counts.  Only in the main thread (signal handlers live there).
@@ -32,10 +32,9 @@ def _signals_interrupt():
         yield
         return
 
-    def handler(signum, frame):
-        raise KeyboardInterrupt(f"stopped by {signal.Signals(signum).name}")
-
-    old = {s: signal.signal(s, handler) for s in (signal.SIGTERM, signal.SIGHUP)}
+    from .io.hdf5 import interrupt_handler
+    old = {s: signal.signal(s, interrupt_handler)
+           for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
         yield
     finally:

@@ -67,18 +67,18 @@ def kill_after(p: subprocess.Popen, delay: float, sig: int) -> float:
     Returns
     -------
     float
-        Seconds the last process of the run's group outlived the signal.
+        Seconds the last process of the run's group outlived the main process.
     """
     time.sleep(delay)
     if p.poll() is None:
         os.kill(p.pid, sig)
-    t0 = time.perf_counter()
     try:
         p.communicate(timeout=60)
     except subprocess.TimeoutExpired:
         os.killpg(p.pid, signal.SIGKILL)
         p.communicate()
         raise AssertionError(f"{p.args}: still running 60 s after signal {sig}")
+    t0 = time.perf_counter()
     while group_alive(p.pid):
         if time.perf_counter() - t0 > 10:
             survivors = group_alive(p.pid)

@@ -191,3 +191,47 @@ def test_info_on_an_hdf5_file_jointsim_did_not_write(tmp_path):
         open_result(out)
     from jointsim.cli import main
     assert main(["info", str(out)]) != 0
+
+
+# -- sweeps -------------------------------------------------------------------------------
+
+def test_sweep_with_zero_workers_fails_at_once_and_writes_nothing(tmp_path, capsys):
+    from jointsim.cli import main
+    t0 = time.perf_counter()
+    code = main(["sweep", S.CHAIN, "--vary", "joint.mu=0.1,0.2", "-o", str(tmp_path / "sw"),
+                 "--workers", "0"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "--workers 0" in err[0]
+    assert time.perf_counter() - t0 < 5 and not (tmp_path / "sw").exists()
+
+
+@pytest.mark.slow
+def test_a_bad_scheduler_fails_in_seconds_with_one_line(tmp_path):
+    import socket
+    srv = socket.socket()  # accepts connections, never speaks dask
+    srv.bind(("127.0.0.1", 0))
+    srv.listen()
+    t0 = time.perf_counter()
+    r = S.run("sweep", S.CHAIN, "--vary", "joint.mu=0.1,0.2", "-o", str(tmp_path / "sw"),
+              "--scheduler", f"tcp://127.0.0.1:{srv.getsockname()[1]}", timeout=60)
+    srv.close()
+    assert r.returncode != 0 and time.perf_counter() - t0 < 30
+    assert [ln for ln in r.stderr.splitlines() if ln.startswith("error")] \
+        and "no dask scheduler answered" in r.stderr
+
+
+@pytest.mark.slow
+def test_multi_branch_sweep_completes_and_a_rerun_keeps_finished_variants(tmp_path):
+    pytest.importorskip("distributed")
+    out = tmp_path / "sw"
+    args = ("sweep", S.CHAIN, "--vary", "joint.mu=0.1,0.2", "-o", str(out))
+    r = S.run(*args, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    with h5py.File(out / "sweep.h5", "r") as idx:
+        assert [s.decode() for s in idx["status"][()]] == ["complete"] * 2
+    mtimes = [p.stat().st_mtime_ns for p in sorted(out.glob("chain2_jenkins_*.h5"))]
+    r = S.run(*args, timeout=300)
+    assert r.returncode == 0
+    assert [p.stat().st_mtime_ns for p in sorted(out.glob("chain2_jenkins_*.h5"))] == mtimes
+    with h5py.File(out / "sweep.h5", "r") as idx:
+        assert all(m.decode().startswith("kept") for m in idx["message"][()])

@@ -145,25 +145,36 @@ def release_inherited() -> None:
     _OPEN_WRITERS.clear()
 
 
-_DEFERRED = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+#: Depth of the critical sections of this process, and the signals held meanwhile.
+_CRITICAL = {"depth": 0, "pending": []}
+
+
+def interrupt_handler(signum, frame) -> None:
+    """Signal handler: raise :class:`KeyboardInterrupt`, after the current commit.
+
+    Installed by :func:`jointsim.run.run_scene` for SIGINT, SIGTERM and SIGHUP;
+    a signal that arrives while a point is being committed (or the file
+    finished) is held and raised when that is done, so a commit is never cut
+    in half.
+    """
+    if _CRITICAL["depth"]:
+        _CRITICAL["pending"].append(signum)
+        return
+    raise KeyboardInterrupt(f"stopped by {signal.Signals(signum).name}")
 
 
 @contextlib.contextmanager
 def _signals_deferred():
-    """Hold SIGINT/SIGTERM/SIGHUP until the block is done (a commit is not cut in half).
-
-    The signals are blocked in this thread and delivered, to their Python
-    handlers, when the block ends.
-    """
-    try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, _DEFERRED)
-    except (AttributeError, OSError, ValueError):  # no POSIX signal masks
-        yield
-        return
+    """A critical section: :func:`interrupt_handler` holds signals until it ends."""
+    _CRITICAL["depth"] += 1
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        _CRITICAL["depth"] -= 1
+    if not _CRITICAL["depth"] and _CRITICAL["pending"]:
+        signum = _CRITICAL["pending"][0]
+        _CRITICAL["pending"].clear()
+        raise KeyboardInterrupt(f"stopped by {signal.Signals(signum).name}")
 
 
 def _extendable_datasets(h5) -> list:
