@@ -41,6 +41,8 @@ def _parser() -> argparse.ArgumentParser:
                    metavar="KEY=VALUE", help="override a scene key (repeatable)")
     r.add_argument("--resume", action="store_true",
                    help="continue an interrupted result file of the same scene")
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace an existing result file (otherwise it is refused)")
     r.add_argument("--post", action="store_true", help="make the figures afterwards")
 
     q = sub.add_parser("post", parents=[common], help="make figures from result files")
@@ -188,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
                 return 0
             from .run import run_scene
             out = Path(args.output) if args.output else default_output(args.scene)
-            run_scene(scene, out, resume=args.resume)
+            run_scene(scene, out, resume=args.resume, overwrite=args.overwrite)
             print(out)
             if args.post:
                 from .post import make_figures
@@ -232,9 +234,10 @@ def main(argv: list[str] | None = None) -> int:
     except RuntimeError as exc:
         print(f"error: run did not succeed: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("interrupted; the result file holds what was computed", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        print(f"interrupted ({exc or 'SIGINT'}); the result file holds the committed "
+              "points; continue with --resume", file=sys.stderr)
+        return 143 if "SIGTERM" in str(exc) else 130
     return 1
 
 

@@ -9,7 +9,10 @@ the later runners receive in memory.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
+import signal
+import threading
 import time
 from pathlib import Path
 
@@ -18,7 +21,28 @@ from .io.hdf5 import ResultWriter
 log = logging.getLogger(__name__)
 
 
-def run_scene(scene, out_path, resume: bool = False) -> Path:
+@contextlib.contextmanager
+def _signals_interrupt():
+    """SIGINT, SIGTERM and SIGHUP raise :class:`KeyboardInterrupt` while inside (never mid-commit).
+
+    The writer then marks the file ``interrupted`` with its committed point
+    counts.  Only in the main thread (signal handlers live there).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    from .io.hdf5 import interrupt_handler
+    old = {s: signal.signal(s, interrupt_handler)
+           for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def run_scene(scene, out_path, resume: bool = False, overwrite: bool = False) -> Path:
     """Run every analysis of a scene and write the result file.
 
     Sets the BLAS threads first (:func:`jointsim.blas.limit_blas_threads`).
@@ -30,6 +54,10 @@ def run_scene(scene, out_path, resume: bool = False) -> Path:
         HDF5 result file.
     resume : bool
         Continue an interrupted file written for the same scene.
+    overwrite : bool
+        Replace an existing file (otherwise an existing file is refused unless
+        resuming).  The model is built before the file is opened, so an
+        error found while building it writes nothing.
 
     Returns
     -------
@@ -41,12 +69,15 @@ def run_scene(scene, out_path, resume: bool = False) -> Path:
     limit_blas_threads()
     out_path = Path(out_path)
     t0 = time.perf_counter()
-    with ResultWriter(out_path, scene, resume=resume) as writer:
+    model = None
+    if scene.model.kind != "prescribed":
+        from .model import build_model
+        model = build_model(scene)  # errors found here write nothing
+    with _signals_interrupt(), \
+            ResultWriter(out_path, scene, resume=resume, overwrite=overwrite) as writer:
         if scene.model.kind == "prescribed":
             run_prescribed_scene(scene, writer)
         else:
-            from .model import build_model
-            model = build_model(scene)
             write_model_tables(scene, model, writer)  # /static, /contacts, /model, /mesh
             todo = [a for a in ANALYSES if getattr(scene.analysis, a) is not None]
             if not todo:

@@ -89,26 +89,101 @@ def plan(scene_path, vary: list[str], outdir, common: list[str] = ()) -> list[Va
     return variants
 
 
+def _previous(scene, output: Path) -> str:
+    """What to do with a variant's result file: ``"run"``, ``"keep"`` or ``"resume"``.
+
+    A file of the same scene that is ``complete`` is kept; one that was
+    ``running`` (its sweep was killed) or ``interrupted`` is resumed; any
+    other file (failed, another scene, not a result) is replaced.
+    """
+    from .io.hdf5 import read_attrs
+    if not output.exists():
+        return "run"
+    try:
+        a = read_attrs(output)
+    except (OSError, ValueError):
+        return "run"
+    if a.get("scene") != scene.text:
+        return "run"
+    if a.get("status") == "complete":
+        return "keep"
+    return "resume" if a.get("status") in ("running", "interrupted") else "run"
+
+
 def run_variant(scene_path: str, variant: Variant) -> dict:
     """Run one variant (on a worker).  Never raises: failures are reported.
 
-    Sets the worker's BLAS threads first (:func:`jointsim.blas.limit_blas_threads`).
+    A variant whose result file is complete is not run again; a killed one
+    is resumed (:func:`_previous`).  Sets the worker's BLAS threads first
+    (:func:`jointsim.blas.limit_blas_threads`).  Inside a dask worker (a
+    daemonic process) harmonic balance runs its branches serially.
     """
     from .blas import limit_blas_threads
     from .run import run_scene
     limit_blas_threads()
     try:
         scene = load_scene(scene_path, list(variant.overrides))
-        run_scene(scene, variant.output)
-        return {"index": variant.index, "status": "complete", "message": ""}
+        todo = _previous(scene, variant.output)
+        if todo == "keep":
+            return {"index": variant.index, "status": "complete",
+                    "message": "kept: complete from an earlier sweep"}
+        run_scene(scene, variant.output, resume=todo == "resume", overwrite=todo == "run")
+        return {"index": variant.index, "status": "complete",
+                "message": "resumed" if todo == "resume" else ""}
     except Exception as exc:  # reported in the index, the sweep goes on
         return {"index": variant.index, "status": "failed",
                 "message": f"{type(exc).__name__}: {exc}"}
 
 
+def _set_status(index: Path, rows: dict[int, tuple[str, str]]) -> None:
+    """Write ``{row: (status, message)}`` to the index, opened only for this.
+
+    The index is open for a moment per update, so it can be read while the
+    sweep runs.
+    """
+    with h5py.File(index, "a", locking=False) as h5:
+        for i, (st, msg) in rows.items():
+            h5["status"][i] = st
+            h5["message"][i] = msg
+        h5.flush()
+
+
+def _client(scheduler: str | None, n_workers: int, timeout_s: float = 10.0):
+    """A dask client of ``scheduler`` (failing within ``timeout_s``) or of a local cluster."""
+    from dask.distributed import Client, LocalCluster
+    if scheduler:
+        # connect in a daemon thread with a hard deadline: a server that accepts the
+        # connection but does not speak dask's protocol would otherwise hang the handshake
+        import threading
+        box: dict = {}
+
+        def connect():
+            try:
+                box["client"] = Client(scheduler, timeout=f"{timeout_s}s")
+            except Exception as exc:  # OSError, TimeoutError, ValueError (bad address)
+                box["error"] = exc
+
+        th = threading.Thread(target=connect, daemon=True, name="dask-connect")
+        th.start()
+        th.join(timeout_s + 2.0)
+        if "client" in box:
+            return box["client"], None
+        exc = box.get("error")
+        why = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}" \
+            if exc is not None else "no answer to the dask handshake"
+        raise OSError(f"--scheduler {scheduler}: no dask scheduler answered within "
+                      f"{timeout_s:g} s ({why})")
+    cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                           dashboard_address=None)
+    return Client(cluster), cluster
+
+
 def run_sweep(scene_path, vary: list[str], outdir, scheduler: str | None = None,
               n_workers: int = 2, common: list[str] = ()) -> Path:
     """Run a sweep and write its index ``outdir/sweep.h5``.
+
+    A rerun into the same folder keeps the variants that are complete and
+    resumes the ones a killed sweep left (:func:`run_variant`).
 
     Parameters
     ----------
@@ -121,7 +196,7 @@ def run_sweep(scene_path, vary: list[str], outdir, scheduler: str | None = None,
     scheduler : str, optional
         Address of a running dask scheduler; default: a local cluster.
     n_workers : int
-        Worker processes of the local cluster.
+        Worker processes of the local cluster (at least 1).
     common : list of str
         Overrides applied to every variant.
 
@@ -129,53 +204,58 @@ def run_sweep(scene_path, vary: list[str], outdir, scheduler: str | None = None,
     -------
     Path
         The index file.
+
+    Raises
+    ------
+    RuntimeError
+        After the index is written, when a variant failed.
+    ValueError
+        For ``n_workers < 1`` (nothing is written).
+    OSError
+        When ``scheduler`` does not answer (nothing is run).
     """
     try:
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import as_completed
     except ModuleNotFoundError:
         raise NotImplementedError("sweeps need dask.distributed: pip install 'jointsim[dask]'") \
             from None
     from tqdm import tqdm
 
+    if not scheduler and n_workers < 1:
+        raise ValueError(f"--workers {n_workers}: a local cluster needs at least 1 worker")
     variants = plan(scene_path, vary, outdir, common)
+    client, cluster = _client(scheduler, n_workers)
     outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    index = outdir / "sweep.h5"
-    with h5py.File(index, "w") as h5:
-        h5.attrs["scene_path"] = str(scene_path)
-        h5.attrs["axes"] = np.array(vary, dtype=h5py.string_dtype())
-        h5.attrs["common"] = np.array(list(common), dtype=h5py.string_dtype())
-        s = h5py.string_dtype()
-        h5.create_dataset("overrides", data=np.array([" ".join(v.overrides) for v in variants],
-                                                     dtype=s))
-        h5.create_dataset("output", data=np.array([v.output.name for v in variants], dtype=s))
-        h5.create_dataset("status", data=np.array(["pending"] * len(variants), dtype=s))
-        h5.create_dataset("message", data=np.array([""] * len(variants), dtype=s))
-        for name in ("overrides", "output", "status", "message"):
-            h5[name].attrs["unit"] = "1"
-    cluster = None
-    if scheduler:
-        client = Client(scheduler)
-    else:
-        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
-        client = Client(cluster)
     n_failed = 0
     try:
+        outdir.mkdir(parents=True, exist_ok=True)
+        index = outdir / "sweep.h5"
+        with h5py.File(index, "w", locking=False) as h5:
+            h5.attrs["scene_path"] = str(scene_path)
+            h5.attrs["axes"] = np.array(vary, dtype=h5py.string_dtype())
+            h5.attrs["common"] = np.array(list(common), dtype=h5py.string_dtype())
+            s = h5py.string_dtype()
+            h5.create_dataset("overrides", data=np.array([" ".join(v.overrides)
+                                                          for v in variants], dtype=s))
+            h5.create_dataset("output", data=np.array([v.output.name for v in variants],
+                                                      dtype=s))
+            h5.create_dataset("status", data=np.array(["running"] * len(variants), dtype=s))
+            h5.create_dataset("message", data=np.array([""] * len(variants), dtype=s))
+            for name in ("overrides", "output", "status", "message"):
+                h5[name].attrs["unit"] = "1"
         futures = [client.submit(run_variant, str(scene_path), v, pure=False) for v in variants]
-        with h5py.File(index, "a") as h5:
-            for fut in tqdm(as_completed(futures), total=len(futures), desc="sweep",
-                            unit="run"):
-                r = fut.result()
-                h5["status"][r["index"]] = r["status"]
-                h5["message"][r["index"]] = r["message"]
-                h5.flush()
-                if r["status"] != "complete":
-                    n_failed += 1
-                    log.warning("variant %d failed: %s", r["index"], r["message"])
+        for fut in tqdm(as_completed(futures), total=len(futures), desc="sweep", unit="run"):
+            r = fut.result()
+            _set_status(index, {r["index"]: (r["status"], r["message"])})
+            if r["status"] != "complete":
+                n_failed += 1
+                log.warning("variant %d failed: %s", r["index"], r["message"])
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
     log.info("sweep of %d runs done, %d failed; index %s", len(variants), n_failed, index)
+    if n_failed:
+        raise RuntimeError(f"{n_failed} of {len(variants)} sweep variants failed (messages in "
+                           f"{index}); rerun the sweep to compute only those")
     return index

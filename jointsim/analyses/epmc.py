@@ -23,7 +23,7 @@ import numpy as np
 
 from ..io.hdf5 import unit, write_loops
 from ..masing import check_loops
-from ..solvers.continuation import continue_branch
+from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
 from ..solvers.epmc import EPMCSystem
 from ..solvers.condensation import dense_array
 from ..solvers.hbm import HBMSystem
@@ -90,7 +90,8 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
         log.info("epmc already %s; skipped", g.attrs["branch_status"])
         return
     y0, t0, h0, solve_first, max_pts = _start(writer, a, system, em, xi0)
-    scale, rscale = _scales(ep, y0, em.omega)
+    # scales from the linear mode, resumed or not: a resumed branch takes the same steps
+    scale, rscale = _scales(ep, _linear_start(a, system, em, xi0), em.omega)
     system.stats.take()
     writer.h5["epmc"].attrs["linear_solver"] = system.linear_solver
     writer.h5["epmc"].attrs["n_unknowns"] = system.n_z
@@ -99,7 +100,8 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
                          step=h0, step_min=a.step_min, step_max=a.step_max,
                          max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
                          solve_first=solve_first, tangent0=t0, on_point=on_point,
-                         desc=f"epmc mode {a.mode}", monitor=step_monitor(a, system.n_z))
+                         desc=f"epmc mode {a.mode}", monitor=step_monitor(a, system.n_z),
+                         lam_start=a.log10_amplitude_start)
     conv = br.convergence
     g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
     g.attrs["n_points"] = writer.rows("epmc/omega")
@@ -144,13 +146,20 @@ def _start(writer, a, system, em, xi0):
     if writer.rows("epmc/y"):
         y0 = writer.h5["epmc/y"][-1]
         t0 = writer.h5["epmc/tangent"][-1]
-        h0 = float(writer.h5["epmc/step"][-1]) or a.step
+        # the step the uninterrupted branch takes next (after the first point: a.step)
+        h_last = float(writer.h5["epmc/step"][-1])
+        h0 = next_step(h_last, int(writer.h5["epmc/iterations"][-1]), TARGET_ITER,
+                       a.step_min, a.step_max) if h_last > 0 else a.step
         return y0, t0, h0, False, a.max_points - writer.rows("epmc/y") + 1
+    return _linear_start(a, system, em, xi0), None, a.step, True, a.max_points
+
+
+def _linear_start(a, system, em, xi0):
+    """The first point of the backbone: the linear mode at the start amplitude."""
     Q = np.zeros((system.n_c, system.n_r))
     ic, _ = system.basis.index[1]
     Q[ic] = system.T @ em.phi
-    y0 = np.concatenate([Q.ravel(), [em.omega, xi0, a.log10_amplitude_start]])
-    return y0, None, a.step, True, a.max_points
+    return np.concatenate([Q.ravel(), [em.omega, xi0, a.log10_amplitude_start]])
 
 
 def _scales(ep, y0, w0):
@@ -184,33 +193,34 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
         omega, xi, lam = float(y[nz]), float(y[nz + 1]), float(y[nz + 2])
         amp = 10.0 ** lam
         X = system.reconstruct(ep.z0 + amp * y[:nz], omega, F, xi=xi)
-        p = writer.rows("epmc/omega")
-        writer.append("epmc/amplitude", amp, amp_unit, "modal amplitude of the fundamental")
-        writer.append("epmc/omega", omega, unit("angular_frequency", units), "angular frequency")
-        writer.append("epmc/frequency_hz", omega / (2 * np.pi), unit("frequency", units),
-                      "frequency of the nonlinear mode")
-        writer.append("epmc/damping_ratio", xi / (2 * omega), "1", "xi / (2 omega)")
-        writer.append("epmc/xi", xi, unit("angular_frequency", units),
-                      "self-excitation (negative mass-proportional damping)")
-        writer.append("epmc/X", X, d_u, "harmonic coefficients [n_coeff, n_dof]")
-        writer.append("epmc/iterations", np.int64(info.iterations), "1", "Newton iterations")
-        writer.append("epmc/residual", info.residual, "1", "max |R| / residual scale")
-        writer.append("epmc/step", info.step, "1", "scaled arclength step")
-        writer.append("epmc/y", y, "1", "unknowns (shape, omega, xi, log10 a), for --resume")
-        writer.append("epmc/tangent", info.tangent, "1", "unit tangent (scaled)")
-        solves, krylov_it, factorizations = system.stats.take()
-        writer.append("epmc/linear_solves", np.int64(solves), "1",
-                      "linear solves since the previous point")
-        writer.append("epmc/krylov_iterations", np.int64(krylov_it), "1",
-                      "GMRES iterations summed over those solves (0: direct solver)")
-        writer.append("epmc/preconditioners", np.int64(factorizations), "1",
-                      "harmonic preconditioners factorised since the previous point")
-        ev = info.extra
-        if ev is not None and ev.aft is not None and keep(p, amp):
-            u = system.slips(X)
-            report = check_loops(u, ev.aft.f, ev.aft.N, law, masing.tol)
-            write_loops(writer, p, u, ev.aft.f, ev.aft.N, report, units, prefix="epmc")
-            writer.h5["epmc/loops"].attrs["analysis"] = "epmc"
+        with writer.commit():  # the point and its loops: all or nothing
+            p = writer.rows("epmc/omega")
+            writer.append("epmc/amplitude", amp, amp_unit, "modal amplitude of the fundamental")
+            writer.append("epmc/omega", omega, unit("angular_frequency", units), "angular frequency")
+            writer.append("epmc/frequency_hz", omega / (2 * np.pi), unit("frequency", units),
+                          "frequency of the nonlinear mode")
+            writer.append("epmc/damping_ratio", xi / (2 * omega), "1", "xi / (2 omega)")
+            writer.append("epmc/xi", xi, unit("angular_frequency", units),
+                          "self-excitation (negative mass-proportional damping)")
+            writer.append("epmc/X", X, d_u, "harmonic coefficients [n_coeff, n_dof]")
+            writer.append("epmc/iterations", np.int64(info.iterations), "1", "Newton iterations")
+            writer.append("epmc/residual", info.residual, "1", "max |R| / residual scale")
+            writer.append("epmc/step", info.step, "1", "scaled arclength step")
+            writer.append("epmc/y", y, "1", "unknowns (shape, omega, xi, log10 a), for --resume")
+            writer.append("epmc/tangent", info.tangent, "1", "unit tangent (scaled)")
+            solves, krylov_it, factorizations = system.stats.take()
+            writer.append("epmc/linear_solves", np.int64(solves), "1",
+                          "linear solves since the previous point")
+            writer.append("epmc/krylov_iterations", np.int64(krylov_it), "1",
+                          "GMRES iterations summed over those solves (0: direct solver)")
+            writer.append("epmc/preconditioners", np.int64(factorizations), "1",
+                          "harmonic preconditioners factorised since the previous point")
+            ev = info.extra
+            if ev is not None and ev.aft is not None and keep(p, amp):
+                u = system.slips(X)
+                report = check_loops(u, ev.aft.f, ev.aft.N, law, masing.tol)
+                write_loops(writer, p, u, ev.aft.f, ev.aft.N, report, units, prefix="epmc")
+                writer.h5["epmc/loops"].attrs["analysis"] = "epmc"
 
     return on_point
 

@@ -41,7 +41,7 @@ import numpy as np
 from .._schema import SceneError
 from ..io.hdf5 import unit, write_loops
 from ..masing import check_loops
-from ..solvers.continuation import continue_branch
+from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
 from ..solvers.crosscheck import HBMSolutions
 from ..harmonics import harmonic_amplitude
 from ..solvers.hbm import HBMSystem, frc_scales, refine_peak
@@ -83,7 +83,9 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
                     want_aft=loop_rule(scene) in ("all", "masing.points"),
                     n_branches=len(a.force_scale))
     n_workers = a.workers or min(len(todo), os.cpu_count() or 1)
-    if n_workers > 1 and len(todo) > 1 and _can_fork():
+    if not (n_workers > 1 and len(todo) > 1 and _can_fork() and not _in_daemon()):
+        n_workers = 1
+    if n_workers > 1:
         failures = _run_branches_forked(todo, job_args, min(n_workers, len(todo)),
                                         out.write_point, out.finish_branch)
     else:
@@ -239,34 +241,35 @@ class _Output:
         """Append one solution point (a record from :func:`_point_record`)."""
         writer, units = self.writer, self.units
         d_u, w_u = unit("displacement", units), unit("angular_frequency", units)
-        p = writer.rows("hbm/omega")
-        writer.append("hbm/omega", rec["omega"], w_u, "angular frequency of the point")
-        writer.append("hbm/X", rec["X"], d_u, "harmonic coefficients [n_coeff, n_dof]")
-        writer.append("hbm/q", rec["q"], d_u, "coefficients of the contact coordinates")
-        writer.append("hbm/branch", np.int64(rec["branch"]), "1",
-                      "branch (force level) of the point")
-        writer.append("hbm/amplitude", rec["amplitude"], d_u,
-                      f"amplitude ({self.a.amplitude}) at the response DOF")
-        writer.append("hbm/max_abs", rec["max_abs"], d_u,
-                      "max |x(t)| at the response DOF over the AFT samples")
-        writer.append("hbm/iterations", np.int64(rec["iterations"]), "1",
-                      "Newton iterations of the corrector")
-        writer.append("hbm/residual", rec["residual"], "1",
-                      "max |R| / residual scale at the point")
-        writer.append("hbm/step", rec["step"], "1", "scaled arclength step to the point")
-        writer.append("hbm/tangent", rec["tangent"], "1", "unit tangent (scaled variables)")
-        writer.append("hbm/aft_periods", np.int64(rec["aft_periods"]), "1",
-                      "largest number of periods the laws were marched")
-        writer.append("hbm/linear_solves", np.int64(rec["linear_solves"]), "1",
-                      "linear solves (Newton steps and tangents) since the previous point")
-        writer.append("hbm/krylov_iterations", np.int64(rec["krylov_iterations"]), "1",
-                      "GMRES iterations summed over those solves (0: direct solver)")
-        writer.append("hbm/preconditioners", np.int64(rec["preconditioners"]), "1",
-                      "harmonic preconditioners factorised since the previous point")
-        for k in self.points:
-            self.points[k].append(rec[k])
-        if rec.get("f") is not None and (not self.masing_points or p in self.masing_points):
-            self._write_loops(p, rec["X"], rec["f"], rec["N"])
+        with writer.commit():  # every dataset of the point, its loops: all or nothing
+            p = writer.rows("hbm/omega")
+            writer.append("hbm/omega", rec["omega"], w_u, "angular frequency of the point")
+            writer.append("hbm/X", rec["X"], d_u, "harmonic coefficients [n_coeff, n_dof]")
+            writer.append("hbm/q", rec["q"], d_u, "coefficients of the contact coordinates")
+            writer.append("hbm/branch", np.int64(rec["branch"]), "1",
+                          "branch (force level) of the point")
+            writer.append("hbm/amplitude", rec["amplitude"], d_u,
+                          f"amplitude ({self.a.amplitude}) at the response DOF")
+            writer.append("hbm/max_abs", rec["max_abs"], d_u,
+                          "max |x(t)| at the response DOF over the AFT samples")
+            writer.append("hbm/iterations", np.int64(rec["iterations"]), "1",
+                          "Newton iterations of the corrector")
+            writer.append("hbm/residual", rec["residual"], "1",
+                          "max |R| / residual scale at the point")
+            writer.append("hbm/step", rec["step"], "1", "scaled arclength step to the point")
+            writer.append("hbm/tangent", rec["tangent"], "1", "unit tangent (scaled variables)")
+            writer.append("hbm/aft_periods", np.int64(rec["aft_periods"]), "1",
+                          "largest number of periods the laws were marched")
+            writer.append("hbm/linear_solves", np.int64(rec["linear_solves"]), "1",
+                          "linear solves (Newton steps and tangents) since the previous point")
+            writer.append("hbm/krylov_iterations", np.int64(rec["krylov_iterations"]), "1",
+                          "GMRES iterations summed over those solves (0: direct solver)")
+            writer.append("hbm/preconditioners", np.int64(rec["preconditioners"]), "1",
+                          "harmonic preconditioners factorised since the previous point")
+            for k in self.points:
+                self.points[k].append(rec[k])
+            if rec.get("f") is not None and (not self.masing_points or p in self.masing_points):
+                self._write_loops(p, rec["X"], rec["f"], rec["N"])
 
     def _write_loops(self, p, X, f, N) -> None:
         """Element loops of point ``p`` and their Masing check."""
@@ -279,8 +282,6 @@ class _Output:
         """Status, peak and peak loops of a finished branch; the failure, if any."""
         a, system, writer, units = self.a, self.system, self.writer, self.units
         g = writer.h5["hbm"]
-        g.attrs[f"branch{ib}_status"] = "complete" if success else "gave up"
-        g.attrs[f"branch{ib}_message"] = message
         F = system.force_coefficients(fs)
         rows = np.flatnonzero(np.asarray(self.points["branch"]) == ib) \
             if self.points["branch"] else np.zeros(0, dtype=np.int64)
@@ -310,6 +311,12 @@ class _Output:
                          f"largest amplitude ({a.amplitude}) of each branch")
             writer.write("hbm/peak_refined", self.refined, "1", "peak refined by maximising "
                          "over frequency (false: largest computed point, e.g. at a fold)")
+        # the status last: a branch marked finished has its peak and loops in the file
+        # ("worker died" is not final: --resume computes the branch on)
+        g.attrs[f"branch{ib}_message"] = message
+        g.attrs[f"branch{ib}_status"] = "complete" if success else \
+            ("worker died" if message.startswith("worker process ended") else "gave up")
+        writer.h5.flush()
         log.info("hbm branch %d (force scale %g): %s; peak %.6g at omega = %.6g", ib, fs,
                  message, self.peaks["amplitude"][ib], self.peaks["omega"][ib])
         return None if success else f"branch {ib} (force scale {fs:g}): {message}"
@@ -341,9 +348,12 @@ def _branches_to_run(writer, a, g) -> list:
         start = None
         if rows.size:
             last = int(rows[-1])
+            # the step the uninterrupted branch takes next (the first point: a.step)
+            h_last = float(writer.h5["hbm/step"][last])
+            h_next = next_step(h_last, int(writer.h5["hbm/iterations"][last]), TARGET_ITER,
+                               a.step_min, a.step_max) if h_last > 0 else a.step
             start = (np.append(writer.h5["hbm/q"][last], writer.h5["hbm/omega"][last]),
-                     writer.h5["hbm/tangent"][last],
-                     float(writer.h5["hbm/step"][last]) or a.step, int(rows.size))
+                     writer.h5["hbm/tangent"][last], h_next, int(rows.size))
             log.info("hbm branch %d: resuming from point %d (omega = %g)", ib, last,
                      start[0][-1])
         todo.append(_BranchJob(ib, fs, start))
@@ -413,8 +423,17 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,
         step_max=a.step_max, max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
         solve_first=solve_first, tangent0=t0, on_point=on_point, progress=progress,
-        desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})")
+        desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})", lam_start=a.omega_start)
     return br.convergence
+
+
+def _in_daemon() -> bool:
+    """In a daemonic process (a dask or multiprocessing worker), which may not fork workers."""
+    import multiprocessing as mp
+    if mp.current_process().daemon:
+        log.info("hbm: in a daemonic worker process; branches run serially")
+        return True
+    return False
 
 
 def _can_fork() -> bool:
@@ -422,13 +441,50 @@ def _can_fork() -> bool:
     return "fork" in mp.get_all_start_methods()
 
 
-def _branch_process(job, job_args, queue) -> None:
+def die_with_parent(parent_pid: int) -> None:
+    """In a forked worker: be killed (SIGKILL) when the parent dies, however it dies.
+
+    Linux: ``prctl(PR_SET_PDEATHSIG, SIGKILL)``; elsewhere a thread that
+    polls the parent pid every 0.5 s.  Also closes the descriptors of the
+    parent's result writers (:func:`jointsim.io.hdf5.release_inherited`), so a
+    worker never holds the file lock, and leaves SIGINT to the parent (which
+    stops the workers and marks the file).
+    """
+    import signal
+    import sys
+    import threading
+
+    from ..io.hdf5 import release_inherited
+    release_inherited()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    armed = False
+    if sys.platform.startswith("linux"):
+        import ctypes
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            armed = libc.prctl(1, int(signal.SIGKILL), 0, 0, 0) == 0  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            armed = False
+    if os.getppid() != parent_pid:  # the parent died before the signal was armed
+        os._exit(1)
+    if not armed:
+        def watch():
+            while os.getppid() == parent_pid:
+                time.sleep(0.5)
+            os._exit(1)
+        threading.Thread(target=watch, daemon=True).start()
+
+
+def _branch_process(job, job_args, queue, parent_pid) -> None:
     """Body of a worker process: compute a branch, send its points to the parent.
 
     The workers are the parallelism: each builds its own system with
     ``parallel=False``, so its AFT kernels stay on one thread (no numba thread
     pool is started in a forked process, and the cores are not oversubscribed).
+    The worker dies with its parent (:func:`die_with_parent`).
     """
+    die_with_parent(parent_pid)
     try:
         serial = _system(job_args["system"].model, job_args["a"], parallel=False)
         conv = _run_branch(job, on_record=lambda rec: queue.put(("point", job.ib, rec)),
@@ -461,8 +517,8 @@ def _run_branches_forked(todo, job_args, n_workers, write_point, finish_branch):
         while pending or running:
             while pending and len(running) < n_workers:
                 job = pending.pop(0)
-                proc = ctx.Process(target=_branch_process, args=(job, job_args, q),
-                                   daemon=True)
+                proc = ctx.Process(target=_branch_process,
+                                   args=(job, job_args, q, os.getpid()), daemon=True)
                 proc.start()
                 running[job.ib] = (job, proc)
             try:

@@ -86,14 +86,15 @@ class _History:
         if t.size == 0:
             return
         w = self.writer
-        w.append_rows("transient/x", np.asarray(x, dtype=float), self.units["x"],
-                      "time history of the output DOFs (transient/dofs)")
-        if extra is not None:
-            w.append_rows("transient/q", np.asarray(extra, dtype=float),
-                          "m kg^0.5" if self.units["t"] == "s" else "length mass^0.5",
-                          "modal coordinate phi^T M (x - x_static)")
-        w.append_rows("transient/t", np.asarray(t, dtype=float), self.units["t"],
-                      "time of each history sample")
+        with w.commit():  # the rows of a block: all or nothing
+            w.append_rows("transient/x", np.asarray(x, dtype=float), self.units["x"],
+                          "time history of the output DOFs (transient/dofs)")
+            if extra is not None:
+                w.append_rows("transient/q", np.asarray(extra, dtype=float),
+                              "m kg^0.5" if self.units["t"] == "s" else "length mass^0.5",
+                              "modal coordinate phi^T M (x - x_static)")
+            w.append_rows("transient/t", np.asarray(t, dtype=float), self.units["t"],
+                          "time of each history sample")
 
     def close(self):
         for block in self.blocks:

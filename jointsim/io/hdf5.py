@@ -14,14 +14,36 @@ Public contract (schema version 1):
   ``/static/*`` written by their analyses.
 
 Every dataset carries a ``unit`` attribute.  Datasets that grow point by
-point are extendable along their first axis and the file is flushed after
-every append, so an interrupted run leaves a valid, readable file whose
-``status`` says how far it got.
+point are extendable along their first axis.
+
+Crash consistency (issue 11):
+
+* **One writer per file.**  A writer takes an exclusive ``flock`` on the
+  side file ``<name>.lock`` *before* the result file is opened; a second
+  writer is refused (:class:`FileLockedError`) and nothing is touched.  An
+  existing result file is opened for writing only to resume it or when
+  overwriting is asked for explicitly.  Forked worker processes never hold
+  the lock (:func:`release_inherited`).
+* **Committed points.**  The rows of one point (all its datasets, its loops
+  and Masing rows) are appended inside :meth:`ResultWriter.commit`; then the
+  file is flushed, the attribute ``committed_rows`` (:data:`COMMITTED`) of
+  every dataset appended to is advanced, and the file is flushed again (a
+  group whose datasets take one row per point, such as ``/hbm``, carries the
+  same count: its committed points).  Rows beyond it belong to a point
+  that was being written when the process died: readers
+  (:func:`open_result`) and ``--resume`` ignore them, and a writer that
+  closes normally or resumes trims them.
 """
 from __future__ import annotations
 
+import contextlib
 import datetime
+import errno
+import fcntl
+import io
 import logging
+import os
+import signal
 from pathlib import Path
 
 import h5py
@@ -32,6 +54,195 @@ from .. import __version__
 log = logging.getLogger(__name__)
 
 SCHEMA_VERSION = 1
+
+#: Group attribute: rows of the group's extendable datasets that hold whole points.
+COMMITTED = "committed_rows"
+#: Root attribute (1) of files whose groups carry :data:`COMMITTED`: a group
+#: without it there has no committed point yet.
+COMMITS = "commits_points"
+
+
+class FileLockedError(OSError):
+    """Another process is writing the result file."""
+
+
+class NotAResultError(ValueError):
+    """An HDF5 file that jointsim did not write."""
+
+
+def lock_path(path) -> Path:
+    """The side file whose ``flock`` makes a process the writer of ``path``."""
+    path = Path(path)
+    return path.with_name(path.name + ".lock")
+
+
+def acquire_lock(path) -> int:
+    """Become the only writer of ``path``: an exclusive, non-blocking ``flock``.
+
+    The lock is on the side file :func:`lock_path` (the result file itself
+    is not opened, so a refused writer changes nothing).  The kernel drops
+    the lock when the process dies, however it dies.
+
+    Returns
+    -------
+    int
+        The file descriptor holding the lock (give it to :func:`release_lock`).
+
+    Raises
+    ------
+    FileLockedError
+        When another process holds the lock.
+    """
+    lp = lock_path(path)
+    while True:
+        fd = os.open(lp, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise FileLockedError(f"{path}: another jointsim process is writing this "
+                                      f"file (lock {lp.name} is held); nothing was changed")
+                raise
+            raise
+        # the holder before us may have removed the side file after we opened it:
+        # then our lock is on a dead inode, and we try again on the new one
+        try:
+            same = os.stat(lp).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+            return fd
+        os.close(fd)
+
+
+def release_lock(path, fd: int) -> None:
+    """Remove the side file and drop the lock taken by :func:`acquire_lock`."""
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(lock_path(path))
+    os.close(fd)
+
+
+#: Lock descriptors and HDF5 file descriptors of the writers of this process.
+_OPEN_WRITERS: dict[int, "ResultWriter"] = {}
+
+
+def release_inherited() -> None:
+    """In a forked child: close the writers' descriptors it inherited.
+
+    A forked worker shares its parent's open file descriptions, and with them
+    the ``flock`` of the result file; closing its copies (without touching
+    HDF5, which belongs to the parent) lets the lock go as soon as the parent
+    is gone.
+    """
+    for w in list(_OPEN_WRITERS.values()):
+        for fd in (w._lock_fd, w._h5_fd):
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+    _OPEN_WRITERS.clear()
+
+
+#: Depth of the critical sections of this process, and the signals held meanwhile.
+_CRITICAL = {"depth": 0, "pending": []}
+
+
+def interrupt_handler(signum, frame) -> None:
+    """Signal handler: raise :class:`KeyboardInterrupt`, after the current commit.
+
+    Installed by :func:`jointsim.run.run_scene` for SIGINT, SIGTERM and SIGHUP;
+    a signal that arrives while a point is being committed (or the file
+    finished) is held and raised when that is done, so a commit is never cut
+    in half.
+    """
+    if _CRITICAL["depth"]:
+        _CRITICAL["pending"].append(signum)
+        return
+    raise KeyboardInterrupt(f"stopped by {signal.Signals(signum).name}")
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """A critical section: :func:`interrupt_handler` holds signals until it ends."""
+    _CRITICAL["depth"] += 1
+    try:
+        yield
+    finally:
+        _CRITICAL["depth"] -= 1
+    if not _CRITICAL["depth"] and _CRITICAL["pending"]:
+        signum = _CRITICAL["pending"][0]
+        _CRITICAL["pending"].clear()
+        raise KeyboardInterrupt(f"stopped by {signal.Signals(signum).name}")
+
+
+def _extendable_datasets(h5) -> list:
+    """The extendable datasets of an open file (soft links not followed)."""
+    out = []
+
+    def visit(name, obj):
+        if isinstance(obj, h5py.Dataset) and obj.maxshape and obj.maxshape[0] is None:
+            out.append(obj)
+
+    h5.visititems(visit)  # visititems does not follow soft links
+    return out
+
+
+def torn_groups(h5) -> dict[str, int]:
+    """Datasets holding rows beyond their committed count: ``{dataset: committed rows}``.
+
+    In a file with :data:`COMMITS`, an extendable dataset without the
+    :data:`COMMITTED` attribute has committed nothing.  A file of an older
+    jointsim (without :data:`COMMITS`) is taken as it is.
+    """
+    if not h5.attrs.get(COMMITS, 0):
+        return {}
+    out = {}
+    for d in _extendable_datasets(h5):
+        n = int(d.attrs.get(COMMITTED, 0))
+        if d.shape[0] > n:
+            out[d.name] = n
+    return out
+
+
+def _trim(h5, torn: dict[str, int]) -> None:
+    for name, n in torn.items():
+        h5[name].resize(n, axis=0)
+
+
+def open_result(path):
+    """Open a result file for reading, committed points only.
+
+    A file whose writer was killed may hold a torn last point (rows beyond a
+    group's committed count); then an in-memory copy with those rows removed
+    is returned, and the file on disk is not changed.
+
+    Returns
+    -------
+    h5py.File
+        Read it inside ``with``.
+
+    Raises
+    ------
+    NotAResultError
+        When the file is HDF5 but was not written by jointsim.
+    OSError
+        When it cannot be opened as HDF5.
+    """
+    h5 = h5py.File(path, "r")
+    if "schema_version" not in h5.attrs or "status" not in h5.attrs:
+        h5.close()
+        raise NotAResultError(f"{path}: an HDF5 file that jointsim did not write (no "
+                              "schema_version/status attributes); not a result file")
+    torn = torn_groups(h5)
+    if not torn:
+        return h5
+    h5.close()
+    log.info("%s: ignoring the torn last point of %s", path, ", ".join(sorted(torn)))
+    mem = h5py.File(io.BytesIO(Path(path).read_bytes()), "r+")
+    _trim(mem, torn)
+    return mem
 
 #: Physical quantity -> unit, per unit system of the model.
 _UNITS = {
@@ -69,10 +280,11 @@ def unit(quantity: str, system: str = "SI") -> str:
 
 
 class ResultWriter:
-    """Incremental writer of a result file.
+    """Incremental, crash-consistent writer of a result file.
 
     Use as a context manager; an exception inside marks the file ``failed``
-    (``interrupted`` for Ctrl-C) with the reason, and re-raises.
+    (``interrupted`` for Ctrl-C, SIGTERM: any :class:`KeyboardInterrupt`) with
+    the reason and the committed point counts, and re-raises.
 
     Parameters
     ----------
@@ -82,22 +294,67 @@ class ResultWriter:
         The resolved scene, stored as text.
     resume : bool
         Open an existing file to continue it; its stored scene must match.
+        Rows of a torn last point are removed first.
+    overwrite : bool
+        Replace an existing file.  Without ``resume`` or ``overwrite`` an
+        existing file is refused (:class:`FileExistsError`) and not touched.
+
+    Raises
+    ------
+    FileLockedError
+        When another process writes the file (checked before it is opened).
     """
 
-    def __init__(self, path, scene, resume: bool = False):
+    def __init__(self, path, scene, resume: bool = False, overwrite: bool = False):
         self.path = Path(path)
+        if self.path.is_dir():
+            raise IsADirectoryError(f"{self.path}: the output is a directory, not a file")
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._txn: set | None = None
+        self._h5_fd = None
+        self._lock_fd = acquire_lock(self.path)
+        try:
+            self._open(scene, resume, overwrite)
+        except BaseException:
+            if getattr(self, "h5", None) is not None and self.h5.id.valid:
+                self.h5.close()
+            release_lock(self.path, self._lock_fd)
+            raise
+        with contextlib.suppress(Exception):
+            self._h5_fd = int(self.h5.id.get_vfd_handle())
+        _OPEN_WRITERS[id(self)] = self
+
+    def _open(self, scene, resume, overwrite):
+        self.h5 = None
         if resume:
             if not self.path.exists():
                 raise FileNotFoundError(f"{self.path}: cannot resume, the file does not exist")
-            self.h5 = h5py.File(self.path, "a")
+            try:
+                self.h5 = h5py.File(self.path, "a", locking=False)
+            except OSError as exc:
+                raise OSError(f"{self.path}: cannot resume, not a readable HDF5 file "
+                              f"({exc})") from None
+            if "schema_version" not in self.h5.attrs:
+                raise NotAResultError(f"{self.path}: cannot resume, an HDF5 file that "
+                                      "jointsim did not write")
             stored = self.h5.attrs.get("scene", "")
             if stored != scene.text:
-                self.h5.close()
                 raise ValueError(f"{self.path}: cannot resume, it was written for a different "
                                  "scene (the resolved scene text differs)")
+            torn = torn_groups(self.h5)
+            if torn:
+                log.info("%s: removing the torn last point of %s", self.path,
+                         ", ".join(sorted(torn)))
+                _trim(self.h5, torn)
+            if not self.h5.attrs.get(COMMITS, 0):  # an older file: commit what it holds
+                for d in _extendable_datasets(self.h5):
+                    d.attrs[COMMITTED] = d.shape[0]
+                self.h5.attrs[COMMITS] = 1
         else:
-            self.h5 = h5py.File(self.path, "w")
+            if self.path.exists() and not overwrite:
+                raise FileExistsError(f"{self.path}: exists; continue it with --resume or "
+                                      "replace it with --overwrite (nothing was changed)")
+            self.h5 = h5py.File(self.path, "w", locking=False)
             a = self.h5.attrs
             a["schema_version"] = SCHEMA_VERSION
             a["jointsim_version"] = __version__
@@ -106,8 +363,10 @@ class ResultWriter:
             a["model_kind"] = scene.model.kind
             a["units"] = getattr(scene.model, "units", "SI")
             a["created"] = datetime.datetime.now(datetime.timezone.utc).isoformat()
+            a[COMMITS] = 1
         self.h5.attrs["status"] = "running"
         self.h5.attrs["message"] = ""
+        self.h5.attrs["pid"] = os.getpid()
         self.h5.flush()
 
     # -- context management -------------------------------------------------
@@ -116,25 +375,99 @@ class ResultWriter:
 
     def __exit__(self, exc_type, exc, tb):
         if not self.h5.id.valid:  # already finished
+            self._release()
             return False
         if exc_type is None:
             if self.h5.attrs.get("status") == "running":
                 self.finish("complete", "")
         elif issubclass(exc_type, KeyboardInterrupt):
-            self.finish("interrupted", "stopped by the user; the file holds what was computed")
+            why = str(exc) or "stopped by the user (Ctrl-C)"
+            self.finish("interrupted", f"{why}; {self.committed_summary()}; "
+                        "continue with --resume")
         else:
             self.finish("failed", f"{exc_type.__name__}: {exc}")
         return False
 
+    def committed_summary(self) -> str:
+        """``"committed points: hbm 37, hbm/loops 37"`` (groups with one committed count)."""
+        parts = []
+        self.h5.visititems(lambda n, o: parts.append(f"{n} {int(o.attrs[COMMITTED])}")
+                           if isinstance(o, h5py.Group) and COMMITTED in o.attrs else None)
+        return "committed points: " + (", ".join(parts) if parts else "none")
+
     def finish(self, status: str, message: str) -> None:
-        """Set the final status and close the file."""
+        """Remove torn rows, set the final status and close the file (and drop the lock)."""
         if not self.h5.id.valid:
+            self._release()
             return
+        with _signals_deferred():
+            self._finish_now(status, message)
+
+    def _finish_now(self, status: str, message: str) -> None:
+        self._txn = None
+        torn = torn_groups(self.h5)
+        if torn:
+            _trim(self.h5, torn)
         self.h5.attrs["status"] = status
         self.h5.attrs["message"] = message
         self.h5.attrs["finished"] = datetime.datetime.now(datetime.timezone.utc).isoformat()
         self.h5.flush()
         self.h5.close()
+        self._release()
+
+    def _release(self) -> None:
+        if self._lock_fd is not None:
+            release_lock(self.path, self._lock_fd)
+            self._lock_fd = None
+        _OPEN_WRITERS.pop(id(self), None)
+
+    @contextlib.contextmanager
+    def commit(self):
+        """Write one point atomically: appends inside go to the file, then are committed.
+
+        On leaving without an exception the file is flushed, then every
+        dataset appended to gets :data:`COMMITTED` set to its rows (and its
+        group too, when all its datasets agree), and the file is flushed
+        again.  A process killed before that leaves rows that readers and
+        ``--resume`` ignore.  Nested use joins the outer commit.
+        """
+        if self._txn is not None:
+            yield self
+            return
+        self._txn = set()
+        try:
+            yield self
+            touched = self._txn
+        finally:
+            self._txn = None
+        self._commit(touched)
+
+    def _commit(self, names) -> None:
+        """Flush, then advance :data:`COMMITTED` of the datasets ``names``, flush again.
+
+        A group whose extendable datasets all have the same committed rows
+        (one row per point: ``/hbm``, ``/hbm/loops``, ...) gets that count too.
+        SIGINT and SIGTERM wait until it is done.
+        """
+        with _signals_deferred():
+            self._commit_now(names)
+
+    def _commit_now(self, names) -> None:
+        self.h5.flush()
+        groups = set()
+        for name in sorted(names):
+            d = self.h5[name]
+            d.attrs[COMMITTED] = d.shape[0]
+            groups.add(d.parent.name)
+        for gname in sorted(groups):
+            g = self.h5[gname]
+            counts = {int(o.attrs.get(COMMITTED, 0)) for o in g.values()
+                      if isinstance(o, h5py.Dataset) and o.maxshape and o.maxshape[0] is None}
+            if len(counts) == 1:
+                g.attrs[COMMITTED] = counts.pop()
+            elif COMMITTED in g.attrs:
+                del g.attrs[COMMITTED]
+        self.h5.flush()
 
     # -- writing --------------------------------------------------------------
     def group(self, name: str, **attrs) -> h5py.Group:
@@ -191,7 +524,7 @@ class ResultWriter:
         n = ds.shape[0]
         ds.resize(n + 1, axis=0)
         ds[n] = row
-        self.h5.flush()
+        self._appended(ds)
         return n + 1
 
     def append_rows(self, name: str, rows, unit: str, doc: str = "") -> int:
@@ -218,11 +551,18 @@ class ResultWriter:
         if rows.shape[0]:
             ds.resize(n + rows.shape[0], axis=0)
             ds[n:] = rows
-            self.h5.flush()
+            self._appended(ds)
         return n + rows.shape[0]
 
+    def _appended(self, ds) -> None:
+        """Record a group appended to; outside :meth:`commit` commit it at once."""
+        if self._txn is not None:
+            self._txn.add(ds.name)
+        else:
+            self._commit({ds.name})
+
     def rows(self, name: str) -> int:
-        """Rows stored in an extendable dataset (0 if absent)."""
+        """Rows stored in an extendable dataset (0 if absent; committed rows outside a commit)."""
         return self.h5[name].shape[0] if name in self.h5 else 0
 
 
@@ -248,36 +588,37 @@ def write_loops(writer: ResultWriter, point: int, u, f, N, report, units: str,
     prefix : str
         The analysis group (``prescribed``, ``hbm``, ``epmc``, ``transient``).
     """
-    d, F = unit("displacement", units), unit("force", units)
-    p = prefix.strip("/") + "/" if prefix.strip("/") else ""
-    writer.append(f"{p}loops/point", np.int64(point), "1", "solution point of each loop set")
-    writer.append(f"{p}loops/u", u, d, "tangential displacement over one steady period")
-    writer.append(f"{p}loops/f", f, F, "tangential force over one steady period")
-    writer.append(f"{p}loops/N", N, F, "normal load over one steady period")
-    one = "1"
-    writer.append(f"{p}masing/dev_manifold", report.dev_manifold, one,
-                  "max |f - f_manifold| / max(mu N)")
-    writer.append(f"{p}masing/dev_masing", report.dev_masing, one,
-                  "max |f - f_masing| / max(mu N), classical Masing at the mean N")
-    writer.append(f"{p}masing/on_manifold", report.on_manifold, one, "dev_manifold <= tol")
-    writer.append(f"{p}masing/on_masing", report.on_masing, one, "dev_masing <= tol")
-    writer.append(f"{p}masing/eq4_ok", report.eq4_ok, one, "seed Eq. 4: d(mu N)/ds >= -kt "
-                  "while the force opposes the motion after a reversal")
-    writer.append(f"{p}masing/eq6_ok", report.eq6_ok, one, "seed Eq. 6: d(mu N)/ds <= kt "
-                  "while slipping")
-    writer.append(f"{p}masing/eq4_margin", report.eq4_margin, one, "held: min(1 + d(mu N)/ds / kt); violated: -integrated violation / (kt ptp(u))")
-    writer.append(f"{p}masing/eq6_margin", report.eq6_margin, one, "held: min(1 - d(mu N)/ds / kt); violated: -integrated violation / (kt ptp(u))")
-    writer.append(f"{p}masing/n_reversals", report.n_reversals, one, "reversals of u per period")
-    writer.append(f"{p}masing/f_manifold", report.f_manifold, F, "manifold prediction")
-    writer.append(f"{p}masing/f_masing", report.f_masing, F, "classical Masing prediction")
-    writer.h5[f"{p}masing"].attrs["tol"] = report.tol
-    if p and "loops" not in writer.h5:
-        writer.h5["loops"] = h5py.SoftLink(f"/{p}loops")
-        writer.h5["masing"] = h5py.SoftLink(f"/{p}masing")
-        writer.h5.attrs["loops_of"] = prefix.strip("/")
+    with writer.commit():  # the loops and checks of a point: all or nothing
+        d, F = unit("displacement", units), unit("force", units)
+        p = prefix.strip("/") + "/" if prefix.strip("/") else ""
+        writer.append(f"{p}loops/point", np.int64(point), "1", "solution point of each loop set")
+        writer.append(f"{p}loops/u", u, d, "tangential displacement over one steady period")
+        writer.append(f"{p}loops/f", f, F, "tangential force over one steady period")
+        writer.append(f"{p}loops/N", N, F, "normal load over one steady period")
+        one = "1"
+        writer.append(f"{p}masing/dev_manifold", report.dev_manifold, one,
+                      "max |f - f_manifold| / max(mu N)")
+        writer.append(f"{p}masing/dev_masing", report.dev_masing, one,
+                      "max |f - f_masing| / max(mu N), classical Masing at the mean N")
+        writer.append(f"{p}masing/on_manifold", report.on_manifold, one, "dev_manifold <= tol")
+        writer.append(f"{p}masing/on_masing", report.on_masing, one, "dev_masing <= tol")
+        writer.append(f"{p}masing/eq4_ok", report.eq4_ok, one, "seed Eq. 4: d(mu N)/ds >= -kt "
+                      "while the force opposes the motion after a reversal")
+        writer.append(f"{p}masing/eq6_ok", report.eq6_ok, one, "seed Eq. 6: d(mu N)/ds <= kt "
+                      "while slipping")
+        writer.append(f"{p}masing/eq4_margin", report.eq4_margin, one, "held: min(1 + d(mu N)/ds / kt); violated: -integrated violation / (kt ptp(u))")
+        writer.append(f"{p}masing/eq6_margin", report.eq6_margin, one, "held: min(1 - d(mu N)/ds / kt); violated: -integrated violation / (kt ptp(u))")
+        writer.append(f"{p}masing/n_reversals", report.n_reversals, one, "reversals of u per period")
+        writer.append(f"{p}masing/f_manifold", report.f_manifold, F, "manifold prediction")
+        writer.append(f"{p}masing/f_masing", report.f_masing, F, "classical Masing prediction")
+        writer.h5[f"{p}masing"].attrs["tol"] = report.tol
+        if p and "loops" not in writer.h5:
+            writer.h5["loops"] = h5py.SoftLink(f"/{p}loops")
+            writer.h5["masing"] = h5py.SoftLink(f"/{p}masing")
+            writer.h5.attrs["loops_of"] = prefix.strip("/")
 
 
 def read_attrs(path) -> dict:
     """Root attributes of a result file, as plain Python values."""
-    with h5py.File(path, "r") as h5:
+    with open_result(path) as h5:
         return {k: (v.item() if hasattr(v, "item") else v) for k, v in h5.attrs.items()}

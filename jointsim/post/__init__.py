@@ -14,6 +14,8 @@ from typing import Callable
 
 import h5py
 
+from ..io.hdf5 import open_result
+
 log = logging.getLogger(__name__)
 
 def figure_dir(result, outdir=None) -> Path:
@@ -58,7 +60,7 @@ def make_figures(result, outdir=None, frequency: str = "Hz") -> list[Path]:
     """
     d = figure_dir(result, outdir)
     written: list[Path] = []
-    with h5py.File(result, "r") as h5:
+    with open_result(result) as h5:
         for group, plotter in plotters().items():
             if group in h5:
                 written.extend(plotter(h5, d, frequency=frequency) if group == "hbm"
@@ -74,7 +76,7 @@ def combined_figures(results, outdir=None) -> list[Path]:
     files = [Path(r) for r in results]
     with_prescribed = []
     for f in files:
-        with h5py.File(f, "r") as h5:
+        with open_result(f) as h5:
             if "prescribed" in h5:
                 with_prescribed.append(f)
     out = []

@@ -5,6 +5,8 @@ import logging
 from pathlib import Path
 
 import h5py
+
+from ..io.hdf5 import open_result
 import numpy as np
 
 from .common import law_from_file, pyplot, quantity_label
@@ -120,7 +122,7 @@ def fig3_grid(results, path: Path) -> Path:
     n = len(results)
     fig = plt.figure(figsize=(10.5, 3.9 * n))
     for row, res in enumerate(results):
-        with h5py.File(res, "r") as h5:
+        with open_result(res) as h5:
             law = law_from_file(h5, n_elements=1)
             units = h5.attrs.get("units", "SI")
             u, f, N, fman, fmas, dman, dmas = _read_loop(h5, 0, 0)

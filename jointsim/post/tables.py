@@ -5,6 +5,8 @@ from pathlib import Path
 
 import h5py
 
+from ..io.hdf5 import open_result
+
 
 def _fmt_bool(b) -> str:
     return "yes" if bool(b) else "NO"
@@ -55,7 +57,7 @@ def sections() -> dict:
 def info_text(path) -> str:
     """Summary of a result file: provenance, status, and each analysis' table."""
     path = Path(path)
-    with h5py.File(path, "r") as h5:
+    with open_result(path) as h5:
         a = h5.attrs
         lines = [f"{path}",
                  f"  scene: {a.get('scene_path', '?')} ({a.get('model_kind', '?')} model)",

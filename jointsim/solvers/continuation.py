@@ -65,6 +65,8 @@ CORNERS = True
 #: At a corner, a corrected point may lie this many steps from the predictor
 #: (tan 80 deg: corners of up to 80 degrees).
 CORNER_JUMP = 5.7
+#: Newton iterations per corrector the step control aims at (default ``target_iter``).
+TARGET_ITER = 4
 #: Points of the traced branch a new point is checked against (no retracing).
 RETRACE_POINTS = 500
 
@@ -225,6 +227,10 @@ class Continuation:
     monitor : callable, optional
         ``monitor(y) -> ndarray`` of quantities (unscaled ``y``) divided by
         their largest allowed change per step (see the module docstring).
+    lam_start : float, optional
+        Where the branch began (default ``y0[-1]``); a branch resumed from a
+        later point passes its true start, so that "turned back out of the
+        range" means the same as uninterrupted.
 
     Attributes
     ----------
@@ -258,9 +264,10 @@ class Continuation:
 
     def __init__(self, fun, y0, lam_end: float, *, scale, rscale: float, step: float,
                  step_min: float, step_max: float, max_points: int, tol: float,
-                 max_iter: int = 20, target_iter: int = 4, max_jump: float = 2.0,
+                 max_iter: int = 20, target_iter: int = TARGET_ITER, max_jump: float = 2.0,
                  backtrack: int = 4, stall: int = 5, solve_first: bool = True,
-                 tangent0=None, desc: str = "continuation", monitor=None):
+                 tangent0=None, desc: str = "continuation", monitor=None,
+                 lam_start=None):
         y0 = np.asarray(y0, dtype=float).copy()
         self.monitor = monitor
         self.fun = fun
@@ -276,7 +283,9 @@ class Continuation:
         self.backtrack, self.stall = backtrack, stall
         self.desc = desc
         self._col = self.scale / self.rscale
-        self._lam_start_h = self.lam0 / self.scale[-1]
+        # lam_start: where the branch began (a resumed branch starts later)
+        self._lam_start_h = (self.lam0 if lam_start is None else float(lam_start)) \
+            / self.scale[-1]
         self._lam_end_h = lam_end / self.scale[-1]
         self.status, self.message, self.convergence = "running", None, None
         self.points, self.infos = [], []
@@ -343,6 +352,17 @@ class Continuation:
         t = tangent(J, t_prev)
         self._accept(yh, PointInfo(it, float(np.abs(R).max(initial=0.0)), 0.0, t, extra))
         self._yh, self._t = yh, t
+        if not solve_first:
+            # a resumed branch whose last point already ended it
+            if (yh[-1] - self._lam_end_h) * self.direction \
+                    >= -1e-12 * max(1.0, abs(self._lam_end_h)):
+                self._finish(SUCCESS, f"reached lam = {self.lam_end:g} (resumed at its end)")
+                return
+            if (yh[-1] - self._lam_start_h) * self.direction < 0:
+                self._finish(SUCCESS, f"the branch turned back out of the range through "
+                                      f"lam = {self._lam_start_h * self.scale[-1]:g} "
+                                      "(resumed at its end)")
+                return
         self._check_max_points()
 
     def _check_max_points(self) -> None:
@@ -535,21 +555,34 @@ class Continuation:
                                          f"points")
         self._accept(yc, info)
         self._yh, self._t = yc, t_new
-        fac = np.sqrt(self.target_iter / max(it, 1))
-        if change > 0.0:
-            fac = min(fac, 0.9 / change)
-        self.h = float(np.clip(h * np.clip(fac, 0.5, 2.0), step_min, step_max))
+        self.h = next_step(h, it, self.target_iter, step_min, step_max, change)
         self._check_max_points()
         return self.message
 
 
+def next_step(step: float, iterations: int, target_iter: int, step_min: float,
+              step_max: float, change: float = 0.0) -> float:
+    """The step after a point reached with ``step`` in ``iterations`` Newton iterations.
+
+    Grows or shrinks towards ``target_iter`` iterations (by at most 2), within
+    ``[step_min, step_max]``, and so that the monitored ``change`` of the last
+    step (relative to its allowed value, 0 without a monitor) stays below 0.9.
+    A resumed branch starts with it, so that it takes the steps the
+    uninterrupted branch would have taken.
+    """
+    fac = np.sqrt(target_iter / max(int(iterations), 1))
+    if change > 0.0:
+        fac = min(fac, 0.9 / change)
+    return float(np.clip(step * np.clip(fac, 0.5, 2.0), step_min, step_max))
+
+
 def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: float,
                     step_min: float, step_max: float, max_points: int, tol: float,
-                    max_iter: int = 20, target_iter: int = 4, max_jump: float = 2.0,
+                    max_iter: int = 20, target_iter: int = TARGET_ITER, max_jump: float = 2.0,
                     backtrack: int = 4, stall: int = 5,
                     solve_first: bool = True, tangent0=None, on_point=None,
                     progress: bool = True, desc: str = "continuation",
-                    monitor=None) -> Branch:
+                    monitor=None, lam_start=None) -> Branch:
     """Follow the solution branch of ``R(z, lam) = 0`` from ``y0`` to ``lam = lam_end``.
 
     Drives a :class:`Continuation` (whose parameters it takes) to its end.
@@ -560,6 +593,8 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
         As for :class:`Continuation`.
     max_iter, target_iter, max_jump, backtrack, stall, solve_first, tangent0, desc, monitor
         As for :class:`Continuation`.
+    lam_start : float, optional
+        Where the branch began, when ``y0`` is a later point of it (resume).
     on_point : callable, optional
         ``on_point(index, y, info: PointInfo)`` for every accepted point, as
         soon as it is accepted.
@@ -581,7 +616,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                             tol=tol, max_iter=max_iter, target_iter=target_iter,
                             max_jump=max_jump, backtrack=backtrack, stall=stall,
                             solve_first=solve_first, tangent0=tangent0, desc=desc,
-                            monitor=monitor)
+                            monitor=monitor, lam_start=lam_start)
         span = abs(cont.lam_end - cont.lam0)
         done = 0
         while True:

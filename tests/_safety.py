@@ -1,0 +1,139 @@
+"""Helpers of the process-killing tests (issue 11): run the CLI as a real process.
+
+Every run is a ``python -m jointsim.cli`` subprocess in its own session (so
+that all its processes can be found, and killed, by process group), bounded
+in time.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+CHAIN = str(ROOT / "models" / "hbm" / "chain2_jenkins.toml")
+
+
+def env() -> dict:
+    e = dict(os.environ)
+    e["PYTHONPATH"] = str(ROOT) + os.pathsep + e.get("PYTHONPATH", "")
+    return e
+
+
+def start(*args) -> subprocess.Popen:
+    """Start ``jointsim ARGS`` in a new session (its own process group)."""
+    return subprocess.Popen([sys.executable, "-m", "jointsim.cli", *args, "-q"],
+                            cwd=ROOT, env=env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+
+def run(*args, timeout: float = 120) -> subprocess.CompletedProcess:
+    """Run ``jointsim ARGS`` to its end (at most ``timeout`` s)."""
+    p = start(*args)
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        p.communicate()
+        raise
+    return subprocess.CompletedProcess(p.args, p.returncode, out, err)
+
+
+def group_alive(pgid: int) -> list[int]:
+    """Pids of the live (not zombie) processes of a process group (Linux /proc)."""
+    pids = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()
+        if fields[0] != "Z" and int(fields[2]) == pgid:
+            pids.append(int(d.name))
+    return pids
+
+
+def kill_after(p: subprocess.Popen, delay: float, sig: int) -> float:
+    """Send ``sig`` to the main process after ``delay`` s; wait for it (and its group).
+
+    Returns
+    -------
+    float
+        Seconds the last process of the run's group outlived the main process.
+    """
+    time.sleep(delay)
+    if p.poll() is None:
+        os.kill(p.pid, sig)
+    try:
+        p.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        p.communicate()
+        raise AssertionError(f"{p.args}: still running 60 s after signal {sig}")
+    t0 = time.perf_counter()
+    while group_alive(p.pid):
+        if time.perf_counter() - t0 > 10:
+            survivors = group_alive(p.pid)
+            for pid in survivors:
+                os.kill(pid, signal.SIGKILL)
+            raise AssertionError(f"processes {survivors} of the run outlived it by 10 s")
+        time.sleep(0.05)
+    return time.perf_counter() - t0
+
+
+def branches(path) -> dict[int, dict[str, np.ndarray]]:
+    """Committed HBM points of a file, per branch (file order within a branch)."""
+    from jointsim.io.hdf5 import open_result
+    with open_result(path) as h5:
+        if "hbm/branch" not in h5:
+            return {}
+        b = h5["hbm/branch"][()]
+        out = {}
+        for ib in np.unique(b):
+            rows = b == ib
+            out[int(ib)] = {k: h5[f"hbm/{k}"][()][rows] for k in ("omega", "X", "q")}
+            if "hbm/loops/point" in h5:
+                pts = h5["hbm/loops/point"][()]
+                out[int(ib)]["n_loops"] = int(np.isin(pts, np.flatnonzero(rows)).sum())
+        return out
+
+
+def assert_same_points(path, ref, atol: float = 1e-8) -> None:
+    """Every branch of ``path`` has the points of ``ref`` (to ``atol``, relative to scale)."""
+    a, b = branches(path), branches(ref)
+    assert sorted(a) == sorted(b), (sorted(a), sorted(b))
+    for ib in b:
+        for k in ("omega", "X", "q"):
+            x, y = a[ib][k], b[ib][k]
+            assert x.shape == y.shape, f"branch {ib} {k}: {x.shape} against {y.shape}"
+            scale = max(float(np.abs(y).max()), 1.0)
+            err = float(np.abs(x - y).max(initial=0.0)) / scale
+            assert err <= atol, f"branch {ib} {k}: differs by {err:.3g}"
+        if "n_loops" in b[ib]:
+            assert a[ib]["n_loops"] == b[ib]["n_loops"]
+
+
+def status(path) -> str:
+    with h5py.File(path, "r") as h5:
+        return str(h5.attrs["status"])
+
+
+def consistent(path) -> None:
+    """Every extendable dataset of every group has the group's committed rows."""
+    from jointsim.io.hdf5 import COMMITTED, open_result
+    with open_result(path) as h5:
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset) and obj.maxshape and obj.maxshape[0] is None:
+                n = obj.parent.attrs.get(COMMITTED)
+                assert n is not None and obj.shape[0] == n, (name, obj.shape, n)
+        h5.visititems(visit)
+        if "hbm/loops/point" in h5:
+            assert h5["hbm/loops/point"][()].max(initial=-1) < h5["hbm/omega"].shape[0]

@@ -1,0 +1,237 @@
+"""Nothing lost (issue 11): real processes, really killed.
+
+Every case runs ``python -m jointsim.cli`` as a subprocess (helpers in
+:mod:`tests._safety`) on ``models/hbm/chain2_jenkins.toml`` (3 branches,
+about 4 s) and kills it with ``os.kill``; the oracle is the uninterrupted run
+of the same scene.  The default suite holds one case of each kind; the
+``slow`` cases kill at 10 seeded random times each.
+"""
+from __future__ import annotations
+
+import os
+import random
+import signal
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from jointsim.io.hdf5 import (COMMITTED, FileLockedError, NotAResultError, ResultWriter,
+                              lock_path, open_result)
+from jointsim.scene import load_scene
+
+from . import _safety as S
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "fork") or not os.path.isdir("/proc"),
+                                reason="process tests need Linux")
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """``reference(workers)``: the uninterrupted run (computed once per worker count)."""
+    d = tmp_path_factory.mktemp("ref")
+    refs = {}
+
+    def get(w):
+        if w not in refs:
+            out = d / f"ref{w}.h5"
+            r = S.run("run", S.CHAIN, "-o", str(out), "--set", f"analysis.hbm.workers={w}")
+            assert r.returncode == 0, r.stderr
+            refs[w] = out
+        return refs[w]
+    return get
+
+
+def _kill_and_resume(out, ref, delay, sig, workers):
+    """Kill a run after ``delay`` s with ``sig``; check the file, ``info``, ``--resume``."""
+    p = S.start("run", S.CHAIN, "-o", str(out), "--set", f"analysis.hbm.workers={workers}")
+    outlived = S.kill_after(p, delay, sig)
+    assert outlived < 2.0, f"processes of the run outlived it by {outlived:.2f} s"
+    if not out.exists():  # killed before the model was built: nothing written
+        return None
+    assert not lock_path(out).exists() or sig == signal.SIGKILL
+    status = S.status(out)
+    if p.returncode == 0 or status == "complete":  # the signal came after the file was done
+        assert status == "complete"
+    elif sig == signal.SIGKILL:
+        assert status == "running"
+    else:
+        assert status == "interrupted", status
+        with h5py.File(out, "r") as h5:
+            assert "committed points" in h5.attrs["message"]
+    S.consistent(out)
+    info = S.run("info", str(out))
+    assert info.returncode == 0, info.stderr
+    r = S.run("run", S.CHAIN, "-o", str(out), "--resume", "--set",
+              f"analysis.hbm.workers={workers}")
+    assert r.returncode == 0, r.stderr
+    assert S.status(out) == "complete"
+    S.consistent(out)
+    S.assert_same_points(out, ref, atol=1e-8)
+    return status
+
+
+def test_two_writers_the_second_is_refused_and_changes_nothing(tmp_path):
+    out = tmp_path / "same.h5"
+    # small steps: the first run outlasts the start of the second
+    first = S.start("run", S.CHAIN, "-o", str(out), "--set", "analysis.hbm.workers=1",
+                    "--set", "analysis.hbm.step=0.008", "--set", "analysis.hbm.step_max=0.008")
+    t0 = time.perf_counter()
+    while not (out.exists() and lock_path(out).exists()):
+        assert first.poll() is None, first.communicate()
+        assert time.perf_counter() - t0 < 60
+        time.sleep(0.05)
+    second = S.run("run", S.CHAIN, "-o", str(out), "--overwrite")
+    assert second.returncode != 0
+    lines = second.stderr.strip().splitlines()
+    assert len(lines) == 1 and "another jointsim process is writing" in lines[0], lines
+    assert first.poll() is None, "the first run ended before the second was refused"
+    assert first.wait(timeout=300) == 0, first.communicate()
+    assert S.status(out) == "complete"
+    S.consistent(out)
+    with h5py.File(out, "r") as h5:
+        g = h5["hbm"]
+        assert [g.attrs[f"branch{b}_status"] for b in range(3)] == ["complete"] * 3
+        assert g.attrs[COMMITTED] == g["omega"].shape[0] > 3 * 60
+
+
+def test_sigkill_with_two_workers_leaves_no_process_and_resumes_exactly(tmp_path, reference):
+    _kill_and_resume(tmp_path / "k.h5", reference(2), 2.5, signal.SIGKILL, 2)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig,workers", [(signal.SIGKILL, 1), (signal.SIGKILL, 2),
+                                         (signal.SIGTERM, 1), (signal.SIGTERM, 2),
+                                         (signal.SIGINT, 1), (signal.SIGINT, 2)])
+def test_killed_at_ten_random_times_resumes_to_the_uninterrupted_points(
+        tmp_path, reference, sig, workers):
+    rng = random.Random(1000 * int(sig) + workers)
+    seen = []
+    for k in range(10):
+        seen.append(_kill_and_resume(tmp_path / f"k{k}.h5", reference(workers),
+                                     rng.uniform(1.0, 5.0), sig, workers))
+    assert sum(s in ("running", "interrupted") for s in seen) >= 3, seen
+
+
+# -- in-process: the torn point, deterministically --------------------------------------
+
+def _scene():
+    return load_scene(S.CHAIN)
+
+
+def test_a_torn_point_is_ignored_by_readers_and_removed_by_resume(tmp_path):
+    out = tmp_path / "t.h5"
+    scene = _scene()
+    w = ResultWriter(out, scene)
+    for i in range(3):
+        with w.commit():
+            w.append("hbm/omega", float(i), "1")
+            w.append("hbm/X", np.full((2, 2), float(i)), "1")
+    # a point torn by a crash: some of its datasets appended, no commit
+    w._txn = set()
+    w.append("hbm/omega", 9.0, "1")
+    w.h5.flush()
+    os.close(w._lock_fd)  # what the kernel does when the process dies
+    w.h5.close()
+    with h5py.File(out, "r") as h5:
+        assert h5["hbm/omega"].shape == (4,) and h5["hbm/X"].shape == (3, 2, 2)
+    with open_result(out) as h5:
+        assert h5["hbm/omega"].shape == (3,) and h5["hbm"].attrs[COMMITTED] == 3
+    with ResultWriter(out, scene, resume=True) as w2:
+        assert w2.rows("hbm/omega") == 3
+        with w2.commit():
+            w2.append("hbm/omega", 3.0, "1")
+            w2.append("hbm/X", np.full((2, 2), 3.0), "1")
+    with h5py.File(out, "r") as h5:
+        np.testing.assert_array_equal(h5["hbm/omega"][()], [0, 1, 2, 3])
+        assert h5.attrs["status"] == "complete" and h5["hbm"].attrs[COMMITTED] == 4
+
+
+def test_an_interrupted_writer_trims_and_says_how_far_it_got(tmp_path):
+    out = tmp_path / "i.h5"
+    with pytest.raises(KeyboardInterrupt):
+        with ResultWriter(out, _scene()) as w:
+            with w.commit():
+                w.append("hbm/omega", 1.0, "1")
+            with w.commit():
+                w.append("hbm/omega", 2.0, "1")
+                raise KeyboardInterrupt("stopped by SIGTERM")
+    with h5py.File(out, "r") as h5:
+        assert h5.attrs["status"] == "interrupted"
+        assert "SIGTERM" in h5.attrs["message"] and "hbm 1" in h5.attrs["message"]
+        assert h5["hbm/omega"].shape == (1,)
+    assert not lock_path(out).exists()
+
+
+def test_a_second_writer_is_refused_before_the_file_is_touched(tmp_path):
+    out = tmp_path / "l.h5"
+    scene = _scene()
+    with ResultWriter(out, scene) as w:
+        with w.commit():
+            w.append("hbm/omega", 1.0, "1")
+        before = out.read_bytes()
+        for kw in ({}, {"overwrite": True}, {"resume": True}):
+            with pytest.raises(FileLockedError):
+                ResultWriter(out, scene, **kw)
+        assert out.read_bytes() == before
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        ResultWriter(out, scene)
+    with ResultWriter(out, scene, overwrite=True):
+        pass
+    with h5py.File(out, "r") as h5:
+        assert "hbm" not in h5
+
+
+def test_info_on_an_hdf5_file_jointsim_did_not_write(tmp_path):
+    out = tmp_path / "foreign.h5"
+    with h5py.File(out, "w") as h5:
+        h5["x"] = np.arange(3)
+    with pytest.raises(NotAResultError):
+        open_result(out)
+    from jointsim.cli import main
+    assert main(["info", str(out)]) != 0
+
+
+# -- sweeps -------------------------------------------------------------------------------
+
+def test_sweep_with_zero_workers_fails_at_once_and_writes_nothing(tmp_path, capsys):
+    from jointsim.cli import main
+    t0 = time.perf_counter()
+    code = main(["sweep", S.CHAIN, "--vary", "joint.mu=0.1,0.2", "-o", str(tmp_path / "sw"),
+                 "--workers", "0"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "--workers 0" in err[0]
+    assert time.perf_counter() - t0 < 5 and not (tmp_path / "sw").exists()
+
+
+@pytest.mark.slow
+def test_a_bad_scheduler_fails_in_seconds_with_one_line(tmp_path):
+    import socket
+    srv = socket.socket()  # accepts connections, never speaks dask
+    srv.bind(("127.0.0.1", 0))
+    srv.listen()
+    t0 = time.perf_counter()
+    r = S.run("sweep", S.CHAIN, "--vary", "joint.mu=0.1,0.2", "-o", str(tmp_path / "sw"),
+              "--scheduler", f"tcp://127.0.0.1:{srv.getsockname()[1]}", timeout=60)
+    srv.close()
+    assert r.returncode != 0 and time.perf_counter() - t0 < 30
+    assert [ln for ln in r.stderr.splitlines() if ln.startswith("error")] \
+        and "no dask scheduler answered" in r.stderr
+
+
+@pytest.mark.slow
+def test_multi_branch_sweep_completes_and_a_rerun_keeps_finished_variants(tmp_path):
+    pytest.importorskip("distributed")
+    out = tmp_path / "sw"
+    args = ("sweep", S.CHAIN, "--vary", "joint.mu=0.1,0.2", "-o", str(out))
+    r = S.run(*args, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    with h5py.File(out / "sweep.h5", "r") as idx:
+        assert [s.decode() for s in idx["status"][()]] == ["complete"] * 2
+    mtimes = [p.stat().st_mtime_ns for p in sorted(out.glob("chain2_jenkins_*.h5"))]
+    r = S.run(*args, timeout=300)
+    assert r.returncode == 0
+    assert [p.stat().st_mtime_ns for p in sorted(out.glob("chain2_jenkins_*.h5"))] == mtimes
+    with h5py.File(out / "sweep.h5", "r") as idx:
+        assert all(m.decode().startswith("kept") for m in idx["message"][()])
