@@ -108,7 +108,7 @@ def test_default_backbone_resolves_the_slip_onset(tmp_path):
 
 # -- items 3 and 6: amplitude measures, the cheap loop default -------------------
 def test_amplitude_measures_and_loops_default(tmp_path):
-    base = QUICK + ["analysis.hbm.force_scale=[0.05, 0.2]"]
+    base = QUICK + ["analysis.hbm.force_scale=[0.2]"]
     runs = {}
     for measure, loops in (("fundamental", "auto"), ("rms", "all"), ("peak_to_peak", "auto")):
         sc = load_scene(CHAIN2, base + [f"analysis.hbm.amplitude={measure}",
@@ -139,10 +139,9 @@ def test_amplitude_measures_and_loops_default(tmp_path):
             np.testing.assert_allclose(amp, ref, rtol=tol)
             assert response_amplitude(basis, X[0], measure) == pytest.approx(amp[0])
             # the refined peak is in the same measure and not below the points
-            for b in (0, 1):
-                assert g["peak_amplitude"][b] >= amp[g["branch"][()] == b].max() * (1 - 1e-12)
+            assert g["peak_amplitude"][0] >= amp.max() * (1 - 1e-12)
             n_points = g["omega"].shape[0]
-            expect = n_points if measure == "rms" else 2  # 'all' / default: the peaks
+            expect = n_points if measure == "rms" else 1  # 'all' / default: the peak
             assert h["loops/u"].shape[0] == expect
 
 

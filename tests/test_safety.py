@@ -76,7 +76,8 @@ def test_two_writers_the_second_is_refused_and_changes_nothing(tmp_path):
     out = tmp_path / "same.h5"
     # small steps: the first run outlasts the start of the second
     first = S.start("run", S.CHAIN, "-o", str(out), "--set", "analysis.hbm.workers=1",
-                    "--set", "analysis.hbm.step=0.008", "--set", "analysis.hbm.step_max=0.008")
+                    "--set", "analysis.hbm.force_scale=[0.2]",
+                    "--set", "analysis.hbm.step=0.004", "--set", "analysis.hbm.step_max=0.004")
     t0 = time.perf_counter()
     while not (out.exists() and lock_path(out).exists()):
         assert first.poll() is None, first.communicate()
@@ -92,8 +93,8 @@ def test_two_writers_the_second_is_refused_and_changes_nothing(tmp_path):
     S.consistent(out)
     with h5py.File(out, "r") as h5:
         g = h5["hbm"]
-        assert [g.attrs[f"branch{b}_status"] for b in range(3)] == ["complete"] * 3
-        assert g.attrs[COMMITTED] == g["omega"].shape[0] > 3 * 60
+        assert g.attrs["branch0_status"] == "complete"
+        assert g.attrs[COMMITTED] == g["omega"].shape[0] > 100
 
 
 def test_sigkill_with_two_workers_leaves_no_process_and_resumes_exactly(tmp_path, reference):

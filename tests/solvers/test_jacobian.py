@@ -89,7 +89,7 @@ def _run(tmp_path, path, solver):
 
 
 @pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.slow)
-                                  if p.stem == "sdof_clearance_fold" else p
+                                  if p.stem in ("sdof_clearance_fold", "chain2_jenkins") else p
                                   for p in sorted(MODELS.glob("*.toml"))], ids=lambda p: p.stem)
 def test_krylov_path_equals_direct_path_on_lumped_cases(tmp_path, path):
     """Every lumped HBM/EPMC scene (two with turning points) forced onto the Krylov
