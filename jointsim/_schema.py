@@ -165,7 +165,7 @@ def _check_rules(value: Any, meta: dict, key: str, ctx: Context) -> None:
         if not p.exists():
             raise ctx.error(key, f"names a file that does not exist: {value!r} "
                                  f"(looked for {p})")
-        if p.is_dir():
+        if value and p.is_dir():
             raise ctx.error(key, f"names a directory, not a file: {value!r} (looked for {p})")
 
 
