@@ -165,6 +165,8 @@ def _check_rules(value: Any, meta: dict, key: str, ctx: Context) -> None:
         if not p.exists():
             raise ctx.error(key, f"names a file that does not exist: {value!r} "
                                  f"(looked for {p})")
+        if value and p.is_dir():
+            raise ctx.error(key, f"names a directory, not a file: {value!r} (looked for {p})")
 
 
 def convert(tp: Any, value: Any, key: str, ctx: Context) -> Any:

@@ -85,6 +85,17 @@ class HBMAnalysis:
                                   "forming it ('krylov'), or 'auto' (Krylov from 1200 "
                                   "unknowns on); see docs/hbm.md")
 
+    def check(self):
+        if not self.force_scale:
+            return [("force_scale", "must hold at least one force level (one branch each)")]
+        for i, fs in enumerate(self.force_scale):
+            if fs == 0.0:
+                return [(f"force_scale[{i}]", "must not be 0 (a branch without forcing has "
+                                              "no response)")]
+        if self.omega_end == self.omega_start:
+            return [("omega_end", "must differ from omega_start")]
+        return []
+
 
 @dataclass(frozen=True, kw_only=True)
 class EPMCAnalysis:
@@ -202,6 +213,8 @@ class TransientAnalysis:
             return [("min_periods", "must not exceed max_periods")]
         if self.omega == 0.0 and self.amplitude <= 0.0:
             return [("amplitude", "must be > 0 for a free decay (omega = 0)")]
+        if self.omega > 0.0 and self.force_scale == 0.0:
+            return [("force_scale", "must not be 0 for a forced run (omega > 0)")]
         return []
 
 

@@ -59,6 +59,32 @@ def _matrix_check(name: str, m: tuple, n: int | None = None) -> list[tuple[str, 
     return []
 
 
+def _matrix_definiteness(name: str, m: tuple, definite: bool) -> list[tuple[str, str]]:
+    """Symmetry and positive (semi-)definiteness of a square matrix (the physics of M, K, C).
+
+    Symmetric to ``1e-10`` of its largest entry; the smallest eigenvalue must
+    be positive (``definite``) or not below ``-1e-10`` of the largest (semi-definite).
+    """
+    import numpy as np
+    a = np.asarray(m, dtype=float)
+    scale = float(np.abs(a).max(initial=0.0))
+    if scale == 0.0:
+        return [(name, "must be positive definite, got a zero matrix")] if definite else []
+    asym = float(np.abs(a - a.T).max())
+    if asym > 1e-10 * scale:
+        i, j = np.unravel_index(int(np.argmax(np.abs(a - a.T))), a.shape)
+        return [(name, f"must be symmetric: entry [{i}][{j}] = {a[i, j]:g} but "
+                       f"[{j}][{i}] = {a[j, i]:g}")]
+    lam = np.linalg.eigvalsh(0.5 * (a + a.T))
+    lo, hi = float(lam[0]), float(np.abs(lam).max())
+    if definite and lo <= 1e-12 * hi:
+        return [(name, f"must be positive definite, but its smallest eigenvalue is {lo:g}")]
+    if not definite and lo < -1e-10 * hi:
+        return [(name, f"must be positive semi-definite, but its smallest eigenvalue is "
+                       f"{lo:g}")]
+    return []
+
+
 # --------------------------------------------------------------------------
 # Signals
 # --------------------------------------------------------------------------
@@ -179,6 +205,11 @@ class LumpedModel:
         errs = _matrix_check("M", self.M) or _matrix_check("K", self.K, len(self.M))
         if not errs and self.C is not None:
             errs = _matrix_check("C", self.C, len(self.M))
+        if errs:
+            return errs
+        errs = (_matrix_definiteness("M", self.M, True)
+                or _matrix_definiteness("K", self.K, False)
+                or (self.C is not None and _matrix_definiteness("C", self.C, False)) or [])
         if errs:
             return errs
         n = len(self.M)
@@ -515,6 +546,7 @@ def parse_scene(data: dict, file: str = "<scene>", base_dir: Path | None = None)
                   analysis=sections["analysis"], scene=sections["scene"], path=path,
                   text=_toml.dumps(resolved))
     _check_cross(scene, ctx)
+    _check_inputs(scene, ctx)
     scene.kernels()  # unsupported physics combinations fail here, before any work
     return scene
 
@@ -604,6 +636,79 @@ def _check_cross(scene: Scene, ctx: Context) -> None:
                 raise ctx.error("analysis.transient.output_points",
                                 "names mesh points, which a lumped model does not have; "
                                 "use output_dofs")
+
+
+def _memory_limit() -> float:
+    """Bytes a run may plan to hold: half of the machine's physical memory (8 GB if unknown)."""
+    import os
+    try:
+        return 0.5 * os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return 8e9
+
+
+def memory_estimates(scene: Scene) -> list[tuple[str, float]]:
+    """Lower estimates of the largest arrays a scene's sample counts ask for.
+
+    Returns
+    -------
+    list of (key, bytes)
+        The key whose value sets each estimate: AFT samples (states, forces
+        and the DFT matrices of every contact element: about four arrays of
+        ``n_samples x n_coeff`` per element), the prescribed march
+        (``n_samples x n_periods``, about eight arrays) and the stored time
+        history of time marching (displacement, velocity, acceleration of
+        each output DOF).
+    """
+    m, a = scene.model, scene.analysis
+    n_el = max(len(getattr(m, "contacts", ())), 1)
+    out = []
+    for name in ("hbm", "epmc"):
+        sec = getattr(a, name)
+        if sec is not None:
+            n_coeff = sum(1 if h == 0 else 2 for h in set(sec.harmonics))
+            out.append((f"analysis.{name}.n_samples",
+                        8.0 * 4 * sec.n_samples * (n_coeff + 2) * n_el))
+    if isinstance(m, PrescribedModel):
+        out.append(("model.n_samples", 8.0 * 8 * m.n_samples * m.n_periods))
+    tr = a.transient
+    if tr is not None and not isinstance(m, PrescribedModel):
+        periods = tr.max_periods if tr.history_periods == 0 else min(tr.history_periods,
+                                                                      tr.max_periods)
+        n_out = max(len(tr.output_dofs) + len(tr.output_points), 1)
+        out.append(("analysis.transient.steps_per_period",
+                    8.0 * 3 * n_out * tr.steps_per_period * periods / tr.decimate))
+    return out
+
+
+def _check_inputs(scene: Scene, ctx: Context) -> None:
+    """Signal files readable, sampled forces only where supported, memory within reach."""
+    from .signals import read_signal_file
+    m = scene.model
+    signals = [(f"excitation.loads[{i}].force", load.force)
+               for i, load in enumerate(scene.excitation.loads)]
+    if isinstance(m, PrescribedModel):
+        signals += [("model.u_t", m.u_t), ("model.N", m.N)]
+    for key, sig in signals:
+        if sig.file is not None:
+            try:
+                read_signal_file(scene.resolve(sig.file))
+            except (ValueError, OSError) as exc:
+                raise ctx.error(f"{key}.file", f"cannot be read: {exc}") from None
+    for i, load in enumerate(scene.excitation.loads):
+        sig = load.force
+        if sig.file is not None or sig.clip_at_zero:
+            what = "file" if sig.file is not None else "clip_at_zero"
+            raise ctx.error(f"excitation.loads[{i}].force.{what}",
+                            "is not supported for a structural load (harmonic balance, EPMC "
+                            "and the static state need its harmonic coefficients): give the "
+                            "force as constant and harmonics; file and clipped signals are "
+                            "for the prescribed model's u_t and N")
+    limit = _memory_limit()
+    for key, nbytes in memory_estimates(scene):
+        if nbytes > limit:
+            raise ctx.error(key, f"asks for about {nbytes / 1e9:.3g} GB of memory (more than "
+                                 f"{limit / 1e9:.3g} GB, half of this machine's); lower it")
 
 
 def load_scene(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> Scene:

@@ -98,6 +98,8 @@ def fe_mesh(scene):
             return read_mesh(path), str(path)
         except (OSError, ValueError) as exc:
             raise SceneError(file, "model.mesh", f"could not be read: {exc}") from None
+        except SystemExit:  # meshio exits on a file it cannot parse
+            raise SceneError(file, "model.mesh", f"could not be read as a mesh: {path}") from None
     try:
         mesh = generated_lap_joint(float(gen["dx_lap"]), float(gen["dx_full"]),
                                    int(gen["ny_half"]))

