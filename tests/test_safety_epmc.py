@@ -65,13 +65,11 @@ def _kill_and_resume(out, ref, delay, sig):
     return status
 
 
-# Found by these tests: a resumed EPMC branch does not retrace the uninterrupted one
-# (same 57 points, /epmc/y differs by 6.6e-3 after a SIGKILL at 54 committed points).
-KNOWN = pytest.mark.xfail(reason="EPMC --resume is not exact yet (issue 11, open)",
-                          strict=False)
+# Found by these tests: a resumed EPMC branch did not retrace the uninterrupted one
+# (/epmc/y off by 6.6e-3 after a SIGKILL at 54 of 57 points): the resumed first step
+# left out the step control's monitored change of the last step.
 
 
-@KNOWN
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["KILL", "INT"])
 def test_epmc_killed_mid_branch_resumes_to_the_same_points(sig, reference, tmp_path):
@@ -83,7 +81,6 @@ def test_epmc_killed_mid_branch_resumes_to_the_same_points(sig, reference, tmp_p
     pytest.fail("no kill landed mid-branch")
 
 
-@KNOWN
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGINT],
                          ids=["KILL", "TERM", "INT"])

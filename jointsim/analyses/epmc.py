@@ -144,12 +144,19 @@ def _start(writer, a, system, em, xi0):
     y0, tangent0, step, solve_first, max_points
     """
     if writer.rows("epmc/y"):
-        y0 = writer.h5["epmc/y"][-1]
+        ys = writer.h5["epmc/y"]
+        y0 = ys[-1]
         t0 = writer.h5["epmc/tangent"][-1]
-        # the step the uninterrupted branch takes next (after the first point: a.step)
+        # the step the uninterrupted branch takes next (after the first point: a.step),
+        # with the monitored change of its last step, as the stepper computes it
         h_last = float(writer.h5["epmc/step"][-1])
+        monitor = step_monitor(a, system.n_z)
+        change = 0.0
+        if monitor is not None and ys.shape[0] > 1:
+            d = np.abs(np.asarray(monitor(ys[-1])) - np.asarray(monitor(ys[-2])))
+            change = float(d.max(initial=0.0)) if np.all(np.isfinite(d)) else 0.0
         h0 = next_step(h_last, int(writer.h5["epmc/iterations"][-1]), TARGET_ITER,
-                       a.step_min, a.step_max) if h_last > 0 else a.step
+                       a.step_min, a.step_max, change) if h_last > 0 else a.step
         return y0, t0, h0, False, a.max_points - writer.rows("epmc/y") + 1
     return _linear_start(a, system, em, xi0), None, a.step, True, a.max_points
 
