@@ -21,6 +21,28 @@ from ..solvers.modes import ModesResult, eigenmodes, full_stuck_stiffness, monol
 log = logging.getLogger(__name__)
 
 
+def separation_warning(scene) -> str:
+    """The warning ``effects.separation = false`` deserves for this scene ('' if none).
+
+    With ``effects.normal = "fixed"`` the normal load is given, so a lumped or
+    prescribed scene never separates and the key has no effect; an FE joint's
+    preload solve still honours it and becomes bilateral (tension carried).
+    """
+    e = scene.effects
+    if e.separation:
+        return ""
+    if scene.model.kind == "fe":
+        msg = ("effects.separation = false makes the FE preload bilateral: the interface "
+               "carries tension at the preload state instead of opening there")
+    elif e.normal == "fixed":
+        msg = ("effects.separation = false has no effect with effects.normal = 'fixed': the "
+               "normal load is given, so no contact separates")
+    else:
+        return ""
+    log.warning("%s: %s", scene.path, msg)
+    return msg
+
+
 def _all_open_warning(scene, model) -> bool:
     """Warn (and return True) when every contact element is open at the static state.
 
@@ -62,6 +84,7 @@ def write_model_tables(scene, model, writer) -> None:
     if rom is not None and rom.bolts is not None:
         bolt_total = float(rom.bolts.preload.sum())
     all_open = _all_open_warning(scene, model)
+    attrs["separation_warning"] = separation_warning(scene)
     writer.group("static", sum_N=float(c.N0.sum()), bolt_force_total=bolt_total,
                  n_in_contact=int(np.sum(c.N0 > 0)), all_open=all_open,
                  preload_tangential=getattr(scene.model, "preload_tangential", ""), **attrs)

@@ -43,3 +43,28 @@ def test_closed_joint_does_not_warn(tmp_path, caplog):
         assert not any("open at the static state" in r.getMessage() for r in caplog.records)
         with h5py.File(out) as h:
             assert bool(h["static"].attrs["all_open"]) is False
+
+
+# -- item 11: effects.separation = false is named where it does nothing ----------------
+def test_separation_false_with_fixed_normal_load_warns(tmp_path, caplog):
+    from jointsim.analyses.modes import separation_warning
+    for path in (MODELS / "seed_fig3" / "const.toml", MODELS / "hbm" / "chain2_jenkins.toml"):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            msg = separation_warning(load_scene(path, ["effects.separation=false"]))
+        assert "effects.separation = false has no effect" in msg
+        assert any("effects.separation" in r.getMessage() for r in caplog.records)
+        assert separation_warning(load_scene(path)) == ""
+    out = tmp_path / "p.h5"
+    run_scene(load_scene(MODELS / "seed_fig3" / "const.toml", ["effects.separation=false"]), out)
+    with h5py.File(out) as h:
+        assert "no effect" in h["prescribed"].attrs["separation_warning"]
+    # coupled normal load: the key matters, no warning
+    assert separation_warning(load_scene(FOLD, ["effects.separation=false"])) == ""
+
+
+def test_separation_false_on_fe_names_the_bilateral_preload():
+    from jointsim.analyses.modes import separation_warning
+    from .._scenes import COARSE, FIXED
+    msg = separation_warning(load_scene(FIXED, [COARSE, "effects.separation=false"]))
+    assert "bilateral" in msg and "effects.separation" in msg
