@@ -21,6 +21,47 @@ from ..solvers.modes import ModesResult, eigenmodes, full_stuck_stiffness, monol
 log = logging.getLogger(__name__)
 
 
+def separation_warning(scene) -> str:
+    """The warning ``effects.separation = false`` deserves for this scene ('' if none).
+
+    With ``effects.normal = "fixed"`` the normal load is given, so a lumped or
+    prescribed scene never separates and the key has no effect; an FE joint's
+    preload solve still honours it and becomes bilateral (tension carried).
+    """
+    e = scene.effects
+    if e.separation:
+        return ""
+    if scene.model.kind == "fe":
+        msg = ("effects.separation = false makes the FE preload bilateral: the interface "
+               "carries tension at the preload state instead of opening there")
+    elif e.normal == "fixed":
+        msg = ("effects.separation = false has no effect with effects.normal = 'fixed': the "
+               "normal load is given, so no contact separates")
+    else:
+        return ""
+    log.warning("%s: %s", scene.path, msg)
+    return msg
+
+
+def _all_open_warning(scene, model) -> bool:
+    """Warn (and return True) when every contact element is open at the static state.
+
+    The static state is the model's linearisation point (the preload solve of an
+    FE joint, the static solve of a lumped one).  With every element open the
+    joint transmits no force at rest, and a small-amplitude response is that of
+    the structure without the joint: usually a reversed normal orientation
+    (``model.contacts[].n_sign``), a positive ``gap0`` or a missing preload.
+    """
+    N = np.asarray(model.linearisation.N, dtype=float)
+    if N.size == 0 or np.any(N > 0):
+        return False
+    log.warning("%s: all %d contact elements are open at the static state (normal load 0): "
+                "the joint carries no load at rest and responds as the structure without "
+                "it until a contact closes; check model.contacts[].n_sign and gap0 "
+                "(lumped) or the preload (FE)", scene.path, N.size)
+    return True
+
+
 def write_model_tables(scene, model, writer) -> None:
     """Preload state, contact elements, model sizes and the mesh (for post-processing).
 
@@ -42,8 +83,10 @@ def write_model_tables(scene, model, writer) -> None:
     rom = model.rom
     if rom is not None and rom.bolts is not None:
         bolt_total = float(rom.bolts.preload.sum())
+    all_open = _all_open_warning(scene, model)
+    attrs["separation_warning"] = separation_warning(scene)
     writer.group("static", sum_N=float(c.N0.sum()), bolt_force_total=bolt_total,
-                 n_in_contact=int(np.sum(c.N0 > 0)),
+                 n_in_contact=int(np.sum(c.N0 > 0)), all_open=all_open,
                  preload_tangential=getattr(scene.model, "preload_tangential", ""), **attrs)
     writer.write("static/N", c.N0, F, "normal load N0 of every contact element at the "
                                       "preload state")

@@ -27,7 +27,10 @@ def run_prescribed_scene(scene, writer: ResultWriter) -> None:
     """
     from ..solvers.prescribed import run_prescribed
 
+    from .modes import separation_warning
+
     m = scene.model
+    sep_warning = separation_warning(scene)
     kernels = scene.kernels()
     law = kernels.tangential_law(scene.joint, [m.area])
     res = run_prescribed(scene, law)
@@ -35,7 +38,8 @@ def run_prescribed_scene(scene, writer: ResultWriter) -> None:
     d, F = unit("displacement", units), unit("force", units)
     writer.group("prescribed", omega=m.omega, n_samples=m.n_samples,
                  n_periods=m.n_periods, law=kernels.law, reversal=scene.joint.reversal,
-                 kernel=kernels.tangential, **res.convergence.as_attrs())
+                 kernel=kernels.tangential, separation_warning=sep_warning,
+                 **res.convergence.as_attrs())
     writer.write("prescribed/t", res.t, unit("time", units), "time of every sample")
     writer.write("prescribed/u_t", res.u, d, "prescribed tangential displacement")
     writer.write("prescribed/N", res.N, F, "prescribed normal load")

@@ -73,14 +73,14 @@ def write_interface_file(h5, path) -> Path:
     path = Path(path)
     pos = h5["contacts/position"][()]
     n = len(pos)
-    lines = np.column_stack([np.arange(n - 1), np.arange(1, n)]) if n > 1 else \
-        np.zeros((0, 2), dtype=np.int64)
+    cells = [("vertex", np.arange(n)[:, None])]
+    if n > 1:  # a polyline needs two points (a one-element lumped joint has none)
+        cells.insert(0, ("line", np.column_stack([np.arange(n - 1), np.arange(1, n)])))
     data = {"pressure": h5["static/pressure"][()], "N0": h5["static/N"][()],
             "area": h5["contacts/area"][()]}
     if "static/gap" in h5:
         data["gap"] = h5["static/gap"][()]
-    mesh = meshio.Mesh(_pad3(pos), [("line", lines), ("vertex", np.arange(n)[:, None])],
-                       point_data=data)
+    mesh = meshio.Mesh(_pad3(pos), cells, point_data=data)
     mesh.write(path)
     return path
 

@@ -73,7 +73,8 @@ def backbone_section(h5, group: str, label: str) -> str:
     lines = [f"  {label} mode {g.attrs.get('mode', '?')}: linear "
              f"{float(g.attrs.get('linear_frequency_hz', np.nan)):.6g} Hz; "
              f"{g.attrs.get('message', '')}"]
-    if "amplitude" in g and g["amplitude"].shape[0]:
+    if all(k in g for k in ("amplitude", "frequency_hz", "damping_ratio")) \
+            and g["amplitude"].shape[0]:  # an interrupted run may hold only some
         lines += backbone_rows(g["amplitude"][()], g["frequency_hz"][()],
                                g["damping_ratio"][()])
     return "\n".join(lines)

@@ -40,7 +40,8 @@ def pressure_plot(h5, outdir) -> list[Path]:
 
 def mode_shape_plot(h5, outdir, n_elastic: int = 4) -> list[Path]:
     """Deformed mesh of the first elastic modes (FE results with a mesh)."""
-    if "mesh" not in h5 or "modes/shapes_full" not in h5:
+    if "mesh" not in h5 or any(k not in h5 for k in ("modes/shapes_full", "modes/frequency_hz",
+                                                      "modes/elastic")):
         return []
     plt = pyplot()
     from matplotlib.collections import PolyCollection
@@ -98,6 +99,8 @@ def modes_figures(h5, outdir) -> list[Path]:
 
 def modes_table(h5) -> str:
     """Frequencies of the stuck joint (and full/monolithic references)."""
+    if "modes/frequency_hz" not in h5 or "modes/elastic" not in h5:
+        return "Linear modes of the preloaded, stuck joint: (not stored)"
     f = h5["modes/frequency_hz"][()]
     el = h5["modes/elastic"][()]
     full = h5["modes/frequency_hz_full"][()] if "modes/frequency_hz_full" in h5 else None

@@ -130,11 +130,12 @@ def plot_epmc(h5: h5py.File, outdir: Path) -> list[Path]:
 
 def hbm_section(h5) -> str:
     g = h5["hbm"]
-    lines = [f"  harmonic balance: harmonics {g['harmonics'][()].tolist()}, "
+    hs = g["harmonics"][()].tolist() if "harmonics" in g else "(not stored)"
+    lines = [f"  harmonic balance: harmonics {hs}, "
              f"{g.attrs.get('n_samples', '?')} samples, {g.attrs.get('condensation', '?')} "
              f"condensation onto {g.attrs.get('n_contact_coordinates', '?')} contact "
              f"coordinates"]
-    if "omega" not in g:
+    if "omega" not in g or "branch" not in g or "force_scale" not in g:
         return "\n".join(lines + ["    (no points)"])
     br = g["branch"][()]
     for b, fs in enumerate(g["force_scale"][()]):

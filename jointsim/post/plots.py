@@ -82,6 +82,9 @@ def _read_loop(h5, point: int, e: int):
 
 def plot_prescribed(h5: h5py.File, outdir: Path) -> list[Path]:
     """Seed Fig. 3 for one prescribed-motion run: 3D loop on its manifold + projection."""
+    if not all(k in h5 for k in ("loops/u", "masing/dev_manifold")) \
+            or h5["loops/u"].shape[0] == 0:
+        return []  # a run interrupted before its loop was stored
     plt = pyplot()
     law = law_from_file(h5, n_elements=1)
     units = h5.attrs.get("units", "SI")

@@ -280,7 +280,8 @@ def study_text(h5: h5py.File) -> str:
     groups = loop_groups(h5)
     prefix = "epmc" if "epmc" in groups else (groups[0] if groups else None)
     sets = loop_points(h5, prefix) if prefix is not None else None
-    if "epmc" in h5 and "qsma" in h5:
+    if all(k in h5 and h5[k].shape[0] for k in ("epmc/amplitude", "qsma/amplitude")):
+        # both curves hold points (a failed or interrupted run may have an empty group)
         amps = sets.parameter if sets is not None and prefix == "epmc" else \
             np.logspace(*np.log10(np.percentile(h5["epmc/amplitude"][()], [10, 90])), 3)
         lines.append("  EPMC against QSMA (frequencies in Hz):")

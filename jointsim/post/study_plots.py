@@ -23,8 +23,9 @@ def plot_backbones(h5: h5py.File, outdir: Path) -> list[Path]:
               ("transient", "free decay (time marching)", ":", "tab:green")]
     amp_unit = ""
     for group, label, ls, color in curves:
-        if group not in h5 or "amplitude" not in h5[group] or \
-                "frequency_hz" not in h5[group] or h5[f"{group}/amplitude"].shape[0] == 0:
+        if group not in h5 or any(k not in h5[group] for k in (
+                "amplitude", "frequency_hz", "damping_ratio")) \
+                or h5[f"{group}/amplitude"].shape[0] == 0:
             continue
         g = h5[group]
         a = g["amplitude"][()]
@@ -47,7 +48,8 @@ def plot_backbones(h5: h5py.File, outdir: Path) -> list[Path]:
                   "bending mode", fontsize=9)
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=8)
+        if ax.get_legend_handles_labels()[0]:  # an interrupted run may have no curve yet
+            ax.legend(fontsize=8)
     fig.tight_layout()
     path = outdir / "backbones.png"
     fig.savefig(path, dpi=130)

@@ -277,7 +277,7 @@ def crosscheck_table(h5) -> str:
              f"{'agree' if a.get('agree', False) else 'DISAGREE'} within "
              f"{float(a.get('tol', np.nan)):g}",
              f"  HBM: {a.get('hbm_message', a.get('hbm_source', '?'))}"]
-    if "crosscheck/rel_diff" in h5:
+    if all(f"crosscheck/{k}" in h5 for k in ("harmonics", "rel_diff", "rel_own")):
         hs = h5["crosscheck/harmonics"][()]
         rel = h5["crosscheck/rel_diff"][()]
         own = h5["crosscheck/rel_own"][()]
@@ -288,6 +288,8 @@ def crosscheck_table(h5) -> str:
                 note = "  slider history (legitimate)" if a.get("dc_history", False) \
                     else "  not explained by the slider history"
             lines.append(f"  {int(h):>8} {r:>13.3e} {o:>13.3e}{note}")
+    if "crosscheck/amplitude_transient" in h5 and "crosscheck/amplitude_hbm" in h5:
+        # absent in a file interrupted while the cross-check was written
         at, ah = h5["crosscheck/amplitude_transient"][()], h5["crosscheck/amplitude_hbm"][()]
         with np.errstate(divide="ignore", invalid="ignore"):
             ra = np.where(ah > 0, np.abs(at / ah - 1.0), np.nan)
