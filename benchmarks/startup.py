@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import os
 import pathlib
+import resource
 import shutil
 import statistics
 import subprocess
@@ -62,7 +63,7 @@ from jointsim.cli import main
 try:
     main(["run", sys.argv[2], "-o", sys.argv[3], "-q", "--overwrite"])
 except _Stop:
-    print(f"{ready[0]:.4f} {time.time() - t0:.4f}")
+    print(f"{ready[0]:.4f} {time.time() - t0:.4f} {len(sys.modules)}")
 """
 
 FLOOR_KERNEL = """
@@ -101,22 +102,33 @@ def _drop_pycache(tree: pathlib.Path) -> None:
         shutil.rmtree(d, ignore_errors=True)
 
 
-def first_solve(tree: pathlib.Path, scene: str, out: str, pyc: bool) -> tuple[float, float]:
-    """(ready, first solve) in seconds from process start, one fresh process."""
+def first_solve(tree: pathlib.Path, scene: str, out: str, pyc: bool) -> tuple:
+    """(ready, first solve, CPU time of the process) in seconds, modules loaded.
+
+    One fresh process; wall times from its start.  CPU time (user + system,
+    from ``getrusage``) is far less disturbed by other jobs on the machine.
+    """
+    c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.time()
     r = subprocess.run([sys.executable, "-c", CHILD, repr(t0), scene, out],
-                       capture_output=True, text=True, env=_env(tree, pyc), cwd=ROOT)
+                       capture_output=True, text=True, env=_env(tree, pyc), cwd=tree)
     if r.returncode != 0 or not r.stdout.strip():
         raise RuntimeError(f"start-up child failed:\n{r.stderr[-2000:]}")
-    a, b = r.stdout.strip().splitlines()[-1].split()
-    return float(a), float(b)
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
+    a, b, n = r.stdout.strip().splitlines()[-1].split()
+    return float(a), float(b), cpu, int(n)
 
 
-def floor(kdir: str) -> float:
+def floor(kdir: str) -> tuple[float, float]:
+    """(wall, CPU) seconds of the floor process."""
+    c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.time()
     r = subprocess.run([sys.executable, "-c", FLOOR, repr(t0), kdir],
                        capture_output=True, text=True, check=True)
-    return float(r.stdout.strip().splitlines()[-1])
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
+    return float(r.stdout.strip().splitlines()[-1]), cpu
 
 
 def import_time(module: str, tree: pathlib.Path) -> float:
@@ -157,19 +169,23 @@ def main() -> None:
                 for k, tree in (order if i % 2 == 0 else order[::-1]):  # no order bias
                     samples[k].append(first_solve(tree, scene, a.out, pyc))
                 fl.append(floor(kdir))
-            res[pyc] = (samples, med(fl))
+            res[pyc] = (samples, med(x[0] for x in fl), med(x[1] for x in fl))
 
     print(f"start-up, {a.scene}, warm numba cache, median of {a.repeat} "
           f"(process start -> continuation ready / first point solved):")
-    for pyc, (samples, fl) in res.items():
+    for pyc, (samples, fl, flc) in res.items():
         label = "pyc   " if pyc else "no-pyc"
         for k, s in samples.items():
             r, f = med(x[0] for x in s), med(x[1] for x in s)
             print(f"  {label} {k:8s} ready {r:.3f} s  first solve {f:.3f} s  "
-                  f"(floor {fl:.3f} s, jointsim share {f - fl:.3f} s)")
+                  f"(floor {fl:.3f} s, jointsim share {f - fl:.3f} s)  "
+                  f"CPU {med(x[2] for x in s):.3f} s  modules {s[0][3]}")
+        print(f"  {label} floor    {fl:.3f} s wall, CPU {flc:.3f} s")
         if "against" in samples:
             ratio = med(x[1] / y[1] for x, y in zip(samples["this"], samples["against"]))
-            print(f"  {label} this/against first solve: {ratio:.2f} (median of per-sample ratios)")
+            cpu = med(x[2] / y[2] for x, y in zip(samples["this"], samples["against"]))
+            print(f"  {label} this/against first solve: wall {ratio:.2f}, CPU {cpu:.2f} "
+                  f"(medians of per-sample ratios)")
     print("imports alone (pyc, median):")
     for m in ("numpy", "scipy.sparse", "scipy.linalg", "numba", "h5py", "jointsim.cli"):
         t = med(import_time(m, ROOT) for _ in range(a.repeat))
