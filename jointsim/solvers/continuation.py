@@ -606,7 +606,10 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
     Branch
         Every accepted point; ``convergence`` says how the branch ended.
     """
-    from tqdm.auto import tqdm
+    if progress:
+        from tqdm.auto import tqdm
+    else:  # the bar is disabled: plain tqdm, without tqdm.auto's import of asyncio
+        from tqdm import tqdm
 
     bar = tqdm(total=1000, desc=desc, disable=(not progress) or None, leave=False,
                bar_format="{l_bar}{bar}| {postfix}")
