@@ -64,13 +64,7 @@ class _LoopSelection:
 def run_epmc_analysis(scene, model, writer, results=None) -> None:
     """Runner of ``[analysis.epmc]``: the backbone of one mode, written point by point.
 
-    Parameters
-    ----------
-    scene : jointsim.scene.Scene
-    model : jointsim.model.StructuralModel
-    writer : jointsim.io.hdf5.ResultWriter
-    results : dict, optional
-        Results of the analyses run before (unused).
+    The runner contract (arguments, ``results``) is in :mod:`jointsim.analyses`.
 
     Raises
     ------

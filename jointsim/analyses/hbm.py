@@ -53,13 +53,7 @@ log = logging.getLogger(__name__)
 def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
     """Runner of ``[analysis.hbm]``: one FRC branch per force scale, written point by point.
 
-    Parameters
-    ----------
-    scene : jointsim.scene.Scene
-    model : jointsim.model.StructuralModel
-    writer : jointsim.io.hdf5.ResultWriter
-    results : dict, optional
-        Results of the analyses run before (unused).
+    The runner contract (arguments, ``results``) is in :mod:`jointsim.analyses`.
 
     Returns
     -------
