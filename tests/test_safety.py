@@ -29,17 +29,21 @@ pytestmark = pytest.mark.skipif(not hasattr(os, "fork") or not os.path.isdir("/p
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
-    """``reference(workers)``: the uninterrupted run (computed once per worker count)."""
+    """``reference(workers)``: the uninterrupted run (computed once per worker count);
+    ``reference.seconds[workers]``: its wall time, process start included."""
     d = tmp_path_factory.mktemp("ref")
     refs = {}
 
     def get(w):
         if w not in refs:
             out = d / f"ref{w}.h5"
+            t0 = time.perf_counter()
             r = S.run("run", S.CHAIN, "-o", str(out), "--set", f"analysis.hbm.workers={w}")
+            get.seconds[w] = time.perf_counter() - t0
             assert r.returncode == 0, r.stderr
             refs[w] = out
         return refs[w]
+    get.seconds = {}
     return get
 
 
@@ -98,7 +102,8 @@ def test_two_writers_the_second_is_refused_and_changes_nothing(tmp_path):
 
 
 def test_sigkill_with_two_workers_leaves_no_process_and_resumes_exactly(tmp_path, reference):
-    _kill_and_resume(tmp_path / "k.h5", reference(2), 2.5, signal.SIGKILL, 2)
+    ref = reference(2)
+    _kill_and_resume(tmp_path / "k.h5", ref, 0.5 * reference.seconds[2], signal.SIGKILL, 2)
 
 
 @pytest.mark.slow
@@ -109,9 +114,11 @@ def test_killed_at_ten_random_times_resumes_to_the_uninterrupted_points(
         tmp_path, reference, sig, workers):
     rng = random.Random(1000 * int(sig) + workers)
     seen = []
+    ref = reference(workers)
+    duration = reference.seconds[workers]   # kill times within the run, whatever the load
     for k in range(10):
-        seen.append(_kill_and_resume(tmp_path / f"k{k}.h5", reference(workers),
-                                     rng.uniform(1.0, 5.0), sig, workers))
+        seen.append(_kill_and_resume(tmp_path / f"k{k}.h5", ref,
+                                     rng.uniform(0.2, 0.9) * duration, sig, workers))
     assert sum(s in ("running", "interrupted") for s in seen) >= 3, seen
 
 
