@@ -292,19 +292,21 @@ class _Output:
                 i = int(np.argmax(amp))
                 pw, pa, ok = float(om[i]), float(amp[i]), False
             self.peaks["omega"][ib], self.peaks["amplitude"][ib], self.refined[ib] = pw, pa, ok
-            if self.rule == "peaks":
-                # the element loops and Masing checks of the branch's largest point
-                i = int(np.argmax(amp))
-                ev = system.evaluate(Z[i], float(om[i]), F, jacobian=False)
-                X = system.reconstruct(Z[i], float(om[i]), F)
-                self._write_loops(int(rows[i]), X, ev.aft.f, ev.aft.N)
-            d_u, w_u = unit("displacement", units), unit("angular_frequency", units)
-            writer.write("hbm/peak_omega", self.peaks["omega"], w_u, "frequency of the largest "
-                         "amplitude of each branch")
-            writer.write("hbm/peak_amplitude", self.peaks["amplitude"], d_u,
-                         f"largest amplitude ({a.amplitude}) of each branch")
-            writer.write("hbm/peak_refined", self.refined, "1", "peak refined by maximising "
-                         "over frequency (false: largest computed point, e.g. at a fold)")
+            with writer.commit():   # the peak loops and tables: all or nothing
+                if self.rule == "peaks":
+                    # the element loops and Masing checks of the branch's largest point
+                    i = int(np.argmax(amp))
+                    ev = system.evaluate(Z[i], float(om[i]), F, jacobian=False)
+                    X = system.reconstruct(Z[i], float(om[i]), F)
+                    self._write_loops(int(rows[i]), X, ev.aft.f, ev.aft.N)
+                d_u, w_u = unit("displacement", units), unit("angular_frequency", units)
+                writer.write("hbm/peak_omega", self.peaks["omega"], w_u,
+                             "frequency of the largest amplitude of each branch")
+                writer.write("hbm/peak_amplitude", self.peaks["amplitude"], d_u,
+                             f"largest amplitude ({a.amplitude}) of each branch")
+                writer.write("hbm/peak_refined", self.refined, "1", "peak refined by "
+                             "maximising over frequency (false: largest computed point, "
+                             "e.g. at a fold)")
         # the status last: a branch marked finished has its peak and loops in the file
         # ("worker died" is not final: --resume computes the branch on)
         g.attrs[f"branch{ib}_message"] = message

@@ -207,8 +207,19 @@ def torn_groups(h5) -> dict[str, int]:
 
 
 def _trim(h5, torn: dict[str, int]) -> None:
+    """Cut torn rows; the datasets (and their group, where its datasets agree) then
+    record their committed count, also when it is 0 (a first point that was torn)."""
+    groups = set()
     for name, n in torn.items():
-        h5[name].resize(n, axis=0)
+        d = h5[name]
+        d.resize(n, axis=0)
+        d.attrs[COMMITTED] = n
+        groups.add(d.parent.name)
+    for g in groups:
+        rows = {d.shape[0] for d in h5[g].values()
+                if isinstance(d, h5py.Dataset) and d.maxshape and d.maxshape[0] is None}
+        if len(rows) == 1:
+            h5[g].attrs[COMMITTED] = rows.pop()
 
 
 def open_result(path):
