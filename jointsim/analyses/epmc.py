@@ -23,7 +23,9 @@ import numpy as np
 
 from ..io.hdf5 import unit, write_loops
 from ..masing import check_loops
-from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
+from ..results import SUCCESS, Convergence
+from ..solvers.continuation import (TARGET_ITER, Branch, PointInfo, continue_branch,
+                                     next_step)
 from ..solvers.epmc import EPMCSystem
 from ..solvers.condensation import dense_array
 from ..solvers.hbm import HBMSystem
@@ -90,12 +92,15 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     writer.h5["epmc"].attrs["linear_solver"] = system.linear_solver
     writer.h5["epmc"].attrs["n_unknowns"] = system.n_z
     on_point = _point_writer(writer, scene, model, system, ep, F, solve_first)
-    br = continue_branch(ep.fun, y0, a.log10_amplitude_end, scale=scale, rscale=rscale,
-                         step=h0, step_min=a.step_min, step_max=a.step_max,
-                         max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
-                         solve_first=solve_first, tangent0=t0, on_point=on_point,
-                         desc=f"epmc mode {a.mode}", monitor=step_monitor(a, system.n_z),
-                         lam_start=a.log10_amplitude_start)
+    if system.n_z == 0:
+        br = _linear_branch(a, ep, em, xi0, on_point, writer.rows("epmc/omega"))
+    else:
+        br = continue_branch(ep.fun, y0, a.log10_amplitude_end, scale=scale, rscale=rscale,
+                             step=h0, step_min=a.step_min, step_max=a.step_max,
+                             max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
+                             solve_first=solve_first, tangent0=t0, on_point=on_point,
+                             desc=f"epmc mode {a.mode}", monitor=step_monitor(a, system.n_z),
+                             lam_start=a.log10_amplitude_start)
     conv = br.convergence
     g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
     g.attrs["n_points"] = writer.rows("epmc/omega")
@@ -107,6 +112,31 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
         solve_at_amplitudes(writer, a, system, ep, F, scale, rscale)
     if not conv.success:
         raise RuntimeError(f"epmc: {conv.message}")
+
+
+#: Points per decade of amplitude of the branch of a joint without contact unknowns.
+LINEAR_POINTS_PER_DECADE = 4
+
+
+def _linear_branch(a, ep, em, xi0, on_point, done: int):
+    """The branch of a joint without contact unknowns (fixed N, no friction): the
+    linear mode at every amplitude, written point by point from point ``done`` on."""
+    lo, hi = a.log10_amplitude_start, a.log10_amplitude_end
+    n = max(2, int(np.ceil(abs(hi - lo) * LINEAR_POINTS_PER_DECADE)) + 1)
+    lams = np.linspace(lo, hi, n)
+    tangent = np.array([0.0, 0.0, 1.0 if hi >= lo else -1.0])
+    for i in range(done, n):
+        y = ep.linear_point(float(lams[i]), em.omega, xi0)
+        info = PointInfo(iterations=0, residual=0.0,
+                         step=0.0 if i == 0 else float(abs(lams[i] - lams[i - 1])),
+                         tangent=tangent)
+        on_point(i, y, info)
+    message = (f"no contact unknowns (fixed normal load, no friction): the joint is linear "
+               f"and its nonlinear mode is the linear mode; {n} points")
+    log.info("epmc mode %d: %s", a.mode, message)
+    return Branch(y=np.array([ep.linear_point(float(x), em.omega, xi0) for x in lams]),
+                  iterations=np.zeros(n, dtype=np.int64), residual=np.zeros(n),
+                  step=np.zeros(n), convergence=Convergence(True, SUCCESS, message, n))
 
 
 def _write_header(writer, a, model, em, xi0):
@@ -193,7 +223,7 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
             return
         omega, xi, lam = float(y[nz]), float(y[nz + 1]), float(y[nz + 2])
         amp = 10.0 ** lam
-        X = system.reconstruct(ep.z0 + amp * y[:nz], omega, F, xi=xi)
+        X = ep.coefficients(y)
         with writer.commit():  # the point and its loops: all or nothing
             p = writer.rows("epmc/omega")
             writer.append("epmc/amplitude", amp, amp_unit, "modal amplitude of the fundamental")

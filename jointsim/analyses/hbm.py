@@ -297,8 +297,9 @@ class _Output:
                     # the element loops and Masing checks of the branch's largest point
                     i = int(np.argmax(amp))
                     ev = system.evaluate(Z[i], float(om[i]), F, jacobian=False)
-                    X = system.reconstruct(Z[i], float(om[i]), F)
-                    self._write_loops(int(rows[i]), X, ev.aft.f, ev.aft.N)
+                    if ev.aft is not None:   # None: no contact unknowns (a linear joint)
+                        X = system.reconstruct(Z[i], float(om[i]), F)
+                        self._write_loops(int(rows[i]), X, ev.aft.f, ev.aft.N)
                 d_u, w_u = unit("displacement", units), unit("angular_frequency", units)
                 writer.write("hbm/peak_omega", self.peaks["omega"], w_u,
                              "frequency of the largest amplitude of each branch")

@@ -74,6 +74,40 @@ class EPMCSystem:
         self.m_q = lin.Psi.T @ Mphi
         self.m_y = lin.Z.T @ Mphi
 
+    def coefficients(self, y):
+        """Full harmonic coefficients ``X`` (n_c, n_dof) [m] of the point ``y``.
+
+        Without contact unknowns (``n_z = 0``: fixed normal load and no
+        friction) the structure is linear and the mode is the reference mode
+        ``phi`` itself: ``X`` is the static state plus ``a phi`` in the cosine
+        of harmonic 1 (see :meth:`linear_point`).
+        """
+        s = self.s
+        nz = s.n_z
+        omega, xi, lam = float(y[nz]), float(y[nz + 1]), float(y[nz + 2])
+        amp = 10.0 ** lam
+        X = s.reconstruct(self.z0 + amp * y[:nz], omega, self.F, xi=xi)
+        if nz == 0:
+            X[s.basis.index[1][0]] += amp * self.phi
+        return X
+
+    def linear_point(self, lam: float, omega: float, xi: float):
+        """The point ``y`` of a joint without contact unknowns at ``log10 a = lam``.
+
+        Such a joint is linear: its nonlinear mode is the linear mode at every
+        amplitude, with frequency ``omega`` [rad/s] and self-excitation
+        ``xi = phi^T C phi`` [1/s] (exact for damping that is diagonal in the
+        modes, e.g. modal or Rayleigh damping).
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            ``(omega, xi, lam)``.
+        """
+        if self.s.n_z:
+            raise ValueError("the joint has contact unknowns: continue its branch instead")
+        return np.array([omega, xi, lam], dtype=float)
+
     def _modal(self, Q, omega, xi, derivs: bool):
         """``q1 = phi^T M X_1`` (complex), its gradient in the harmonic-1 rows, and
         its derivatives by omega and xi."""
