@@ -22,7 +22,6 @@ one run, not runs on different days.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import logging
 import statistics
 import tempfile

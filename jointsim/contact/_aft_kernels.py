@@ -76,7 +76,6 @@ def _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, cou
     """One element of :func:`anchor_aft` (outputs written in place)."""
     nt = u.shape[1]
     ns = k.shape[1]
-    nc = Gam.shape[1]
     w = np.zeros(ns)
     wstart = np.zeros(ns)
     s = np.full(ns, -1, dtype=np.int64)

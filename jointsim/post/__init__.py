@@ -12,7 +12,6 @@ import logging
 from pathlib import Path
 from typing import Callable
 
-import h5py
 
 from ..io.hdf5 import open_result
 

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import h5py
 
 from ..io.hdf5 import open_result
 

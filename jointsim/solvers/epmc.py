@@ -39,7 +39,6 @@ import numpy as np
 from .condensation import dense_array
 from .hbm import HBMSystem
 from .jacobian import BorderedJacobian
-from .modes import elastic_mode
 
 log = logging.getLogger(__name__)
 

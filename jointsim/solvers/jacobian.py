@@ -348,7 +348,7 @@ class HBMJacobian:
 
     def max_abs(self) -> float:
         """``max |J_ij|`` of the unscaled ``J`` without forming it."""
-        nr, nc = self.n_r, self.n_c
+        nr = self.n_r
         m = 0.0
         for i, h in enumerate(self.basis.harmonics):
             cols = [self._ic[i]] + ([self._is[i]] if h else [])

@@ -7,7 +7,6 @@ third frequency by less than 0.05 %: the remaining error is discretisation.
 (20 mm) with one element through the thickness.
 """
 import numpy as np
-import pytest
 import scipy.sparse.linalg as spla
 
 from jointsim.fem.assembly import assemble_plane_stress, vector_basis

@@ -10,8 +10,7 @@ from jointsim.run import run_scene
 from jointsim.scene import SceneError, load_scene, parse_scene
 from jointsim.solvers.continuation import continue_branch
 from jointsim.solvers.epmc import EPMCSystem
-from jointsim.harmonics import harmonic_amplitude
-from jointsim.solvers.hbm import HBMSystem, solve_point
+from jointsim.solvers.hbm import HBMSystem
 from jointsim.solvers.modes import elastic_mode
 
 from .._scenes import COUPLED, FIXED, NO_FULL, four_dof, lap_scene

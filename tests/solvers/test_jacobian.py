@@ -11,7 +11,7 @@ from jointsim.scene import load_scene
 from jointsim.solvers.hbm import HBMSystem, solve_point
 from jointsim.solvers.jacobian import BorderedJacobian, HarmonicPreconditioner, gmres
 
-from .._scenes import COUPLED, ROOT, four_dof, lap_scene
+from .._scenes import ROOT, four_dof, lap_scene
 
 MODELS = ROOT / "models" / "hbm"
 
