@@ -112,6 +112,8 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     log.info("epmc mode %d: %s", a.mode, conv.message)
     if a.amplitudes:
         solve_at_amplitudes(writer, a, system, ep, F, scale, rscale)
+    from .study import write_control   # the study's third column (issue 14)
+    write_control(writer, "epmc", model.contacts.law, scene.analysis.masing.tol, model.units)
     if not conv.success:
         raise RuntimeError(f"epmc: {conv.message}")
 
