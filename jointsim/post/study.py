@@ -371,11 +371,21 @@ def control_text(sets: LoopSets, control: ControlSets) -> list[str]:
     for i in range(sets.u.shape[0]):
         lines.append(f"    {sets.parameter[i]:>15.4g} {phys[i]:>12.2f} {on[i]:>11.2f} "
                      f"{adm[i]:>17.2f} {dev[i]:>30.2g}")
+    from ..masing import CAUSE_NAMES, CAUSE_UNLOADED
+
     counts = attribution(sets, control)
     total = sum(counts.values())
-    lines.append(f"  Attribution of the physical departures ({total} element-amplitude pairs):")
-    for name, c in counts.items():
-        lines.append(f"    {name:<22} {c:>5d}")
+    lines.append(f"  Attribution of the physical loops ({total} element-amplitude pairs; "
+                 "rows: the seed's conditions, columns: cause):")
+    names = [n for k, n in enumerate(CAUSE_NAMES) if k != CAUSE_UNLOADED]
+    lines.append(f"    {'':22}" + "".join(f" {n:>22}" for n in names))
+    violated = ~(sets.eq4_ok & sets.eq6_ok)
+    for label, rows in (("Eq. 4 or 6 violated", violated), ("both conditions hold", ~violated),
+                        ("total", np.ones_like(violated))):
+        m = sets.loaded & rows
+        lines.append(f"    {label:22}" + "".join(
+            f" {int(((control.cause == k) & m).sum()):>22d}"
+            for k, n in enumerate(CAUSE_NAMES) if k != CAUSE_UNLOADED))
     return lines
 
 
