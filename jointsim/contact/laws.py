@@ -388,7 +388,7 @@ def continuation_advice(law: TangentialLaw, coupled: bool) -> str:
     return (f"the tangential law {law.name!r} is not path-continuous under a varying normal "
             "load (its reference force f_r N/N_r jumps between 0 and +-mu N when a reversal "
             "crosses a separation instant, and a micro-reversal re-scales it), so the "
-            "residual is discontinuous and continuation cannot pass such a point; use "
+            "residual can jump and continuation cannot pass such a point; use "
             "joint.reversal = 'anchor' for continuation and replay the loops with the scaled "
             "or manifold law in prescribed motion (README: Reversal laws and the manifold)")
 

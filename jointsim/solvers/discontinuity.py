@@ -19,7 +19,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Jump:
-    """A jump of ``|R|`` between two nearby points of a segment.
+    """A jump of the residual between two nearby points of a segment.
 
     Attributes
     ----------
@@ -27,6 +27,8 @@ class Jump:
         Segment parameters bracketing the jump (``y = y0 + s (y1 - y0)``) [-].
     dy : float
         ``|y(s_after) - y(s_before)|`` (2-norm, in the units of ``y``).
+    dr : float
+        ``|R(s_after) - R(s_before)|`` (2-norm): the size of the jump.
     r_before, r_after : float
         ``|R|`` (2-norm) on either side.
     """
@@ -34,68 +36,74 @@ class Jump:
     s_before: float
     s_after: float
     dy: float
+    dr: float
     r_before: float
     r_after: float
 
     def describe(self) -> str:
-        return (f"the residual jumps from |R| = {self.r_before:.3g} to {self.r_after:.3g} "
-                f"over |dy| = {self.dy:.3g}")
+        return (f"the residual jumps by |dR| = {self.dr:.3g} (|R| from {self.r_before:.3g} "
+                f"to {self.r_after:.3g}) over |dy| = {self.dy:.3g}")
 
 
 def residual_jump(fun, y0, y1, n_scan: int = 64, n_bisect: int = 60,
-                  ratio: float = 1e3, floor: float = 1e-12) -> Jump | None:
-    """Look for a discontinuity of ``|fun(y)|`` on the segment ``y0 -> y1``.
+                  noise: float = 1e-9) -> Jump | None:
+    """Look for a discontinuity of ``fun`` on the segment ``y0 -> y1``.
 
-    The segment is scanned at ``n_scan + 1`` points; the first interval whose
-    end value exceeds ``ratio`` times its start value (and ``floor``) is
-    bisected ``n_bisect`` times, keeping the jump inside.  A continuous
-    residual (Lipschitz along the segment) shrinks the bracketed increase with
-    the interval; a jump keeps it, down to the last bit of ``y``.
+    The segment is scanned at ``n_scan + 1`` points.  The interval with the
+    largest change ``|R(s_i+1) - R(s_i)|`` is bisected ``n_bisect`` times,
+    keeping the half that changes more.  A continuous residual's change
+    shrinks with the interval; a jump's does not, down to the last bit of
+    ``y``: the interval holds a jump when its final change keeps at least half
+    of the interval's excess over the median change and exceeds ``noise``
+    times ``|R|``.
 
     Parameters
     ----------
     fun : callable
-        ``fun(y) -> R`` (ndarray); only ``|R|`` is used.
+        ``fun(y) -> R`` (ndarray).
     y0, y1 : ndarray, shape (n,)
         Segment ends; ``y0`` is typically the last converged point.
     n_scan, n_bisect : int
-    ratio : float
-        Growth of ``|R|`` within one interval that counts as a jump.
-    floor : float
-        ``|R|`` at or below this is treated as converged.
+    noise : float
+        Relative size of a change that counts as round-off.
 
     Returns
     -------
     Jump or None
-        None when no interval grows by ``ratio`` or the growth vanishes under
-        bisection (a steep but continuous residual).
+        None when the largest change vanishes under bisection (a steep but
+        continuous residual, or a kink).
     """
     y0 = np.asarray(y0, dtype=float)
     d = np.asarray(y1, dtype=float) - y0
 
-    def norm(s):
-        return float(np.linalg.norm(fun(y0 + s * d)))
+    def at(s):
+        return np.asarray(fun(y0 + s * d), dtype=float).ravel()
 
     s = np.linspace(0.0, 1.0, n_scan + 1)
-    r = [norm(s[0])]
-    for i in range(1, s.size):
-        r.append(norm(s[i]))
-        lo, hi, r_lo, r_hi = s[i - 1], s[i], r[-2], r[-1]
-        if r_hi > ratio * max(r_lo, floor):
-            for _ in range(n_bisect):
-                mid = 0.5 * (lo + hi)
-                if mid in (lo, hi):
-                    break
-                r_mid = norm(mid)
-                if r_mid > ratio * max(r_lo, floor):
-                    hi, r_hi = mid, r_mid
-                else:
-                    lo, r_lo = mid, r_mid
-            dy = float(np.linalg.norm((hi - lo) * d))
-            if r_hi > ratio * max(r_lo, floor):
-                return Jump(float(lo), float(hi), dy, r_lo, r_hi)
-            return None
-    return None
+    R = [at(x) for x in s]
+    change = np.array([np.linalg.norm(R[i + 1] - R[i]) for i in range(n_scan)])
+    if not np.all(np.isfinite(change)):
+        return None
+    i = int(np.argmax(change))
+    med = float(np.median(change))
+    if change[i] == 0.0:
+        return None
+    lo, hi, R_lo, R_hi = s[i], s[i + 1], R[i], R[i + 1]
+    for _ in range(n_bisect):
+        mid = 0.5 * (lo + hi)
+        if mid in (lo, hi):
+            break
+        R_mid = at(mid)
+        if np.linalg.norm(R_mid - R_lo) >= np.linalg.norm(R_hi - R_mid):
+            hi, R_hi = mid, R_mid
+        else:
+            lo, R_lo = mid, R_mid
+    dr = float(np.linalg.norm(R_hi - R_lo))
+    size = max(float(np.linalg.norm(R_lo)), float(np.linalg.norm(R_hi)))
+    if dr < 0.5 * (change[i] - med) or dr <= noise * size:
+        return None
+    return Jump(float(lo), float(hi), float(np.linalg.norm((hi - lo) * d)), dr,
+                float(np.linalg.norm(R_lo)), float(np.linalg.norm(R_hi)))
 
 
 def explain_failure(message: str, advice: str, fun, y_prev, y_last, n_scan: int = 64) -> str:
@@ -126,6 +134,9 @@ def explain_failure(message: str, advice: str, fun, y_prev, y_last, n_scan: int 
         jump = residual_jump(fun, y_last, 2.0 * y_last - np.asarray(y_prev, dtype=float),
                              n_scan=n_scan)
         if jump is not None:
-            found = (f" (one secant step past the last point {jump.describe()}, at "
-                     f"s = {jump.s_after:.6g} of the step)")
+            found = (f" (found: one secant step past the last point {jump.describe()}, "
+                     f"at s = {jump.s_after:.6g} of the step)")
+        else:
+            found = (" (no jump found within one secant step past the last point: this "
+                     "failure may also have another cause)")
     return f"{message}; {advice}{found}"

@@ -82,9 +82,15 @@ def test_residual_jump_finds_a_step_and_not_a_steep_slope():
     step = lambda y: np.array([1e-12 + (y[0] > 0.3) * 0.05])
     j = residual_jump(step, np.zeros(1), np.ones(1))
     assert j is not None and j.s_before <= 0.3 < j.s_after and j.dy < 1e-15
-    assert j.r_after == pytest.approx(0.05)
+    assert j.r_after == pytest.approx(0.05) and j.dr == pytest.approx(0.05)
+    # a jump on top of a large, sloped residual (an unconverged or unscaled one)
+    sloped = lambda y: np.array([24.0 + 40.0 * y[0] + (y[0] > 0.61) * 0.5, 3.0])
+    j = residual_jump(sloped, np.zeros(1), np.ones(1))
+    assert j is not None and j.s_before <= 0.61 < j.s_after and j.dr == pytest.approx(0.5)
     steep = lambda y: np.array([1e-12 + 1e3 * max(y[0] - 0.3, 0.0)])
     assert residual_jump(steep, np.zeros(1), np.ones(1)) is None
+    kink = lambda y: np.array([1e3 * abs(y[0] - 0.123)])
+    assert residual_jump(kink, np.zeros(1), np.ones(1)) is None
 
 
 def test_advice_only_for_scaled_laws_with_varying_normal_load():
@@ -111,6 +117,6 @@ def test_scaled_fold_continuation_stops_with_the_jump_and_the_advice(tmp_path):
         run_scene(scene, tmp_path / "x.h5")
     msg = str(err.value)
     assert "not path-continuous" in msg and "joint.reversal = 'anchor'" in msg
-    assert "the residual jumps from" in msg
+    assert "the residual jumps by" in msg
     with h5py.File(tmp_path / "x.h5") as h5:
         assert h5["hbm/omega"][-1] == pytest.approx(2.137, abs=2e-3)
