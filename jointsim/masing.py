@@ -182,3 +182,151 @@ def _conditions(u, f, slip, kt):
     eq4 = np.where(eq4 < 0.0, -v4 / size, eq4)
     eq6 = np.where(eq6 < 0.0, -v6 / size, eq6)
     return eq4, eq6
+
+
+#: Codes of :attr:`ControlReport.cause` (the attribution of a physical departure).
+CAUSE_ON, CAUSE_CONDITION5, CAUSE_EQ46, CAUSE_INADMISSIBLE, CAUSE_UNLOADED = 0, 1, 2, 3, 4
+#: Their names, in code order (stored with the HDF5 dataset).
+CAUSE_NAMES = ("on manifold", "condition 5", "Eq. 4/Eq. 6", "manifold outside mu N",
+               "unloaded")
+
+#: Deviation of the control loop from its manifold beyond the manifold's excess
+#: over ``mu N`` that is a bug, not round-off (normalised by max ``mu N``).
+CONTROL_ROUNDOFF = 1e-9
+
+
+@dataclass(frozen=True)
+class ControlReport:
+    """The study's third column: loops replayed through the manifold law.
+
+    The physical loops' kinematics ``(u(t), N(t))`` are replayed, per element,
+    through the ``manifold`` reversal law (:class:`~jointsim.contact.laws.ManifoldBank`,
+    seed condition 5 with Masing's memory rule) and through the physical law,
+    by prescribed motion with the existing kernels.
+
+    Attributes
+    ----------
+    f : ndarray, shape (n_e, n)
+        Manifold-law force over the replayed steady period [N].
+    report : MasingReport
+        The Masing check of the control loops (``report.dev_manifold`` is the
+        control's deviation).
+    excess : ndarray, shape (n_e,)
+        The manifold's largest excess over ``mu N``, normalised by max ``mu N``
+        (0 where the manifold lies inside the friction limit; there the control
+        is on it to round-off, checked).
+    periodicity : ndarray, shape (n_e,)
+        Change of the control force between the last two replayed periods,
+        normalised by max ``mu N``.
+    replay_error : ndarray, shape (n_e,)
+        ``max |f_physical replayed - f stored| / max mu N``: how well the
+        physical law, replayed, reproduces the stored (AFT) loop.
+    cause : ndarray of int8, shape (n_e,)
+        Attribution of the physical loop (:data:`CAUSE_NAMES`): on the manifold;
+        off it with both Eq. 4 and Eq. 6 held while the control is on it
+        (condition 5 alone: the physical reference force does not follow N);
+        off it with Eq. 4 or Eq. 6 violated while the control is on it;
+        the manifold leaves ``+-mu N`` (no law bounded by ``mu N`` is on it);
+        unloaded (N <= 0 over the period).
+    """
+
+    f: np.ndarray
+    report: MasingReport
+    excess: np.ndarray
+    periodicity: np.ndarray
+    replay_error: np.ndarray
+    cause: np.ndarray
+    periods: int = 0
+
+
+def control_law(law):
+    """The manifold reversal law with the sliders of ``law``; None for a law that cannot slip."""
+    from .contact.laws import ManifoldBank, SliderBank
+
+    if not (isinstance(law, SliderBank) and law.can_slip):
+        return None
+    return ManifoldBank(k=law.k, g=law.g, mu=law.mu)
+
+
+def replay_control(u, f, N, law, physical, tol: float = 0.01, max_periods: int = 400,
+                   block: int = 20, periodic_tol: float = 1e-12) -> ControlReport | None:
+    """Replay steady loops through the manifold law and attribute the physical departures.
+
+    Both laws start from rest at ``u = 0`` (where the AFT kernels start) and
+    march whole periods of the stored samples, in blocks of ``block`` periods,
+    until the control force repeats to ``periodic_tol`` (relative to max
+    ``mu N``) or ``max_periods`` were marched; the last period is kept.  The
+    control need not become periodic: under a varying N an element that does
+    not slip has no closed loop on its manifold (its scaled reference force
+    drifts by about ``kt (max u - min u) (N_max / N_min - 1)`` a cycle until
+    the manifold reaches ``mu N``), which :attr:`ControlReport.periodicity`
+    reports.
+
+    Parameters
+    ----------
+    u, f, N : array_like, shape (n_e, n)
+        One steady period of each element [m], [N], [N], as stored.
+    law : jointsim.contact.TangentialLaw
+        The physical law of the loops.
+    physical : MasingReport or object
+        The Masing check of the stored loops; only ``on_manifold``,
+        ``eq4_ok`` and ``eq6_ok`` (shape (n_e,)) are used.
+    tol : float
+        On-manifold tolerance.
+    max_periods, block : int
+    periodic_tol : float
+
+    Returns
+    -------
+    ControlReport or None
+        None when ``law`` cannot slip (no manifold law to compare with).
+
+    Raises
+    ------
+    RuntimeError
+        When a control loop is off its manifold by more than the manifold's
+        excess over ``mu N`` plus its non-periodicity (plus
+        :data:`CONTROL_ROUNDOFF`): by construction it cannot be.
+    """
+    ctrl = control_law(law)
+    if ctrl is None:
+        return None
+    u = np.atleast_2d(np.asarray(u, dtype=float))
+    f = np.atleast_2d(np.asarray(f, dtype=float))
+    N = np.atleast_2d(np.asarray(N, dtype=float))
+    n = u.shape[1]
+    slip = law.slip_force(N)
+    norm = slip.max(axis=1)
+    norm = np.where(norm > 0.0, norm, 1.0)
+    # the physical law: one period more than the AFT's periodic state needs is plenty
+    fp = law.march(np.tile(u, 3), np.tile(N, 3), law.rest_state(N[:, 0]))[0][:, -n:]
+    uu, NN = np.tile(u, block), np.tile(N, block)
+    state = ctrl.rest_state(N[:, 0])
+    marched = 0
+    while True:
+        fc, _, _, state = ctrl.march(uu, NN, state)
+        marched += block
+        last, prev = fc[:, -n:], fc[:, -2 * n:-n]
+        change = np.abs(last - prev).max(axis=1) / norm
+        if change.max() <= periodic_tol or marched >= max_periods:
+            break
+    rep = check_loops(u, last, N, ctrl, tol)
+    excess = np.maximum(np.abs(rep.f_manifold) - slip, 0.0).max(axis=1) / norm
+    loaded = (N > 0.0).any(axis=1)
+    bad = loaded & (rep.dev_manifold > excess + change + CONTROL_ROUNDOFF)
+    if np.any(bad):
+        e = int(np.flatnonzero(bad)[0])
+        raise RuntimeError(f"manifold-law control of element {e} is off its manifold: "
+                           f"dev {rep.dev_manifold[e]:.3e} > excess {excess[e]:.3e} + "
+                           f"non-periodicity {change[e]:.3e}")
+    cause = np.full(u.shape[0], CAUSE_ON, dtype=np.int8)
+    off = ~np.asarray(physical.on_manifold, dtype=bool)
+    violated = ~(np.asarray(physical.eq4_ok, dtype=bool) & np.asarray(physical.eq6_ok, dtype=bool))
+    control_on = rep.dev_manifold <= tol
+    cause[off & violated] = CAUSE_EQ46
+    cause[off & ~violated] = CAUSE_CONDITION5
+    cause[off & ~control_on & (excess > tol)] = CAUSE_INADMISSIBLE
+    cause[~loaded] = CAUSE_UNLOADED
+    return ControlReport(f=last, report=rep, excess=excess, periodicity=change,
+                         replay_error=np.abs(fp - f).max(axis=1) / norm, cause=cause,
+                         periods=marched)

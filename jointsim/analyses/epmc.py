@@ -102,6 +102,8 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
                              desc=f"epmc mode {a.mode}", monitor=step_monitor(a, system.n_z),
                              lam_start=a.log10_amplitude_start)
     conv = br.convergence
+    if not conv.success:
+        conv = _explain(conv, model, system, ep, writer)
     g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
     g.attrs["n_points"] = writer.rows("epmc/omega")
     g.attrs["branch_status"] = "complete" if conv.success else "gave up"
@@ -110,6 +112,8 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     log.info("epmc mode %d: %s", a.mode, conv.message)
     if a.amplitudes:
         solve_at_amplitudes(writer, a, system, ep, F, scale, rscale)
+    from .study import write_control   # the study's third column (issue 14)
+    write_control(writer, "epmc", model.contacts.law, scene.analysis.masing.tol, model.units)
     if not conv.success:
         raise RuntimeError(f"epmc: {conv.message}")
 
@@ -254,6 +258,24 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
                 writer.h5["epmc/loops"].attrs["analysis"] = "epmc"
 
     return on_point
+
+
+def _explain(conv, model, system, ep, writer):
+    """The failed branch's convergence, its message extended by the residual jump of a
+    law without path continuity (:func:`jointsim.solvers.discontinuity.explain_failure`)."""
+    import dataclasses
+
+    from ..contact.laws import continuation_advice
+    from ..solvers.discontinuity import explain_failure
+
+    advice = continuation_advice(model.contacts.law, system.coupled)
+    if not advice:
+        return conv
+    y = writer.h5["epmc/y"][()] if "epmc/y" in writer.h5 else np.zeros((0, 0))
+    message = explain_failure(conv.message, advice, lambda v: ep.fun(v)[0],
+                              y[-2] if len(y) > 1 else None, y[-1] if len(y) else None,
+                              n_scan=32)
+    return dataclasses.replace(conv, message=message)
 
 
 def step_monitor(a, nz: int):

@@ -272,6 +272,23 @@ class _Output:
         write_loops(self.writer, p, u, f, N, report, self.units, prefix="hbm")
         self.writer.h5["hbm/loops"].attrs["analysis"] = "hbm"
 
+    def _explain(self, message, F, rows) -> str:
+        """A failed branch's message, with the residual jump of a law without path
+        continuity (:func:`jointsim.solvers.discontinuity.explain_failure`)."""
+        from ..contact.laws import continuation_advice
+        from ..solvers.discontinuity import explain_failure
+
+        system = self.system
+        advice = continuation_advice(self.model.contacts.law, system.coupled)
+        if not advice:
+            return message
+        Z, om = np.asarray(self.points["q"])[rows], np.asarray(self.points["omega"])[rows]
+        y = np.column_stack([Z, om])
+        return explain_failure(
+            message, advice,
+            lambda v: system.evaluate(v[:-1], float(v[-1]), F, jacobian=False).R,
+            y[-2] if len(y) > 1 else None, y[-1])
+
     def finish_branch(self, ib, fs, success, message) -> str | None:
         """Status, peak and peak loops of a finished branch; the failure, if any."""
         a, system, writer, units = self.a, self.system, self.writer, self.units
@@ -308,6 +325,8 @@ class _Output:
                 writer.write("hbm/peak_refined", self.refined, "1", "peak refined by "
                              "maximising over frequency (false: largest computed point, "
                              "e.g. at a fold)")
+        if not success and rows.size:
+            message = self._explain(message, F, rows)
         # the status last: a branch marked finished has its peak and loops in the file
         # ("worker died" is not final: --resume computes the branch on)
         g.attrs[f"branch{ib}_message"] = message

@@ -202,6 +202,10 @@ class TangentialLaw:
     has_aft : bool
         False when the law has no AFT kernel with an exact Jacobian (scenes
         with harmonic balance are refused, see :mod:`jointsim.contact.select`).
+    path_continuous : bool
+        False when the force is not a continuous function of the path under
+        a varying normal load (the scaled reversal laws): continuation may
+        then meet a residual that jumps, see :func:`continuation_advice`.
     """
 
     name: ClassVar[str] = ""
@@ -209,6 +213,7 @@ class TangentialLaw:
     can_slip: ClassVar[bool] = True
     fused_code: ClassVar[int | None] = None
     has_aft: ClassVar[bool] = True
+    path_continuous: ClassVar[bool] = True
 
     k: np.ndarray
     g: np.ndarray
@@ -360,6 +365,34 @@ class TangentialLaw:
         return dataclasses.replace(self, k=self.k[index], g=self.g[index], mu=self.mu[index])
 
 
+def continuation_advice(law: TangentialLaw, coupled: bool) -> str:
+    """Why a continuation with ``law`` may give up, and what to do; ``""`` when it should not.
+
+    A scaled reversal law (seed Eq. 7, ``joint.reversal = "scaled"``, and
+    ``"manifold"``) is not path-continuous once the normal load varies: its
+    reference term ``f_r N / N_r`` jumps between 0 (a reversal taken while
+    separated, ``N_r = 0``) and ``+-mu N`` (``N_r -> 0+`` with
+    ``f_r = +-mu N_r``), and a micro-reversal re-scales the reference force
+    (``kt (u - u_r) (N / N_r - 1)`` later).  The harmonic-balance residual is
+    then discontinuous in the unknowns, and neither Newton nor a smaller step
+    can cross the jump.
+
+    Parameters
+    ----------
+    law : TangentialLaw
+    coupled : bool
+        The normal load is computed from the gap (``effects.normal = "coupled"``).
+    """
+    if law.path_continuous or not coupled:
+        return ""
+    return (f"the tangential law {law.name!r} is not path-continuous under a varying normal "
+            "load (its reference force f_r N/N_r jumps between 0 and +-mu N when a reversal "
+            "crosses a separation instant, and a micro-reversal re-scales it), so the "
+            "residual can jump and continuation cannot pass such a point; use "
+            "joint.reversal = 'anchor' for continuation and replay the loops with the scaled "
+            "or manifold law in prescribed motion (README: Reversal laws and the manifold)")
+
+
 def _no_history(u):
     ne = u.shape[0]
     return np.ones(ne, dtype=np.int64), np.zeros(ne)
@@ -414,6 +447,7 @@ class ScaledBank(SliderBank):
 
     name: ClassVar[str] = "bank_scaled"
     bank_code: ClassVar[int] = K.BANK_SCALED
+    path_continuous: ClassVar[bool] = False
 
     def state_size(self) -> int:
         return K.SC_SHARED + 2 * self.n_sliders
@@ -469,6 +503,7 @@ class ManifoldBank(SliderBank):
     name: ClassVar[str] = "bank_manifold"
     bank_code: ClassVar[int] = K.BANK_MANIFOLD
     has_aft: ClassVar[bool] = False
+    path_continuous: ClassVar[bool] = False
 
     def state_size(self) -> int:
         return K.MF_SHARED + 3 * K.MF_DEPTH

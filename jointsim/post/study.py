@@ -15,7 +15,12 @@ one place.
   the slip-limit force ``mu N0`` (:func:`fraction_weights`), which do not
   depend on the mesh;
 * :func:`condition_confusion` -- whether violating the seed's Eq. 4 / Eq. 6
-  predicts leaving the manifold, as a 2 x 2 table over (element, amplitude).
+  predicts leaving the manifold, as a 2 x 2 table over (element, amplitude);
+* :func:`control_sets`, :func:`control_fractions`, :func:`attribution` -- the
+  third column: the loops' kinematics replayed through the ``manifold``
+  reversal law (the control for seed condition 5, ``/<group>/control``), and
+  each physical departure attributed to condition 5, to Eq. 4/Eq. 6, or to a
+  manifold that leaves ``+-mu N``.
 
 An element is *loaded* in a loop set when its normal load is positive at some
 sample; elements that stay open carry no force and are left out of fractions
@@ -274,6 +279,116 @@ def condition_confusion(sets: LoopSets) -> Confusion:
                      holds_on=int((m & ~violated & ~off).sum()))
 
 
+@dataclass(frozen=True)
+class ControlSets:
+    """The manifold-law replay of a group's loops (``/<group>/control``).
+
+    Attributes
+    ----------
+    dev_manifold, excess, periodicity, replay_error : ndarray, shape (n_sets, n_e)
+        See :class:`jointsim.masing.ControlReport` (normalised by max ``mu N``).
+    on_manifold : ndarray of bool, shape (n_sets, n_e)
+    cause : ndarray of int, shape (n_sets, n_e)
+        Codes of :data:`jointsim.masing.CAUSE_NAMES`.
+    tol : float
+    """
+
+    dev_manifold: np.ndarray
+    excess: np.ndarray
+    periodicity: np.ndarray
+    replay_error: np.ndarray
+    on_manifold: np.ndarray
+    cause: np.ndarray
+    tol: float
+
+    @property
+    def admissible(self) -> np.ndarray:
+        """The manifold lies inside ``+-mu N`` (excess <= tol), shape (n_sets, n_e)."""
+        return self.excess <= self.tol
+
+
+def control_sets(h5: h5py.File, prefix: str = "epmc") -> ControlSets | None:
+    """Read ``/<prefix>/control``; None when the file has none."""
+    g = f"{prefix}/control" if prefix else "control"
+    if g not in h5:
+        return None
+    c = h5[g]
+    return ControlSets(dev_manifold=c["dev_manifold"][()], excess=c["excess"][()],
+                       periodicity=c["periodicity"][()], replay_error=c["replay_error"][()],
+                       on_manifold=c["on_manifold"][()], cause=c["cause"][()].astype(int),
+                       tol=float(c.attrs.get("tol", 0.01)))
+
+
+def control_fractions(sets: LoopSets, control: ControlSets):
+    """Per loop set, shares of the loaded elements: control on its manifold, manifold
+    inside ``mu N``; and the control's largest deviation where its manifold is inside
+    ``mu N`` and its loop closes (round-off by construction).
+
+    Returns
+    -------
+    on, admissible : ndarray, shape (n_sets,)
+    dev_max : ndarray, shape (n_sets,)
+        0 when no element qualifies.
+    """
+    m = sets.loaded
+    n = np.maximum(m.sum(axis=1), 1)
+    on = (control.on_manifold & m).sum(axis=1) / n
+    adm = (control.admissible & m).sum(axis=1) / n
+    clean = m & (control.excess <= 1e-12) & (control.periodicity <= 1e-12)
+    dev = np.where(clean, control.dev_manifold, 0.0).max(axis=1)
+    return on, adm, dev
+
+
+def attribution(sets: LoopSets, control: ControlSets) -> dict:
+    """Counts of (element, loop set) pairs of loaded elements by cause.
+
+    Returns
+    -------
+    dict
+        ``{cause name: count}`` over :data:`jointsim.masing.CAUSE_NAMES`
+        except ``unloaded``; a pair is attributed to *condition 5* when the
+        physical loop is off its manifold, Eq. 4 and Eq. 6 hold and the
+        manifold lies inside ``mu N`` (the control is on it); to *Eq. 4/Eq. 6*
+        when a condition is violated (the control is on it); to *manifold
+        outside mu N* when the manifold itself leaves the friction limit, so
+        that no law bounded by ``mu N`` is on it.
+    """
+    from ..masing import CAUSE_NAMES, CAUSE_UNLOADED
+
+    m = sets.loaded
+    return {name: int(((control.cause == k) & m).sum())
+            for k, name in enumerate(CAUSE_NAMES) if k != CAUSE_UNLOADED}
+
+
+def control_text(sets: LoopSets, control: ControlSets) -> list[str]:
+    """The third column's lines for :func:`study_text`."""
+    on, adm, dev = control_fractions(sets, control)
+    lines = ["  Third column: the loops' (u, N) replayed through the manifold reversal law "
+             "(control for seed condition 5); loaded elements:",
+             f"    {sets.parameter_name:>15} {'physical on':>12} {'control on':>11} "
+             f"{'manifold in mu N':>17} {'control dev (closed, in mu N)':>30}"]
+    phys, _, _ = manifold_fractions(sets)
+    for i in range(sets.u.shape[0]):
+        lines.append(f"    {sets.parameter[i]:>15.4g} {phys[i]:>12.2f} {on[i]:>11.2f} "
+                     f"{adm[i]:>17.2f} {dev[i]:>30.2g}")
+    from ..masing import CAUSE_NAMES, CAUSE_UNLOADED
+
+    counts = attribution(sets, control)
+    total = sum(counts.values())
+    lines.append(f"  Attribution of the physical loops ({total} element-amplitude pairs; "
+                 "rows: the seed's conditions, columns: cause):")
+    names = [n for k, n in enumerate(CAUSE_NAMES) if k != CAUSE_UNLOADED]
+    lines.append(f"    {'':22}" + "".join(f" {n:>22}" for n in names))
+    violated = ~(sets.eq4_ok & sets.eq6_ok)
+    for label, rows in (("Eq. 4 or 6 violated", violated), ("both conditions hold", ~violated),
+                        ("total", np.ones_like(violated))):
+        m = sets.loaded & rows
+        lines.append(f"    {label:22}" + "".join(
+            f" {int(((control.cause == k) & m).sum()):>22d}"
+            for k, n in enumerate(CAUSE_NAMES) if k != CAUSE_UNLOADED))
+    return lines
+
+
 def study_text(h5: h5py.File) -> str:
     """The headline numbers of a study run, for ``jointsim info``."""
     lines = []
@@ -315,4 +430,7 @@ def study_text(h5: h5py.File) -> str:
             # only with data: some pair violates a condition or leaves the manifold
             lines.append("  Do Eq. 4 / Eq. 6 violations predict leaving the manifold?")
             lines.extend("    " + s for s in conf.table().splitlines())
+        control = control_sets(h5, prefix)
+        if control is not None and control.cause.shape == sets.loaded.shape:
+            lines.extend(control_text(sets, control))
     return "\n".join(lines)

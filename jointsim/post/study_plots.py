@@ -110,6 +110,12 @@ def plot_masing_study(h5: h5py.File, outdir: Path) -> list[Path]:
         wm, ws, _ = study.weighted_fractions(sets, w)
         ax.semilogx(sets.parameter, wm, ls, color="C0", label=f"manifold, by {name}")
         ax.semilogx(sets.parameter, ws, ls, color="C1", label=f"classical Masing, by {name}")
+    control = study.control_sets(h5, prefix)
+    if control is not None and control.cause.shape == sets.loaded.shape:
+        # the third column: the same (u, N) through the manifold law (condition 5)
+        con, _, _ = study.control_fractions(sets, control)
+        ax.semilogx(sets.parameter, con, "^-", color="C2",
+                    label="manifold law on its manifold (control, count)")
     ax.set_ylim(-0.05, 1.05)
     ax.set_xlabel(sets.parameter_name)
     ax.set_ylabel(f"share of loaded elements (tol {tol:g})")

@@ -93,6 +93,22 @@ def test_coupled_normal_load_departs_from_the_manifold(tmp_path):
         man, mas, n = study.manifold_fractions(sets)
         conf = study.condition_confusion(sets)
         text = study.study_text(h5)
+        control = study.control_sets(h5, "epmc")
+        assert h5["epmc/control/cause"].attrs["unit"] == "1"
     assert man[-1] < 0.5 and man[-1] <= man[0]
     assert conf.total == int(n.sum())
     assert "EPMC against QSMA" in text and "precision" in text
+    # the third column (issue 14): the replayed physical law reproduces the stored (AFT)
+    # loops; the manifold-law control is on its manifold up to its manifold's excess over
+    # mu N and its non-closure, at round-off where both vanish
+    m = sets.loaded
+    assert control.replay_error[m].max() < 1e-9
+    assert np.all((control.dev_manifold <= control.excess + control.periodicity + 1e-9)[m])
+    clean = m & (control.excess < 1e-12) & (control.periodicity < 1e-12)
+    assert clean.any() and control.dev_manifold[clean].max() < 1e-12
+    counts = study.attribution(sets, control)
+    assert sum(counts.values()) == conf.total
+    assert counts["on manifold"] == int((sets.on_manifold & m).sum())
+    assert counts["condition 5"] + counts["Eq. 4/Eq. 6"] + counts["manifold outside mu N"] \
+        == conf.violated_off + conf.holds_off
+    assert "Third column" in text

@@ -1,0 +1,142 @@
+"""Find a jump of a residual along a segment (why a continuation gave up).
+
+A law without path continuity (seed Eq. 7, the ``manifold`` reversal law)
+gives a residual that is discontinuous in the unknowns: its force jumps by a
+finite amount when a reversal crosses a separation instant (the reference
+term ``f_r N / N_r`` is ``+-mu N`` for ``N_r -> 0+`` and 0 at ``N_r = 0``) or
+when a micro-reversal appears (it re-scales the reference force).  Newton
+cannot converge across such a jump, and the continuation shrinks its step
+until it gives up.  :func:`residual_jump` locates the jump along the segment
+the continuation was about to take and measures it, so that the failure can
+say what happened.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Jump:
+    """A jump of the residual between two nearby points of a segment.
+
+    Attributes
+    ----------
+    s_before, s_after : float
+        Segment parameters bracketing the jump (``y = y0 + s (y1 - y0)``) [-].
+    dy : float
+        ``|y(s_after) - y(s_before)|`` (2-norm, in the units of ``y``).
+    dr : float
+        ``|R(s_after) - R(s_before)|`` (2-norm): the size of the jump.
+    r_before, r_after : float
+        ``|R|`` (2-norm) on either side.
+    """
+
+    s_before: float
+    s_after: float
+    dy: float
+    dr: float
+    r_before: float
+    r_after: float
+
+    def describe(self) -> str:
+        return (f"the residual jumps by |dR| = {self.dr:.3g} (|R| from {self.r_before:.3g} "
+                f"to {self.r_after:.3g}) over |dy| = {self.dy:.3g}")
+
+
+def residual_jump(fun, y0, y1, n_scan: int = 64, n_bisect: int = 60,
+                  noise: float = 1e-9) -> Jump | None:
+    """Look for a discontinuity of ``fun`` on the segment ``y0 -> y1``.
+
+    The segment is scanned at ``n_scan + 1`` points.  The interval with the
+    largest change ``|R(s_i+1) - R(s_i)|`` is bisected ``n_bisect`` times,
+    keeping the half that changes more.  A continuous residual's change
+    shrinks with the interval; a jump's does not, down to the last bit of
+    ``y``: the interval holds a jump when its final change keeps at least half
+    of the interval's excess over the median change and exceeds ``noise``
+    times ``|R|``.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(y) -> R`` (ndarray).
+    y0, y1 : ndarray, shape (n,)
+        Segment ends; ``y0`` is typically the last converged point.
+    n_scan, n_bisect : int
+    noise : float
+        Relative size of a change that counts as round-off.
+
+    Returns
+    -------
+    Jump or None
+        None when the largest change vanishes under bisection (a steep but
+        continuous residual, or a kink).
+    """
+    y0 = np.asarray(y0, dtype=float)
+    d = np.asarray(y1, dtype=float) - y0
+
+    def at(s):
+        return np.asarray(fun(y0 + s * d), dtype=float).ravel()
+
+    s = np.linspace(0.0, 1.0, n_scan + 1)
+    R = [at(x) for x in s]
+    change = np.array([np.linalg.norm(R[i + 1] - R[i]) for i in range(n_scan)])
+    if not np.all(np.isfinite(change)):
+        return None
+    i = int(np.argmax(change))
+    med = float(np.median(change))
+    if change[i] == 0.0:
+        return None
+    lo, hi, R_lo, R_hi = s[i], s[i + 1], R[i], R[i + 1]
+    for _ in range(n_bisect):
+        mid = 0.5 * (lo + hi)
+        if mid in (lo, hi):
+            break
+        R_mid = at(mid)
+        if np.linalg.norm(R_mid - R_lo) >= np.linalg.norm(R_hi - R_mid):
+            hi, R_hi = mid, R_mid
+        else:
+            lo, R_lo = mid, R_mid
+    dr = float(np.linalg.norm(R_hi - R_lo))
+    size = max(float(np.linalg.norm(R_lo)), float(np.linalg.norm(R_hi)))
+    if dr < 0.5 * (change[i] - med) or dr <= noise * size:
+        return None
+    return Jump(float(lo), float(hi), float(np.linalg.norm((hi - lo) * d)), dr,
+                float(np.linalg.norm(R_lo)), float(np.linalg.norm(R_hi)))
+
+
+def explain_failure(message: str, advice: str, fun, y_prev, y_last, n_scan: int = 64) -> str:
+    """A continuation's failure message, with the residual jump ahead and ``advice``.
+
+    When ``advice`` is empty (the law is path-continuous) the message is
+    returned unchanged and nothing is evaluated.  Otherwise the segment from
+    the last converged point ``y_last`` one secant step on
+    (``2 y_last - y_prev``) is searched with :func:`residual_jump`.
+
+    Parameters
+    ----------
+    message : str
+        The continuation's message.
+    advice : str
+        Why the law can stop a continuation and what to do
+        (:func:`jointsim.contact.laws.continuation_advice`).
+    fun : callable
+        ``fun(y) -> R`` of the continuation's unknowns.
+    y_prev, y_last : ndarray, shape (n,) or None
+        The last two converged points (None: no search).
+    """
+    if not advice:
+        return message
+    found = ""
+    if y_prev is not None and y_last is not None:
+        y_last = np.asarray(y_last, dtype=float)
+        jump = residual_jump(fun, y_last, 2.0 * y_last - np.asarray(y_prev, dtype=float),
+                             n_scan=n_scan)
+        if jump is not None:
+            found = (f" (found: one secant step past the last point {jump.describe()}, "
+                     f"at s = {jump.s_after:.6g} of the step)")
+        else:
+            found = (" (no jump found within one secant step past the last point: this "
+                     "failure may also have another cause)")
+    return f"{message}; {advice}{found}"
