@@ -44,7 +44,7 @@ from ..masing import check_loops
 from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
 from ..solvers.crosscheck import HBMSolutions
 from ..harmonics import harmonic_amplitude
-from ..solvers.hbm import HBMSystem, frc_scales, refine_peak
+from ..solvers.hbm import HBMSystem, first_point, frc_scales, refine_peak
 from ..solvers.jacobian import BorderedJacobian
 
 log = logging.getLogger(__name__)
@@ -398,8 +398,14 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         y0, t0, h0, n_stored = job.start
         solve_first, max_pts = False, a.max_points - n_stored + 1
     else:
-        y0 = np.append(system.static_coordinates(), a.omega_start)
-        t0, h0, solve_first, max_pts = None, a.step, True, a.max_points
+        # the first point: Newton from the static state, else a force homotopy
+        first = first_point(system, a.omega_start, job.fs, scale=scale, rscale=rscale,
+                            tol=a.tol, max_iter=a.max_iter, step_min=a.step_min,
+                            desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})")
+        if not first.convergence.success:
+            return first.convergence
+        y0 = np.append(first.z, a.omega_start)
+        t0, h0, solve_first, max_pts, n_stored = None, a.step, False, a.max_points, 0
     nz = system.n_z
 
     def fun(y):
@@ -412,8 +418,10 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         return ev.R, J, ev
 
     def on_point(i, y, info):
-        if not solve_first and i == 0:
+        if n_stored and i == 0:   # resumed: the first point is the stored last one
             return
+        if i == 0 and job.start is None:
+            info.iterations = first.iterations
         on_record(_point_record(system, F, y, info, job.ib, dof, want_aft, a.amplitude))
 
     br = continue_branch(

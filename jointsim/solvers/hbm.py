@@ -463,3 +463,163 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,
     if a < amplitude[i]:
         return float(omega[i]), float(amplitude[i]), False
     return float(res.x), a, True
+
+
+# --------------------------------------------------------------------------
+# The first point of a branch
+# --------------------------------------------------------------------------
+@dataclass
+class FirstPoint:
+    """The first point of an FRC branch (:func:`first_point`).
+
+    Attributes
+    ----------
+    z : ndarray, shape (n_z,)
+        Contact-coordinate coefficients [m] (the start when it failed).
+    iterations : int
+        Newton iterations of the direct solve plus the homotopy's points.
+    how : str
+        ``"newton"`` (one Newton solve from the static state) or
+        ``"force homotopy"`` (continued in the force scale from 0).
+    convergence : jointsim.results.Convergence
+    """
+
+    z: np.ndarray
+    iterations: int
+    how: str
+    convergence: object
+
+
+def first_point(system: HBMSystem, omega: float, force_scale: float, *, scale, rscale: float,
+                tol: float, max_iter: int = 20, step_min: float = 1e-8,
+                max_points: int = 400, desc: str = "hbm") -> FirstPoint:
+    """Solve the first point of an FRC branch robustly.
+
+    First one Newton solve at ``omega`` from the static state ``z0`` (the
+    first step is the stuck linear response), as before.  When it fails (a
+    strongly nonlinear start: slip or separation at the first frequency, where
+    Newton from the stuck response cycles across the kinks of the AFT
+    residual), the point is reached by a homotopy in the force: the harmonic
+    force scale ``s`` is continued from 0, where the static state is the exact
+    solution, to ``force_scale`` at fixed ``omega``
+    (:func:`~jointsim.solvers.continuation.continue_branch` in ``s``, so folds
+    of the response in the force are passed too).  The residual is affine in
+    ``s`` (the static loads are not scaled), ``dR/ds = R(z, F(1)) - R(z, F(0))``,
+    the same vector at every ``z``.
+
+    Parameters
+    ----------
+    system : HBMSystem
+    omega : float
+        Frequency of the first point [rad/s].
+    force_scale : float
+        Multiplier of the harmonic loads of the branch.
+    scale : ndarray, shape (n_z + 1,)
+        Variable scales of the branch (:func:`frc_scales`); its ``z`` part is used.
+    rscale : float
+        Residual scale of the branch.
+    tol, max_iter
+        Newton tolerance (on ``max|R| / rscale``) and iterations per solve.
+    step_min, max_points
+        Smallest scaled step and most points of the homotopy.
+
+    Returns
+    -------
+    FirstPoint
+    """
+    from ..results import NOT_CONVERGED, SUCCESS, Convergence
+    z0 = system.static_coordinates()
+    F1 = system.force_coefficients(force_scale)
+    opts = NewtonOptions(tol, max_iter, line_search="none")
+
+    def at_fixed(F):
+        def fun(z):
+            ev = system.evaluate(z, omega, F, wrt=())
+            return ev.R, ev.J, ev
+        return fun
+
+    def measure(R, _ev):
+        return np.abs(R).max(initial=0.0) / rscale
+
+    res = newton(at_fixed(F1), z0, opts, solve=solve, measure=measure)
+    if res.success:
+        return FirstPoint(res.x, res.iterations, "newton",
+                          Convergence(True, SUCCESS, f"Newton converged in {res.iterations} "
+                                                     "iterations", res.iterations))
+    direct = res.iterations
+    log.info("%s: the first point (omega = %g) did not converge in %d Newton iterations "
+             "from the static state; continuing in the force scale from 0", desc, omega,
+             max_iter)
+    br = force_homotopy(system, omega, force_scale, scale=scale, rscale=rscale, tol=tol,
+                        max_iter=max_iter, step_min=step_min, max_points=max_points,
+                        desc=f"{desc} first point: force homotopy")
+    y = br.y[-1]
+    it = direct + len(br.y)
+    reached = br.convergence.success and \
+        abs(y[-1] - force_scale) <= 1e-12 * max(abs(force_scale), 1e-300)
+    if br.convergence.success and not reached:   # closed past the end: correct at s exactly
+        r2 = newton(at_fixed(F1), y[:-1], opts, solve=solve, measure=measure)
+        reached, y, it = r2.success, np.append(r2.x, force_scale), it + r2.iterations
+    if reached:
+        msg = (f"reached by a force homotopy from 0 in {len(br.y)} points (Newton from "
+               f"the static state did not converge in {max_iter} iterations)")
+        log.info("%s: first point %s", desc, msg)
+        return FirstPoint(y[:-1], it, "force homotopy", Convergence(True, SUCCESS, msg, it))
+    msg = (f"the first point (omega = {omega:g}) did not converge: Newton from the static "
+           f"state failed in {max_iter} iterations and the force homotopy stopped at "
+           f"{y[-1] / force_scale:.3g} of the force ({br.convergence.message})")
+    return FirstPoint(z0, it, "force homotopy", Convergence(False, NOT_CONVERGED, msg, it))
+
+
+def force_homotopy(system: HBMSystem, omega: float, force_scale: float, *, scale,
+                   rscale: float, tol: float, max_iter: int = 20, step_min: float = 1e-8,
+                   max_points: int = 400, desc: str = "hbm force homotopy"):
+    """Continue the harmonic balance at fixed ``omega`` in the force scale, 0 to ``force_scale``.
+
+    At ``s = 0`` the static state is the exact solution.  The residual is
+    affine in ``s`` (the static loads are not scaled), so
+    ``dR/ds = R(z, F(1)) - R(z, F(0))`` is one vector for every ``z``.
+
+    Parameters
+    ----------
+    system : HBMSystem
+    omega : float
+        Frequency [rad/s].
+    force_scale : float
+        End of the homotopy (multiplier of the harmonic loads).
+    scale : ndarray, shape (n_z + 1,)
+        Variable scales; the ``z`` part is used, the last entry is replaced by
+        ``|force_scale|``.
+    rscale, tol, max_iter, step_min, max_points, desc
+        As for :func:`~jointsim.solvers.continuation.continue_branch`.
+
+    Returns
+    -------
+    jointsim.solvers.continuation.Branch
+        ``y[:, -1]`` is the force scale; it ends at ``force_scale`` on success.
+    """
+    from .continuation import continue_branch
+    nz = system.n_z
+    z0 = system.static_coordinates()
+    F0 = system.force_coefficients(0.0)
+    Fd = system.force_coefficients(1.0) - F0
+    g = system.evaluate(z0, omega, F0 + Fd, jacobian=False).R \
+        - system.evaluate(z0, omega, F0, jacobian=False).R   # dR/ds, the same at every z
+
+    def fun(y):
+        F = F0 + y[-1] * Fd
+        if system.krylov:
+            from .jacobian import BorderedJacobian
+            ev = system.evaluate(y[:-1], omega, F, wrt=())
+            return ev.R, BorderedJacobian(ev.J, g), ev
+        J = np.zeros((nz, nz + 1))
+        ev = system.evaluate(y[:-1], omega, F, wrt=(), J_out=J[:, :nz])
+        J[:, nz] = g
+        return ev.R, J, ev
+
+    sc = np.asarray(scale, dtype=float).copy()
+    sc[-1] = max(abs(force_scale), 1e-300)
+    return continue_branch(fun, np.append(z0, 0.0), force_scale, scale=sc, rscale=rscale,
+                           step=0.05, step_min=step_min, step_max=0.25,
+                           max_points=max_points, tol=tol, max_iter=max_iter,
+                           progress=False, desc=desc)
