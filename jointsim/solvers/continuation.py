@@ -256,6 +256,9 @@ class Continuation:
         that grows without bound (``max|z - z0|`` never decreasing over a run of
         points whose ``lam`` stays within ``UNBOUNDED_LAM`` of the range, and
         growing ``UNBOUNDED_GROWTH`` times over it), as at an undamped resonance.
+    z_origin : ndarray, shape (n,), optional
+        ``z0`` of ``adapt_scale`` (default ``y0[:-1]``; a resumed branch passes
+        the start of the uninterrupted one).
 
     Attributes
     ----------
@@ -292,10 +295,10 @@ class Continuation:
                  max_iter: int = 20, target_iter: int = TARGET_ITER, max_jump: float = 2.0,
                  backtrack: int = 4, stall: int = 5, solve_first: bool = True,
                  tangent0=None, desc: str = "continuation", monitor=None,
-                 lam_start=None, adapt_scale: bool = False):
+                 lam_start=None, adapt_scale: bool = False, z_origin=None):
         y0 = np.asarray(y0, dtype=float).copy()
         self.adapt_scale = bool(adapt_scale)
-        self._z0 = y0[:-1].copy()
+        self._z0 = y0[:-1].copy() if z_origin is None else np.asarray(z_origin, dtype=float)
         self._growth = []     # (|z - z0|, lam) of the points of a geometric growth
         self.monitor = monitor
         self.fun = fun
@@ -648,7 +651,8 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                     backtrack: int = 4, stall: int = 5,
                     solve_first: bool = True, tangent0=None, on_point=None,
                     progress: bool = True, desc: str = "continuation",
-                    monitor=None, lam_start=None, adapt_scale: bool = False) -> Branch:
+                    monitor=None, lam_start=None, adapt_scale: bool = False,
+                    z_origin=None) -> Branch:
     """Follow the solution branch of ``R(z, lam) = 0`` from ``y0`` to ``lam = lam_end``.
 
     Drives a :class:`Continuation` (whose parameters it takes) to its end.
@@ -658,7 +662,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
     fun, y0, lam_end, scale, rscale, step, step_min, step_max, max_points, tol
         As for :class:`Continuation`.
     max_iter, target_iter, max_jump, backtrack, stall, solve_first, tangent0, desc, monitor
-    adapt_scale
+    adapt_scale, z_origin
         As for :class:`Continuation`.
     lam_start : float, optional
         Where the branch began, when ``y0`` is a later point of it (resume).
@@ -687,7 +691,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                             max_jump=max_jump, backtrack=backtrack, stall=stall,
                             solve_first=solve_first, tangent0=tangent0, desc=desc,
                             monitor=monitor, lam_start=lam_start,
-                            adapt_scale=adapt_scale)
+                            adapt_scale=adapt_scale, z_origin=z_origin)
         span = abs(cont.lam_end - cont.lam0)
         done = 0
         while True:

@@ -76,3 +76,26 @@ def test_fold_frc_completes_at_every_force_scale(tmp_path, fs):
         assert h["hbm"].attrs["branch0_status"] == "complete"
         assert h["hbm/omega"][-1] == 2.5
     assert_all_finite(out)
+
+
+def test_resume_keeps_the_grown_z_scale(tmp_path, monkeypatch):
+    """A stiff contact (kt = 1e4) whose solution outgrows its stuck scale many times: a
+    run interrupted after 90 points and resumed takes the same points as the uninterrupted
+    one (the grown scale is stored per point as /hbm/z_scale)."""
+    from ..solvers.test_hbm import run_interrupted_after
+    sc = load_scene(MODELS / "hbm" / "chain2_jenkins.toml", [
+        "joint.kt=1e4", "analysis.hbm.force_scale=[0.2]", "analysis.hbm.harmonics=[0, 1, 3]",
+        "analysis.hbm.n_samples=32", "analysis.hbm.omega_end=1.04"])
+    full, part = tmp_path / "full.h5", tmp_path / "part.h5"
+    run_scene(sc, full)
+    with h5py.File(full) as g:
+        zs = g["hbm/z_scale"][()]
+        assert zs[-1] > 4 * zs[0]         # the scale grew
+        assert zs[90] > zs[0]             # ... before the interruption
+    run_interrupted_after(sc, part, 90, monkeypatch)
+    run_scene(sc, part, resume=True)
+    with h5py.File(part) as h, h5py.File(full) as g:
+        assert h["hbm"].attrs["branch0_status"] == "complete"
+        np.testing.assert_allclose(h["hbm/omega"][()], g["hbm/omega"][()], rtol=1e-12)
+        np.testing.assert_allclose(h["hbm/q"][()], g["hbm/q"][()], rtol=0,
+                                   atol=1e-9 * np.abs(g["hbm/q"][()]).max())
