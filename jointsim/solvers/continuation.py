@@ -37,6 +37,11 @@ tolerances refer to the scaled quantities.
   than half its distance from the current point) is rejected; at a sharp
   corner of a piecewise-smooth branch, the forward hyperplane can otherwise
   cut the incoming piece and send the branch back the way it came.
+* Scale-invariant steps (optional ``adapt_scale``): the ``z`` scales grow
+  with the solution (``max|z - z0|`` beyond ``SCALE_GROWTH`` scales), so a
+  branch that outgrows the scale it was given steps relative to its size; a
+  run of points growing ``UNBOUNDED_GROWTH`` times at nearly fixed ``lam``
+  stops the branch as an unbounded response (an undamped resonance).
 * End: when a point passes ``lam_end`` the branch is closed by a Newton
   solve at ``lam = lam_end`` exactly.  A branch that turns back out of the
   range through ``lam_start`` stops there.

@@ -622,7 +622,7 @@ def force_homotopy(system: HBMSystem, omega: float, force_scale: float, *, scale
     return continue_branch(fun, np.append(z0, 0.0), force_scale, scale=sc, rscale=rscale,
                            step=0.05, step_min=step_min, step_max=0.25,
                            max_points=max_points, tol=tol, max_iter=max_iter,
-                           progress=False, desc=desc)
+                           progress=False, desc=desc, adapt_scale=True, z_origin=z0)
 
 
 # --------------------------------------------------------------------------
