@@ -452,6 +452,10 @@ def _explain_failure(conv, system, F, a, lam):
         return conv
     res = undamped_resonances(system.model, system.basis, F, a.omega_start, a.omega_end)
     if "grows without bound" in conv.message:
+        r = diagnose_failure(res, lam)
+        if r is not None and r.unbounded:   # the linearised systems say why
+            return Convergence(False, conv.status, f"{conv.message}; {r.describe()}",
+                               conv.iterations)
         near = ", ".join(f"{r.joint} joint at omega = {r.omega:.6g}" for r in res
                          if abs(r.omega - lam) <= 0.1 * r.omega)
         return Convergence(False, conv.status, (

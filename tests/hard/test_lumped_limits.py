@@ -108,3 +108,14 @@ def test_zero_damping_fold_scene_names_the_unbounded_response(tmp_path):
     with h5py.File(out) as h:
         assert h["hbm"].attrs["branch0_status"] == "gave up"
     assert_all_finite(out)
+
+
+@pytest.mark.slow
+def test_zero_damping_unbounded_by_den_hartog(tmp_path):
+    """C = 0 and F = 0.3 > 4 mu N / pi: friction cannot bound the slipping joint's
+    resonance at omega = 1; the branch stops there and says so, with the force limit."""
+    out, msg = _run(tmp_path, CHAIN2, [C0, "analysis.hbm.force_scale=[0.3]"], expect_fail=True)
+    assert "grows without bound near lam = 0.9999" in msg
+    assert "slipping joint's resonance at omega = 1 " in msg and "unbounded" in msg
+    assert "lower the force below 0.849 times" in msg      # 4 mu N / (pi F) = 0.8488
+    assert_all_finite(out)
