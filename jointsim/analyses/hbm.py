@@ -11,7 +11,8 @@ File layout (all per solution point unless said otherwise):
   ``/hbm/linear_solves``, ``/hbm/krylov_iterations``, ``/hbm/preconditioners``
   (linear-algebra counts since the previous point; group attribute
   ``linear_solver``: ``"direct"`` or ``"krylov"``),
-  ``/hbm/tangent``;
+  ``/hbm/tangent``, ``/hbm/z_scale`` (the contact-coordinate scale the branch
+  continues with, grown with the solution; used by ``--resume``);
 * once: ``/hbm/harmonics``, ``/hbm/force_scale`` [n_branches], and per
   branch ``/hbm/peak_omega``, ``/hbm/peak_amplitude``, ``/hbm/peak_refined``;
   group attributes ``branch<b>_status`` / ``branch<b>_message``;
@@ -44,7 +45,9 @@ from ..masing import check_loops
 from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
 from ..solvers.crosscheck import HBMSolutions
 from ..harmonics import harmonic_amplitude
-from ..solvers.hbm import HBMSystem, frc_scales, refine_peak
+from ..results import Convergence
+from ..solvers.hbm import (HBMSystem, diagnose_failure, first_point, frc_scales, refine_peak,
+                             undamped_resonances)
 from ..solvers.jacobian import BorderedJacobian
 
 log = logging.getLogger(__name__)
@@ -252,6 +255,9 @@ class _Output:
                           "max |R| / residual scale at the point")
             writer.append("hbm/step", rec["step"], "1", "scaled arclength step to the point")
             writer.append("hbm/tangent", rec["tangent"], "1", "unit tangent (scaled variables)")
+            writer.append("hbm/z_scale", rec["z_scale"], d_u,
+                          "scale of the contact coordinates the branch continues from the "
+                          "point with (grows with the solution; used by --resume)")
             writer.append("hbm/aft_periods", np.int64(rec["aft_periods"]), "1",
                           "largest number of periods the laws were marched")
             writer.append("hbm/linear_solves", np.int64(rec["linear_solves"]), "1",
@@ -368,8 +374,10 @@ def _branches_to_run(writer, a, g) -> list:
             h_last = float(writer.h5["hbm/step"][last])
             h_next = next_step(h_last, int(writer.h5["hbm/iterations"][last]), TARGET_ITER,
                                a.step_min, a.step_max) if h_last > 0 else a.step
+            z_scale = float(writer.h5["hbm/z_scale"][last]) if "hbm/z_scale" in writer.h5 \
+                else 0.0
             start = (np.append(writer.h5["hbm/q"][last], writer.h5["hbm/omega"][last]),
-                     writer.h5["hbm/tangent"][last], h_next, int(rows.size))
+                     writer.h5["hbm/tangent"][last], h_next, int(rows.size), z_scale)
             log.info("hbm branch %d: resuming from point %d (omega = %g)", ib, last,
                      start[0][-1])
         todo.append(_BranchJob(ib, fs, start))
@@ -382,7 +390,7 @@ class _BranchJob:
 
     ib: int
     fs: float
-    start: tuple | None  # (y0, tangent, step, rows already stored) when resuming
+    start: tuple | None  # (y0, tangent, step, rows stored, z scale) when resuming
 
 
 def _point_record(system, F, y, info, ib, dof, want_aft, measure="fundamental") -> dict:
@@ -398,6 +406,7 @@ def _point_record(system, F, y, info, ib, dof, want_aft, measure="fundamental") 
                 max_abs=float(np.abs(b.samples(X[:, dof])).max()),
                 iterations=int(info.iterations), residual=float(info.residual),
                 step=float(info.step), tangent=np.array(info.tangent),
+                z_scale=float(info.z_scale),
                 aft_periods=int(aft.periods.max()) if aft is not None else 0,
                 f=np.array(aft.f) if (want_aft and aft is not None) else None,
                 N=np.array(aft.N) if (want_aft and aft is not None) else None)
@@ -414,11 +423,20 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
     scale, rscale = frc_scales(system, F, a.omega_start, a.omega_end)
     system.stats.take()          # the scales' solves are not a point's
     if job.start is not None:
-        y0, t0, h0, n_stored = job.start
+        y0, t0, h0, n_stored, z_scale = job.start
         solve_first, max_pts = False, a.max_points - n_stored + 1
+        if z_scale > 0.0:   # the z scale the uninterrupted branch had grown to
+            scale = scale.copy()
+            scale[:-1] = z_scale
     else:
-        y0 = np.append(system.static_coordinates(), a.omega_start)
-        t0, h0, solve_first, max_pts = None, a.step, True, a.max_points
+        # the first point: Newton from the static state, else a force homotopy
+        first = first_point(system, a.omega_start, job.fs, scale=scale, rscale=rscale,
+                            tol=a.tol, max_iter=a.max_iter, step_min=a.step_min,
+                            desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})")
+        if not first.convergence.success:
+            return first.convergence
+        y0 = np.append(first.z, a.omega_start)
+        t0, h0, solve_first, max_pts, n_stored = None, a.step, False, a.max_points, 0
     nz = system.n_z
 
     def fun(y):
@@ -431,16 +449,43 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         return ev.R, J, ev
 
     def on_point(i, y, info):
-        if not solve_first and i == 0:
+        if n_stored and i == 0:   # resumed: the first point is the stored last one
             return
+        if i == 0 and job.start is None:
+            info.iterations = first.iterations
         on_record(_point_record(system, F, y, info, job.ib, dof, want_aft, a.amplitude))
 
     br = continue_branch(
         fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,
         step_max=a.step_max, max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
         solve_first=solve_first, tangent0=t0, on_point=on_point, progress=progress,
-        desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})", lam_start=a.omega_start)
-    return br.convergence
+        desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})", lam_start=a.omega_start,
+        adapt_scale=True, z_origin=system.static_coordinates())
+    return _explain_failure(br.convergence, system, F, a, float(br.y[-1][-1]))
+
+
+def _explain_failure(conv, system, F, a, lam):
+    """A failed branch's convergence, its message extended by the physical cause when it
+    stopped near an undamped resonance (:func:`~jointsim.solvers.hbm.undamped_resonances`)."""
+    if conv.success:
+        return conv
+    res = undamped_resonances(system.model, system.basis, F, a.omega_start, a.omega_end)
+    if "grows without bound" in conv.message:
+        r = diagnose_failure(res, lam)
+        if r is not None and r.unbounded:   # the linearised systems say why
+            return Convergence(False, conv.status, f"{conv.message}; {r.describe()}",
+                               conv.iterations)
+        near = ", ".join(f"{r.joint} joint at omega = {r.omega:.6g}" for r in res
+                         if abs(r.omega - lam) <= 0.1 * r.omega)
+        return Convergence(False, conv.status, (
+            f"{conv.message}: a resonance of the joint at large amplitude that nothing "
+            f"damps (physics, not a numerical failure); add damping to model.C"
+            + (f" (undamped linearised resonances near it: {near})" if near else "")),
+            conv.iterations)
+    r = diagnose_failure(res, lam)
+    if r is None:
+        return conv
+    return Convergence(False, conv.status, f"{conv.message}; {r.describe()}", conv.iterations)
 
 
 def _in_daemon() -> bool:

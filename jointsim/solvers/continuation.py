@@ -37,6 +37,11 @@ tolerances refer to the scaled quantities.
   than half its distance from the current point) is rejected; at a sharp
   corner of a piecewise-smooth branch, the forward hyperplane can otherwise
   cut the incoming piece and send the branch back the way it came.
+* Scale-invariant steps (optional ``adapt_scale``): the ``z`` scales grow
+  with the solution (``max|z - z0|`` beyond ``SCALE_GROWTH`` scales), so a
+  branch that outgrows the scale it was given steps relative to its size; a
+  run of points growing ``UNBOUNDED_GROWTH`` times at nearly fixed ``lam``
+  stops the branch as an unbounded response (an undamped resonance).
 * End: when a point passes ``lam_end`` the branch is closed by a Newton
   solve at ``lam = lam_end`` exactly.  A branch that turns back out of the
   range through ``lam_start`` stops there.
@@ -69,6 +74,13 @@ CORNER_JUMP = 5.7
 TARGET_ITER = 4
 #: Points of the traced branch a new point is checked against (no retracing).
 RETRACE_POINTS = 500
+#: ``adapt_scale``: rescale ``z`` when ``max|z - z0|`` exceeds this many ``z`` scales.
+SCALE_GROWTH = 2.0
+#: ``adapt_scale``: a run of points whose ``max|z - z0|`` never decreases, growing
+#: ``UNBOUNDED_GROWTH`` times in all while ``lam`` stays within ``UNBOUNDED_LAM``
+#: of the range, is an unbounded response (an undamped resonance).
+UNBOUNDED_GROWTH = 100.0
+UNBOUNDED_LAM = 1e-3
 
 
 @dataclass
@@ -87,6 +99,9 @@ class PointInfo:
         Unit tangent at the point (scaled variables).
     extra : object
         What the residual function returned besides ``R`` and ``J``.
+    z_scale : float
+        Largest ``z`` scale to continue from the point with (``adapt_scale``;
+        ``tangent`` is scaled by it).  A resumed branch starts with it.
     """
 
     iterations: int
@@ -94,6 +109,7 @@ class PointInfo:
     step: float
     tangent: np.ndarray
     extra: object = None
+    z_scale: float = 0.0
 
 
 @dataclass
@@ -160,10 +176,14 @@ def _corner(F, yk, t, h, tol, max_iter, max_jump=np.inf):
 
     Returns ``(y, R, J, extra, iterations)`` or None.
     """
-    _R, Jb, _e = F(yk + 1e-7 * t)
-    tb = tangent(Jb, t)
+    dirs = []
+    for eps in (1e-7, 1e-5, 1e-3):   # the Jacobian just beyond the corner
+        _R, Jb, _e = F(yk + eps * t)
+        tb = tangent(Jb, t)
+        if not any(abs(tb @ d) > 1 - 1e-6 for d in dirs):
+            dirs += [tb, -tb]
     best = None
-    for d in (tb, -tb):
+    for d in dirs:
         if d @ (-t) > 0.99:  # that is the branch we came along
             continue
         yk1 = yk + h * d
@@ -231,6 +251,19 @@ class Continuation:
         Where the branch began (default ``y0[-1]``); a branch resumed from a
         later point passes its true start, so that "turned back out of the
         range" means the same as uninterrupted.
+    adapt_scale : bool
+        Scale-invariant steps in ``z``: when ``max|z - z0|`` of an accepted
+        point exceeds ``SCALE_GROWTH`` times the largest ``z`` scale, the ``z``
+        scales are multiplied by ``max|z - z0| / max(scale_z)`` (never
+        decreased).  A branch whose solution is much larger than the scale it
+        was given (a stiff contact whose stuck response sets the scale, then
+        slips) then takes steps relative to its size.  It also stops a branch
+        that grows without bound (``max|z - z0|`` never decreasing over a run of
+        points whose ``lam`` stays within ``UNBOUNDED_LAM`` of the range, and
+        growing ``UNBOUNDED_GROWTH`` times over it), as at an undamped resonance.
+    z_origin : ndarray, shape (n,), optional
+        ``z0`` of ``adapt_scale`` (default ``y0[:-1]``; a resumed branch passes
+        the start of the uninterrupted one).
 
     Attributes
     ----------
@@ -267,11 +300,14 @@ class Continuation:
                  max_iter: int = 20, target_iter: int = TARGET_ITER, max_jump: float = 2.0,
                  backtrack: int = 4, stall: int = 5, solve_first: bool = True,
                  tangent0=None, desc: str = "continuation", monitor=None,
-                 lam_start=None):
+                 lam_start=None, adapt_scale: bool = False, z_origin=None):
         y0 = np.asarray(y0, dtype=float).copy()
+        self.adapt_scale = bool(adapt_scale)
+        self._z0 = y0[:-1].copy() if z_origin is None else np.asarray(z_origin, dtype=float)
+        self._growth = []     # (|z - z0|, lam) of the points of a geometric growth
         self.monitor = monitor
         self.fun = fun
-        self.scale = np.asarray(scale, dtype=float)
+        self.scale = np.array(scale, dtype=float)   # a copy: adapt_scale changes it
         self.rscale = float(rscale)
         self.n1 = y0.size
         self.lam0 = float(y0[-1])
@@ -323,6 +359,7 @@ class Continuation:
 
     def _accept(self, yh, info: PointInfo) -> None:
         self.points.append(yh * self.scale)
+        info.z_scale = float(self.scale[:-1].max(initial=0.0))
         self.infos.append(info)
 
     def _finish(self, status: int, message: str) -> str:
@@ -556,8 +593,45 @@ class Continuation:
         self._accept(yc, info)
         self._yh, self._t = yc, t_new
         self.h = next_step(h, it, self.target_iter, step_min, step_max, change)
+        if self.adapt_scale:
+            self._rescale()
+            if self.status != "running":
+                return self.message
         self._check_max_points()
         return self.message
+
+    def _rescale(self) -> None:
+        """``adapt_scale``: grow the ``z`` scales with the solution; stop an unbounded one."""
+        y = self.points[-1]
+        d = float(np.abs(y[:-1] - self._z0).max(initial=0.0))
+        g = self._growth
+        if g and d >= g[-1][0]:
+            g.append((d, float(y[-1])))
+        else:
+            g[:] = [(d, float(y[-1]))]
+        span = abs(self._lam_end_h - self._lam_start_h) * self.scale[-1]
+        while len(g) > 1 and abs(g[0][1] - g[-1][1]) > UNBOUNDED_LAM * span:
+            g.pop(0)   # keep the run within a lam window
+        if len(g) > 2:
+            lams = [p[1] for p in g]
+            growth = g[-1][0] / max(g[0][0], 1e-300)
+            if growth >= UNBOUNDED_GROWTH and max(lams) - min(lams) <= UNBOUNDED_LAM * span:
+                self._finish(NOT_CONVERGED,
+                             f"the response grows without bound near lam = {y[-1]:.8g}: "
+                             f"max|z - z0| grew {growth:.3g} times over the last {len(g)} "
+                             f"points while lam changed by {max(lams) - min(lams):.3g}")
+                return
+        sz = float(self.scale[:-1].max(initial=0.0))
+        if sz > 0.0 and d > SCALE_GROWTH * sz:
+            old = self.scale.copy()
+            self.scale[:-1] *= d / sz
+            self._col = self.scale / self.rscale
+            self._yh = y / self.scale
+            t = self._t * old / self.scale
+            self._t = t / np.linalg.norm(t)
+            self.infos[-1].tangent = self._t
+            self.infos[-1].z_scale = float(self.scale[:-1].max())
+            log.debug("%s: z scales grown %.3g times at lam = %.8g", self.desc, d / sz, y[-1])
 
 
 def next_step(step: float, iterations: int, target_iter: int, step_min: float,
@@ -582,7 +656,8 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                     backtrack: int = 4, stall: int = 5,
                     solve_first: bool = True, tangent0=None, on_point=None,
                     progress: bool = True, desc: str = "continuation",
-                    monitor=None, lam_start=None) -> Branch:
+                    monitor=None, lam_start=None, adapt_scale: bool = False,
+                    z_origin=None) -> Branch:
     """Follow the solution branch of ``R(z, lam) = 0`` from ``y0`` to ``lam = lam_end``.
 
     Drives a :class:`Continuation` (whose parameters it takes) to its end.
@@ -592,6 +667,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
     fun, y0, lam_end, scale, rscale, step, step_min, step_max, max_points, tol
         As for :class:`Continuation`.
     max_iter, target_iter, max_jump, backtrack, stall, solve_first, tangent0, desc, monitor
+    adapt_scale, z_origin
         As for :class:`Continuation`.
     lam_start : float, optional
         Where the branch began, when ``y0`` is a later point of it (resume).
@@ -619,7 +695,8 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                             tol=tol, max_iter=max_iter, target_iter=target_iter,
                             max_jump=max_jump, backtrack=backtrack, stall=stall,
                             solve_first=solve_first, tangent0=tangent0, desc=desc,
-                            monitor=monitor, lam_start=lam_start)
+                            monitor=monitor, lam_start=lam_start,
+                            adapt_scale=adapt_scale, z_origin=z_origin)
         span = abs(cont.lam_end - cont.lam0)
         done = 0
         while True:

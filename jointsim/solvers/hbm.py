@@ -463,3 +463,328 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,
     if a < amplitude[i]:
         return float(omega[i]), float(amplitude[i]), False
     return float(res.x), a, True
+
+
+# --------------------------------------------------------------------------
+# The first point of a branch
+# --------------------------------------------------------------------------
+@dataclass
+class FirstPoint:
+    """The first point of an FRC branch (:func:`first_point`).
+
+    Attributes
+    ----------
+    z : ndarray, shape (n_z,)
+        Contact-coordinate coefficients [m] (the start when it failed).
+    iterations : int
+        Newton iterations of the direct solve plus the homotopy's points.
+    how : str
+        ``"newton"`` (one Newton solve from the static state) or
+        ``"force homotopy"`` (continued in the force scale from 0).
+    convergence : jointsim.results.Convergence
+    """
+
+    z: np.ndarray
+    iterations: int
+    how: str
+    convergence: object
+
+
+def first_point(system: HBMSystem, omega: float, force_scale: float, *, scale, rscale: float,
+                tol: float, max_iter: int = 20, step_min: float = 1e-8,
+                max_points: int = 400, desc: str = "hbm") -> FirstPoint:
+    """Solve the first point of an FRC branch robustly.
+
+    First one Newton solve at ``omega`` from the static state ``z0`` (the
+    first step is the stuck linear response), as before.  When it fails (a
+    strongly nonlinear start: slip or separation at the first frequency, where
+    Newton from the stuck response cycles across the kinks of the AFT
+    residual), the point is reached by a homotopy in the force: the harmonic
+    force scale ``s`` is continued from 0, where the static state is the exact
+    solution, to ``force_scale`` at fixed ``omega``
+    (:func:`~jointsim.solvers.continuation.continue_branch` in ``s``, so folds
+    of the response in the force are passed too).  The residual is affine in
+    ``s`` (the static loads are not scaled), ``dR/ds = R(z, F(1)) - R(z, F(0))``,
+    the same vector at every ``z``.
+
+    Parameters
+    ----------
+    system : HBMSystem
+    omega : float
+        Frequency of the first point [rad/s].
+    force_scale : float
+        Multiplier of the harmonic loads of the branch.
+    scale : ndarray, shape (n_z + 1,)
+        Variable scales of the branch (:func:`frc_scales`); its ``z`` part is used.
+    rscale : float
+        Residual scale of the branch.
+    tol, max_iter
+        Newton tolerance (on ``max|R| / rscale``) and iterations per solve.
+    step_min, max_points
+        Smallest scaled step and most points of the homotopy.
+
+    Returns
+    -------
+    FirstPoint
+    """
+    from ..results import NOT_CONVERGED, SUCCESS, Convergence
+    z0 = system.static_coordinates()
+    F1 = system.force_coefficients(force_scale)
+    opts = NewtonOptions(tol, max_iter, line_search="none")
+
+    def at_fixed(F):
+        def fun(z):
+            ev = system.evaluate(z, omega, F, wrt=())
+            return ev.R, ev.J, ev
+        return fun
+
+    def measure(R, _ev):
+        return np.abs(R).max(initial=0.0) / rscale
+
+    res = newton(at_fixed(F1), z0, opts, solve=solve, measure=measure)
+    if res.success:
+        return FirstPoint(res.x, res.iterations, "newton",
+                          Convergence(True, SUCCESS, f"Newton converged in {res.iterations} "
+                                                     "iterations", res.iterations))
+    direct = res.iterations
+    log.info("%s: the first point (omega = %g) did not converge in %d Newton iterations "
+             "from the static state; continuing in the force scale from 0", desc, omega,
+             max_iter)
+    br = force_homotopy(system, omega, force_scale, scale=scale, rscale=rscale, tol=tol,
+                        max_iter=max_iter, step_min=step_min, max_points=max_points,
+                        desc=f"{desc} first point: force homotopy")
+    y = br.y[-1]
+    it = direct + len(br.y)
+    reached = br.convergence.success and \
+        abs(y[-1] - force_scale) <= 1e-12 * max(abs(force_scale), 1e-300)
+    if br.convergence.success and not reached:   # closed past the end: correct at s exactly
+        r2 = newton(at_fixed(F1), y[:-1], opts, solve=solve, measure=measure)
+        reached, y, it = r2.success, np.append(r2.x, force_scale), it + r2.iterations
+    if reached:
+        msg = (f"reached by a force homotopy from 0 in {len(br.y)} points (Newton from "
+               f"the static state did not converge in {max_iter} iterations)")
+        log.info("%s: first point %s", desc, msg)
+        return FirstPoint(y[:-1], it, "force homotopy", Convergence(True, SUCCESS, msg, it))
+    msg = (f"the first point (omega = {omega:g}) did not converge: Newton from the static "
+           f"state failed in {max_iter} iterations and the force homotopy stopped at "
+           f"{y[-1] / force_scale:.3g} of the force ({br.convergence.message})")
+    return FirstPoint(z0, it, "force homotopy", Convergence(False, NOT_CONVERGED, msg, it))
+
+
+def force_homotopy(system: HBMSystem, omega: float, force_scale: float, *, scale,
+                   rscale: float, tol: float, max_iter: int = 20, step_min: float = 1e-8,
+                   max_points: int = 400, desc: str = "hbm force homotopy"):
+    """Continue the harmonic balance at fixed ``omega`` in the force scale, 0 to ``force_scale``.
+
+    At ``s = 0`` the static state is the exact solution.  The residual is
+    affine in ``s`` (the static loads are not scaled), so
+    ``dR/ds = R(z, F(1)) - R(z, F(0))`` is one vector for every ``z``.
+
+    Parameters
+    ----------
+    system : HBMSystem
+    omega : float
+        Frequency [rad/s].
+    force_scale : float
+        End of the homotopy (multiplier of the harmonic loads).
+    scale : ndarray, shape (n_z + 1,)
+        Variable scales; the ``z`` part is used, the last entry is replaced by
+        ``|force_scale|``.
+    rscale, tol, max_iter, step_min, max_points, desc
+        As for :func:`~jointsim.solvers.continuation.continue_branch`.
+
+    Returns
+    -------
+    jointsim.solvers.continuation.Branch
+        ``y[:, -1]`` is the force scale; it ends at ``force_scale`` on success.
+    """
+    from .continuation import continue_branch
+    nz = system.n_z
+    z0 = system.static_coordinates()
+    F0 = system.force_coefficients(0.0)
+    Fd = system.force_coefficients(1.0) - F0
+    g = system.evaluate(z0, omega, F0 + Fd, jacobian=False).R \
+        - system.evaluate(z0, omega, F0, jacobian=False).R   # dR/ds, the same at every z
+
+    def fun(y):
+        F = F0 + y[-1] * Fd
+        if system.krylov:
+            from .jacobian import BorderedJacobian
+            ev = system.evaluate(y[:-1], omega, F, wrt=())
+            return ev.R, BorderedJacobian(ev.J, g), ev
+        J = np.zeros((nz, nz + 1))
+        ev = system.evaluate(y[:-1], omega, F, wrt=(), J_out=J[:, :nz])
+        J[:, nz] = g
+        return ev.R, J, ev
+
+    sc = np.asarray(scale, dtype=float).copy()
+    sc[-1] = max(abs(force_scale), 1e-300)
+    return continue_branch(fun, np.append(z0, 0.0), force_scale, scale=sc, rscale=rscale,
+                           step=0.05, step_min=step_min, step_max=0.25,
+                           max_points=max_points, tol=tol, max_iter=max_iter,
+                           progress=False, desc=desc, adapt_scale=True, z_origin=z0)
+
+
+# --------------------------------------------------------------------------
+# Undamped resonances (zero damping)
+# --------------------------------------------------------------------------
+@dataclass
+class UndampedResonance:
+    """A resonance of a linearised joint system without viscous damping.
+
+    Attributes
+    ----------
+    joint : str
+        ``"stuck"`` (every closed contact stuck) or ``"slipping"`` (the
+        tangential springs of the closed contacts removed: the joint in
+        macroslip, normal springs kept).
+    omega : float
+        Undamped natural frequency [rad/s].
+    mode : int
+        0-based index among that system's modes.
+    force_work : float
+        ``pi |phi^T F_1|``: work per cycle of the fundamental force on the
+        mode, per unit modal amplitude [N m / m].
+    friction_work : float
+        ``4 sum_e mu N_e |Tt phi|_e``: the most the sliders dissipate per cycle
+        in macroslip, per unit modal amplitude (static normal loads); 0 for a
+        contact that cannot slip.  With a coupled normal load the static
+        ``N_e`` is used (an estimate).
+    unbounded : bool
+        The response grows without bound there: a stuck mode whose contacts
+        cannot slip (or do not move in it), or a slipping mode whose friction
+        cannot dissipate the force's work (``force_work > friction_work``,
+        the Den Hartog criterion of an undamped oscillator with Coulomb
+        friction).
+    """
+
+    joint: str
+    omega: float
+    mode: int
+    force_work: float
+    friction_work: float
+    unbounded: bool
+
+    def describe(self) -> str:
+        """One sentence naming the resonance, why it is or is not bounded, and what to change."""
+        where = (f"the {self.joint} joint's resonance at omega = {self.omega:.6g} "
+                 f"(mode {self.mode + 1}) has no viscous damping (model.C)")
+        if self.unbounded:
+            if self.friction_work == 0.0:
+                why = "and its contacts cannot slip there, so nothing limits the response"
+            else:
+                why = (f"and friction cannot dissipate the force's work (per cycle and unit "
+                       f"modal amplitude {self.force_work:.3g} > {self.friction_work:.3g}, "
+                       f"the most the sliders dissipate)")
+            return (f"{where} {why}: the response is unbounded there (physics, not a "
+                    f"numerical failure); add damping to model.C, or lower the force below "
+                    f"{self.friction_work / max(self.force_work, 1e-300):.3g} times its value"
+                    if self.friction_work > 0.0 else
+                    f"{where} {why}: the response is unbounded there (physics, not a "
+                    f"numerical failure); add damping to model.C")
+        if self.joint == "stuck":
+            return (f"{where}; the response grows there until the contacts slip, and then "
+                    f"friction alone limits it, so the peak is very sharp; add damping to "
+                    f"model.C or lower analysis.hbm.step_min to resolve it")
+        return (f"{where}; friction alone limits the response (force work per cycle "
+                f"{self.force_work:.3g} < {self.friction_work:.3g} dissipated in macroslip), "
+                f"so the peak is bounded but very sharp; add damping to model.C or "
+                f"lower analysis.hbm.step_min to resolve it")
+
+
+def undamped_resonances(model, basis, F, omega_lo: float, omega_hi: float, zeta_tol: float = 1e-9,
+                        max_dof: int = 2000) -> list:
+    """Resonances in ``[omega_lo, omega_hi]`` of the linearised stuck and slipping joint
+    systems that carry no viscous damping.
+
+    The stuck system is ``model.linearisation.K``; the slipping one removes the
+    stuck tangential springs ``Tt^T diag(kt) Tt`` of the closed elements.  A
+    mode is undamped when its modal damping ratio ``phi^T C phi / (2 omega)``
+    (mass-normalised ``phi``) is below ``zeta_tol``.  Whether the response is
+    unbounded there is decided per mode (:class:`UndampedResonance`).
+
+    Parameters
+    ----------
+    model : jointsim.model.StructuralModel
+    basis : jointsim.harmonics.HarmonicBasis
+        The harmonics of ``F``'s rows.
+    F : ndarray, shape (n_coeff, n_dof)
+        Force coefficients of the branch [N] (the fundamental rows are used).
+    omega_lo, omega_hi : float
+        Frequency range [rad/s].
+    zeta_tol : float
+    max_dof : int
+        Larger models are skipped (returns []).
+
+    Returns
+    -------
+    list of UndampedResonance
+        Sorted by frequency.
+    """
+    from .condensation import dense_array
+    from .modes import eigenmodes
+    n = model.n_dof
+    if not n or n > max_dof:
+        return []
+    lo, hi = sorted((omega_lo, omega_hi))
+    M, C = dense_array(model.M), dense_array(model.C)
+    lin = model.linearisation
+    c = model.contacts
+    # fundamental force amplitude (complex) per DOF
+    F = np.asarray(F, dtype=float)
+    if 1 in basis.index:
+        ic, is_ = basis.index[1]
+        f1 = F[ic] - 1j * F[is_]
+    else:
+        f1 = np.zeros(n, complex)
+    Kst = dense_array(lin.K)
+    systems = [("stuck", Kst)]
+    mu_N = np.zeros(c.n_elements)
+    Tt = dense_array(c.Tt) if c.n_elements else np.zeros((0, n))
+    if c.n_elements and c.law.has_force and c.law.can_slip:
+        kt = np.where(lin.closed, c.law.kt, 0.0)
+        systems.append(("slipping", Kst - Tt.T @ (kt[:, None] * Tt)))
+        mu_N = np.where(lin.closed, c.law.slip_force(np.maximum(lin.N, 0.0)), 0.0)
+    out = []
+    for joint, K in systems:
+        f_hz, phi = eigenmodes(K, M, n)
+        for k, fk in enumerate(np.asarray(f_hz)):
+            w = 2 * np.pi * float(fk)
+            if not (lo <= w <= hi) or w <= 0.0:
+                continue
+            p = phi[:, k] / np.sqrt(max(float(phi[:, k] @ M @ phi[:, k]), 1e-300))
+            if float(p @ C @ p) / (2 * w) > zeta_tol:
+                continue
+            fw = float(np.pi * abs(p @ f1))
+            slip = np.abs(Tt @ p)
+            ffw = float(4.0 * np.sum(mu_N * slip))
+            if joint == "stuck":
+                # bounded when the contacts slip in it (the slipping system decides)
+                unb = ffw == 0.0 and fw > 0.0
+            else:
+                unb = fw > ffw
+            out.append(UndampedResonance(joint, w, k, fw, ffw, bool(unb)))
+    return sorted(out, key=lambda r: r.omega)
+
+
+def diagnose_failure(resonances, lam: float, rel: float = 0.1):
+    """The undamped resonance nearest to where a branch failed, if within ``rel`` of it.
+
+    Parameters
+    ----------
+    resonances : list of UndampedResonance
+    lam : float
+        Frequency where the branch stopped [rad/s].
+    rel : float
+        Largest relative distance ``|omega - lam| / omega``.
+
+    Returns
+    -------
+    UndampedResonance or None
+        An unbounded one is preferred over a bounded one at the same distance class.
+    """
+    near = [r for r in resonances if abs(r.omega - lam) <= rel * r.omega]
+    if not near:
+        return None
+    unb = [r for r in near if r.unbounded]
+    return min(unb or near, key=lambda r: abs(r.omega - lam))
