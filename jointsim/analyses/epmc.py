@@ -5,7 +5,8 @@ The formulation is in :mod:`jointsim.solvers.epmc`.  Datasets (per point):
 ``/epmc/omega``, ``/epmc/damping_ratio`` (``xi / (2 omega)``), ``/epmc/xi``,
 ``/epmc/X`` [n_points, n_coeff, n_dof] (coefficients of ``x``, not
 normalised), ``/epmc/iterations``, ``/epmc/residual``, ``/epmc/step``,
-``/epmc/y`` and ``/epmc/tangent`` (for ``--resume``); once:
+``/epmc/y`` and ``/epmc/tangent`` (for ``--resume``), ``/epmc/outside_range``
+(the point's damping ratio is above :data:`MAX_DAMPING_RATIO`); once:
 ``/epmc/harmonics``, ``/epmc/mode_shape``.  Loops and Masing checks go to
 ``/epmc/loops`` and ``/epmc/masing``.
 
@@ -32,6 +33,17 @@ from ..solvers.hbm import HBMSystem
 from ..solvers.modes import elastic_mode
 
 log = logging.getLogger(__name__)
+
+#: Largest damping ratio ``xi / (2 omega)`` at which an EPMC point is taken as within
+#: the method's range.  EPMC replaces the dissipation by a mass-proportional
+#: self-excitation ``xi M``; the mode it computes is the mode of the damped system only
+#: when that term is a small perturbation (light damping, Krack 2015).  Past this
+#: limit the frequency and damping are still the EPMC solution, but they no longer
+#: describe the free decay of the structure (the free decay of a SDOF Jenkins
+#: oscillator at damping ratio 2.8 is not periodic at all).  Points above it are
+#: flagged in ``/epmc/outside_range`` and counted in the attribute
+#: ``n_outside_range``, with a warning.
+MAX_DAMPING_RATIO = 0.1
 
 
 class _LoopSelection:
@@ -102,6 +114,7 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
                              desc=f"epmc mode {a.mode}", monitor=step_monitor(a, system.n_z),
                              lam_start=a.log10_amplitude_start)
     conv = br.convergence
+    _report_range(writer)
     g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
     g.attrs["n_points"] = writer.rows("epmc/omega")
     g.attrs["branch_status"] = "complete" if conv.success else "gave up"
@@ -137,6 +150,37 @@ def _linear_branch(a, ep, em, xi0, on_point, done: int):
     return Branch(y=np.array([ep.linear_point(float(x), em.omega, xi0) for x in lams]),
                   iterations=np.zeros(n, dtype=np.int64), residual=np.zeros(n),
                   step=np.zeros(n), convergence=Convergence(True, SUCCESS, message, n))
+
+
+def _report_range(writer) -> int:
+    """Count, store and warn about the points outside EPMC's light-damping range.
+
+    Writes the attributes ``n_outside_range`` and ``max_damping_ratio_valid``
+    (:data:`MAX_DAMPING_RATIO`) of ``/epmc`` and logs a warning naming the first
+    such amplitude and the largest damping ratio.
+
+    Returns
+    -------
+    int
+        Points whose damping ratio is above the limit.
+    """
+    g = writer.h5["epmc"]
+    g.attrs["max_damping_ratio_valid"] = MAX_DAMPING_RATIO
+    if "outside_range" not in g:
+        g.attrs["n_outside_range"] = 0
+        return 0
+    out = np.asarray(g["outside_range"][()], dtype=bool)
+    n = int(out.sum())
+    g.attrs["n_outside_range"] = n
+    if n:
+        amp = g["amplitude"][()]
+        zeta = np.abs(g["damping_ratio"][()])
+        log.warning("epmc: %d of %d points are outside the method's light-damping range "
+                    "(damping ratio above %g, from modal amplitude %.3g on; largest %.3g): "
+                    "there the extended periodic motion concept no longer describes the "
+                    "free decay; check with time marching (analysis.transient, free decay)",
+                    n, out.size, MAX_DAMPING_RATIO, float(amp[out][0]), float(zeta.max()))
+    return n
 
 
 def _write_header(writer, a, model, em, xi0):
@@ -237,6 +281,9 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
             writer.append("epmc/iterations", np.int64(info.iterations), "1", "Newton iterations")
             writer.append("epmc/residual", info.residual, "1", "max |R| / residual scale")
             writer.append("epmc/step", info.step, "1", "scaled arclength step")
+            writer.append("epmc/outside_range", abs(xi / (2 * omega)) > MAX_DAMPING_RATIO, "1",
+                          f"damping ratio above {MAX_DAMPING_RATIO:g}: outside EPMC's "
+                          "light-damping range")
             writer.append("epmc/y", y, "1", "unknowns (shape, omega, xi, log10 a), for --resume")
             writer.append("epmc/tangent", info.tangent, "1", "unit tangent (scaled)")
             solves, krylov_it, factorizations = system.stats.take()
