@@ -427,6 +427,25 @@ class Continuation:
             self.n_failed += 1
         return ok, yc, R, J, extra, it
 
+    def _orientation(self, yk, yc):
+        """Unit direction the new tangent at ``yc`` is oriented like (scaled points).
+
+        The chord from the point before ``yk`` (when there is one) to ``yc``, not
+        only the last secant ``yc - yk``: after a tiny step from a point whose
+        tangent was poor (a near-singular Jacobian, e.g. at an internal resonance
+        of a nonlinear mode), the last secant can point back along the branch and
+        would turn the branch round, which then retraces itself point by point.
+        Over two steps the chord keeps the direction of travel at folds and at
+        corners of up to 90 degrees.
+        """
+        ref = yc - yk
+        if len(self.points) > 1:
+            ref = yc - self.points[-2] / self.scale
+        n = np.linalg.norm(ref)
+        if not np.isfinite(n) or n == 0.0:
+            ref, n = yc - yk, max(np.linalg.norm(yc - yk), 1e-300)
+        return ref / n
+
     def _monitor_change(self, yk, yc) -> float:
         """Largest change of the monitored quantities from ``yk`` to ``yc`` (scaled
         points; 0 without a monitor)."""
@@ -543,7 +562,7 @@ class Continuation:
                                             f"step_min = {step_min:g} at lam = "
                                             f"{yk[-1] * scale[-1]:.8g} after "
                                             f"{len(self.points)} points")
-        t_new = tangent(J, (yc - yk) / max(np.linalg.norm(yc - yk), 1e-300))
+        t_new = tangent(J, self._orientation(yk, yc))
         lam_new = yc[-1]
         if (lam_new - self._lam_end_h) * direction >= 0:
             return self._close_at_end(yk, t, yc, R, extra, it, h, t_new)
