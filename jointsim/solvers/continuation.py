@@ -430,17 +430,19 @@ class Continuation:
     def _orientation(self, yk, yc):
         """Unit direction the new tangent at ``yc`` is oriented like (scaled points).
 
-        The chord from the point before ``yk`` (when there is one) to ``yc``, not
-        only the last secant ``yc - yk``: after a tiny step from a point whose
-        tangent was poor (a near-singular Jacobian, e.g. at an internal resonance
-        of a nonlinear mode), the last secant can point back along the branch and
+        The last secant ``yc - yk``; after a step shorter than a quarter of the
+        one before, the chord from the point before ``yk`` to ``yc``: after a tiny
+        step from a point whose tangent was poor (a near-singular Jacobian, e.g.
+        at an internal resonance of a nonlinear mode), the last secant can point back along the branch and
         would turn the branch round, which then retraces itself point by point.
-        Over two steps the chord keeps the direction of travel at folds and at
-        corners of up to 90 degrees.
+        The chord keeps the direction of travel at folds (and at corners of up to
+        90 degrees); after a normal step the secant does.
         """
         ref = yc - yk
         if len(self.points) > 1:
-            ref = yc - self.points[-2] / self.scale
+            prev = yk - self.points[-2] / self.scale
+            if np.linalg.norm(ref) < 0.25 * np.linalg.norm(prev):
+                ref = ref + prev
         n = np.linalg.norm(ref)
         if not np.isfinite(n) or n == 0.0:
             ref, n = yc - yk, max(np.linalg.norm(yc - yk), 1e-300)
@@ -476,7 +478,13 @@ class Continuation:
 
         First accept a point beyond a corner of up to 80 degrees (the
         hyperplane still cuts the branch there, but far from the predictor),
-        then take the tangent of the piece beyond it and try both orientations.
+        then take the tangent of the piece beyond it and try both orientations,
+        and last a corrector at fixed ``lam`` a little ahead (a natural-parameter
+        step, :meth:`_natural_step`): beyond a corner sharper than 90 degrees in
+        the scaled unknowns the new piece runs back against the incoming tangent
+        while ``lam`` still advances, so no hyperplane normal to that tangent cuts
+        it near the corner (the EPMC of a friction contact at the end of its
+        shaken-down stuck range, issue 13 case 14).
         Returns ``(ok, h, y, R, J, extra, iterations)``.
         """
         hc = max(h, 1e3 * self.step_min)
@@ -494,7 +502,29 @@ class Continuation:
             ok = True
             log.debug("%s: passed a corner of the branch at lam = %.8g", self.desc,
                       yk[-1] * self.scale[-1])
+        if not ok:
+            got = self._natural_step(yk, hc)
+            if got is not None:
+                yc, R, J, extra, it = got
+                ok, h = True, float(np.linalg.norm(yc - yk))
         return ok, h, yc, R, J, extra, it
+
+    def _natural_step(self, yk, h):
+        """Newton at fixed ``lam = lam_k + h`` (scaled, towards the end) from ``yk``.
+
+        Accepted when it converges within ``CORNER_JUMP * h`` of ``yk`` and does
+        not lie back on the traced branch.  Returns ``(y, R, J, extra,
+        iterations)`` or None.
+        """
+        lam_h = yk[-1] + self.direction * h
+        yc, R, J, extra, it, ok = self._corrector_fixed(yk, lam_h)
+        if not ok or not np.all(np.isfinite(yc)):
+            return None
+        if np.linalg.norm(yc - yk) > CORNER_JUMP * h or self._retraces(yc, yk):
+            return None
+        log.debug("%s: passed a corner of the branch at lam = %.8g at fixed lam", self.desc,
+                  yk[-1] * self.scale[-1])
+        return yc, R, J, extra, it
 
     def _close_at_end(self, yk, t, yc, R, extra, it, h, t_new) -> str:
         """The corrected point passed ``lam_end``: close the branch exactly there."""
