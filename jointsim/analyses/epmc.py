@@ -17,6 +17,7 @@ modal amplitudes (:func:`solve_at_amplitudes`), in ``/epmc/at_amplitudes/``:
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 
@@ -114,6 +115,10 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
                              desc=f"epmc mode {a.mode}", monitor=step_monitor(a, system.n_z),
                              lam_start=a.log10_amplitude_start)
     conv = br.convergence
+    if not conv.success and system.n_z and len(br.y):
+        cause = stick_resolution(system, ep, br.y[-1], model.contacts.law)
+        if cause:
+            conv = dataclasses.replace(conv, message=f"{conv.message}; {cause}")
     _report_range(writer)
     g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
     g.attrs["n_points"] = writer.rows("epmc/omega")
@@ -150,6 +155,59 @@ def _linear_branch(a, ep, em, xi0, on_point, done: int):
     return Branch(y=np.array([ep.linear_point(float(x), em.omega, xi0) for x in lams]),
                   iterations=np.zeros(n, dtype=np.int64), residual=np.zeros(n),
                   step=np.zeros(n), convergence=Convergence(True, SUCCESS, message, n))
+
+
+#: Samples per period below which the two stick phases of a slipping element count as
+#: unresolved by the AFT sampling (two per stick phase).
+MIN_STICK_SAMPLES = 4
+
+
+def stick_resolution(system, ep, y, law) -> str:
+    """Why a branch may have given up with stiff contacts: unresolved stick phases.
+
+    With a contact stiffness that is high against the vibration amplitude, an
+    element that slips sticks after each reversal only for a slip of
+    ``2 mu N / (kt A)``, which can be shorter than one AFT time sample; the
+    stick-slip switches then fall inside a sample, the residual is hardly
+    smooth and Newton stalls.  At the point ``y`` this counts the elements
+    that slip during part of the period and stick for fewer than
+    :data:`MIN_STICK_SAMPLES` of the ``n_samples`` samples (a sample is
+    slipping where ``|f| >= mu N (1 - 1e-6)``).
+
+    Parameters
+    ----------
+    system : jointsim.solvers.hbm.HBMSystem
+    ep : jointsim.solvers.epmc.EPMCSystem
+    y : ndarray, shape (n_z + 3,)
+        A point of the branch (unscaled).
+    law : contact law with a friction coefficient ``mu`` (n_e,); other laws
+        give an empty answer.
+
+    Returns
+    -------
+    str
+        The cause, naming what the user can change; empty when no slipping
+        element is under-resolved (or the point cannot be evaluated).
+    """
+    mu = getattr(law, "mu", None)
+    if mu is None:
+        return ""
+    _R, _J, ev = ep.fun(np.asarray(y, dtype=float))
+    if ev is None or ev.aft is None:
+        return ""
+    f, N = np.abs(ev.aft.f), ev.aft.N
+    nt = f.shape[1]
+    limit = np.broadcast_to(np.asarray(mu, dtype=float), (f.shape[0],))[:, None] * N
+    slipping = (N > 0.0) & (f >= limit * (1.0 - 1e-6))
+    n_slip = slipping.sum(axis=1)
+    bad = (n_slip > 0) & (nt - n_slip < MIN_STICK_SAMPLES)
+    if not bad.any():
+        return ""
+    return (f"{int(bad.sum())} of {f.shape[0]} contact elements stick for fewer than "
+            f"{MIN_STICK_SAMPLES} of the {nt} samples per period while slipping in the "
+            f"rest: the contact stiffness is too high for the time sampling (the "
+            f"stick-slip switches fall inside a sample and Newton stalls on them); raise "
+            f"analysis.epmc.n_samples or lower joint.kt")
 
 
 def _report_range(writer) -> int:
