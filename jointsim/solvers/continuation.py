@@ -31,7 +31,13 @@ tolerances refer to the scaled quantities.
 * Corners (when the step is already small): a point beyond a corner of
   the branch of up to 80 degrees is accepted although it lies far from the
   predictor (``CORNER_JUMP``); failing that, the tangent of the piece beyond
-  the corner is tried in both orientations.
+  the corner is tried in both orientations; failing that, a corrector at
+  fixed ``lam`` a little ahead (a corner sharper than 90 degrees whose new
+  piece still advances in ``lam``).
+* Orientation: the new tangent is oriented like the secant of the last step,
+  or, after a step shorter than a quarter of the one before, like the chord
+  over the last two steps (a tiny step from a poor tangent must not turn the
+  branch round).
 * No retracing: a corrected point that lies back on the last
   ``RETRACE_POINTS`` points of the branch (closer to one of their segments
   than half its distance from the current point) is rejected; at a sharp
