@@ -439,8 +439,9 @@ class Continuation:
         The last secant ``yc - yk``; after a step shorter than a quarter of the
         one before, the chord from the point before ``yk`` to ``yc``: after a tiny
         step from a point whose tangent was poor (a near-singular Jacobian, e.g.
-        at an internal resonance of a nonlinear mode), the last secant can point back along the branch and
-        would turn the branch round, which then retraces itself point by point.
+        at an internal resonance of a nonlinear mode), the last secant can point
+        back along the branch and would turn the branch round, which then
+        retraces itself point by point.
         The chord keeps the direction of travel at folds (and at corners of up to
         90 degrees); after a normal step the secant does.
         """

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+import pytest
 
 from jointsim import _toml
 from jointsim.run import run_scene
@@ -57,3 +58,30 @@ def test_fold_scene_mode_1_passes_the_end_of_the_stuck_range(tmp_path):
     # past the corner: slip every period, more damping, lower frequency, no jump
     assert z[-1] > 10 * zeta0 and w[-1] < omega0
     assert np.max(np.abs(np.diff(z))) < 0.0025   # the monitor's 0.002 per step, no jump
+
+
+def _sharp_corner(y):
+    """``R = z - g(lam)``, ``g = lam`` below 0 and ``-3 lam`` above: a corner of
+    117 degrees whose second piece runs back in ``z`` while ``lam`` advances."""
+    z, lam = y
+    slope = 1.0 if lam < 0.0 else -3.0
+    return np.array([z - slope * lam]), np.array([[1.0, -slope]]), None
+
+
+def test_fixed_lam_step_passes_a_corner_sharper_than_90_degrees():
+    from jointsim.solvers.continuation import Continuation
+
+    c = Continuation(_sharp_corner, np.array([-1e-3, -1e-3]), 1.0, scale=np.ones(2),
+                     rscale=1.0, step=0.05, step_min=1e-6, step_max=0.2, max_points=200,
+                     tol=1e-12)
+    yk, t = c._yh, c._t
+    np.testing.assert_allclose(t, [np.sqrt(0.5), np.sqrt(0.5)])   # the incoming piece
+    h = 0.01
+    # the hyperplane normal to the incoming tangent, h ahead, misses the new piece
+    # anywhere: the pseudo-arclength corrector fails
+    ok, *_ = c._correct(yk, t, h)
+    assert not ok
+    got = c._natural_step(yk, h)
+    assert got is not None
+    z, lam = got[0]
+    assert lam == pytest.approx(yk[1] + h) and z == pytest.approx(-3.0 * lam, abs=1e-12)
