@@ -5,7 +5,11 @@ structure are built by :func:`jointsim.model.build_model`; each analysis
 present in ``[analysis]`` is run by its runner in
 :data:`jointsim.analyses.ANALYSES`, in the order of that table; each writes
 its own groups of the result file as it goes and returns its result, which
-the later runners receive in memory.
+the later runners receive in memory.  An analysis that fails (its runner
+raises ``RuntimeError`` after writing its points) does not stop the ones after
+it: none needs another's result (the transient cross-check against harmonic
+balance is skipped when the HBM analysis failed); the run then raises one
+``RuntimeError`` naming every failed analysis, and the file is marked failed.
 """
 from __future__ import annotations
 
@@ -75,6 +79,7 @@ def run_scene(scene, out_path, resume: bool = False, overwrite: bool = False) ->
         model = build_model(scene)  # errors found here write nothing
     with _signals_interrupt(), \
             ResultWriter(out_path, scene, resume=resume, overwrite=overwrite) as writer:
+        failed: list[str] = []
         if scene.model.kind == "prescribed":
             run_prescribed_scene(scene, writer)
         else:
@@ -85,7 +90,16 @@ def run_scene(scene, out_path, resume: bool = False, overwrite: bool = False) ->
             results: dict[str, object] = {}
             for name in todo:
                 log.info("analysis %s", name)
-                results[name] = ANALYSES[name](scene, model, writer, results)
+                try:
+                    results[name] = ANALYSES[name](scene, model, writer, results)
+                except RuntimeError as exc:
+                    # the runner wrote what it computed; no later analysis needs it
+                    # (the transient cross-check is skipped without an HBM result)
+                    log.error("analysis %s failed (%s); the next analyses still run",
+                              name, exc)
+                    failed.append(str(exc))
         writer.h5.attrs["wall_time_s"] = time.perf_counter() - t0
+        if failed:  # the file is marked failed; the CLI exits with status 1
+            raise RuntimeError("; ".join(failed))
     log.info("wrote %s in %.2f s", out_path, time.perf_counter() - t0)
     return out_path

@@ -5,7 +5,8 @@ The formulation is in :mod:`jointsim.solvers.epmc`.  Datasets (per point):
 ``/epmc/omega``, ``/epmc/damping_ratio`` (``xi / (2 omega)``), ``/epmc/xi``,
 ``/epmc/X`` [n_points, n_coeff, n_dof] (coefficients of ``x``, not
 normalised), ``/epmc/iterations``, ``/epmc/residual``, ``/epmc/step``,
-``/epmc/y`` and ``/epmc/tangent`` (for ``--resume``); once:
+``/epmc/y`` and ``/epmc/tangent`` (for ``--resume``), ``/epmc/outside_range``
+(the point's damping ratio is above :data:`MAX_DAMPING_RATIO`); once:
 ``/epmc/harmonics``, ``/epmc/mode_shape``.  Loops and Masing checks go to
 ``/epmc/loops`` and ``/epmc/masing``.
 
@@ -16,6 +17,7 @@ modal amplitudes (:func:`solve_at_amplitudes`), in ``/epmc/at_amplitudes/``:
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 
@@ -32,6 +34,17 @@ from ..solvers.hbm import HBMSystem
 from ..solvers.modes import elastic_mode
 
 log = logging.getLogger(__name__)
+
+#: Largest damping ratio ``xi / (2 omega)`` at which an EPMC point is taken as within
+#: the method's range.  EPMC replaces the dissipation by a mass-proportional
+#: self-excitation ``xi M``; the mode it computes is the mode of the damped system only
+#: when that term is a small perturbation (light damping, Krack 2015).  Past this
+#: limit the frequency and damping are still the EPMC solution, but they no longer
+#: describe the free decay of the structure (the free decay of a SDOF Jenkins
+#: oscillator at damping ratio 2.8 is not periodic at all).  Points above it are
+#: flagged in ``/epmc/outside_range`` and counted in the attribute
+#: ``n_outside_range``, with a warning.
+MAX_DAMPING_RATIO = 0.1
 
 
 class _LoopSelection:
@@ -104,6 +117,11 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     conv = br.convergence
     if not conv.success:
         conv = _explain(conv, model, system, ep, writer)
+    if not conv.success and system.n_z and len(br.y):
+        cause = stick_resolution(system, ep, br.y[-1], model.contacts.law)
+        if cause:
+            conv = dataclasses.replace(conv, message=f"{conv.message}; {cause}")
+    _report_range(writer)
     g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
     g.attrs["n_points"] = writer.rows("epmc/omega")
     g.attrs["branch_status"] = "complete" if conv.success else "gave up"
@@ -141,6 +159,93 @@ def _linear_branch(a, ep, em, xi0, on_point, done: int):
     return Branch(y=np.array([ep.linear_point(float(x), em.omega, xi0) for x in lams]),
                   iterations=np.zeros(n, dtype=np.int64), residual=np.zeros(n),
                   step=np.zeros(n), convergence=Convergence(True, SUCCESS, message, n))
+
+
+#: Samples per period below which the two stick phases of a slipping element count as
+#: unresolved by the AFT sampling (eight per stick phase).  Measured on the coarse FE
+#: lap joint with fixed N: at the scene's kt the slipping elements stick for 35 or more
+#: of 128 samples at the onset of macroslip and the branch passes; at kt x 1e4 they
+#: stick for 6..12 and every corrector past a step of about 0.006 stalls.
+MIN_STICK_SAMPLES = 16
+
+
+def stick_resolution(system, ep, y, law) -> str:
+    """Why a branch may have given up with stiff contacts: unresolved stick phases.
+
+    With a contact stiffness that is high against the vibration amplitude, an
+    element that slips sticks after each reversal only for a slip of
+    ``2 mu N / (kt A)``, which can be shorter than one AFT time sample; the
+    stick-slip switches then fall inside a sample, the residual is hardly
+    smooth and Newton stalls.  At the point ``y`` this counts the elements
+    that slip during part of the period and stick for fewer than
+    :data:`MIN_STICK_SAMPLES` of the ``n_samples`` samples (a sample is
+    slipping where ``|f| >= mu N (1 - 1e-6)``).
+
+    Parameters
+    ----------
+    system : jointsim.solvers.hbm.HBMSystem
+    ep : jointsim.solvers.epmc.EPMCSystem
+    y : ndarray, shape (n_z + 3,)
+        A point of the branch (unscaled).
+    law : contact law with a friction coefficient ``mu`` (n_e,); other laws
+        give an empty answer.
+
+    Returns
+    -------
+    str
+        The cause, naming what the user can change; empty when no slipping
+        element is under-resolved (or the point cannot be evaluated).
+    """
+    mu = getattr(law, "mu", None)
+    if mu is None:
+        return ""
+    _R, _J, ev = ep.fun(np.asarray(y, dtype=float))
+    if ev is None or ev.aft is None:
+        return ""
+    f, N = np.abs(ev.aft.f), ev.aft.N
+    nt = f.shape[1]
+    limit = np.broadcast_to(np.asarray(mu, dtype=float), (f.shape[0],))[:, None] * N
+    slipping = (N > 0.0) & (f >= limit * (1.0 - 1e-6))
+    n_slip = slipping.sum(axis=1)
+    bad = (n_slip > 0) & (nt - n_slip < MIN_STICK_SAMPLES)
+    if not bad.any():
+        return ""
+    return (f"{int(bad.sum())} of {f.shape[0]} contact elements stick for fewer than "
+            f"{MIN_STICK_SAMPLES} of the {nt} samples per period while slipping in the "
+            f"rest: the contact stiffness is too high for the time sampling (the "
+            f"stick-slip switches fall inside a sample and Newton stalls on them); raise "
+            f"analysis.epmc.n_samples or lower joint.kt")
+
+
+def _report_range(writer) -> int:
+    """Count, store and warn about the points outside EPMC's light-damping range.
+
+    Writes the attributes ``n_outside_range`` and ``max_damping_ratio_valid``
+    (:data:`MAX_DAMPING_RATIO`) of ``/epmc`` and logs a warning naming the first
+    such amplitude and the largest damping ratio.
+
+    Returns
+    -------
+    int
+        Points whose damping ratio is above the limit.
+    """
+    g = writer.h5["epmc"]
+    g.attrs["max_damping_ratio_valid"] = MAX_DAMPING_RATIO
+    if "outside_range" not in g:
+        g.attrs["n_outside_range"] = 0
+        return 0
+    out = np.asarray(g["outside_range"][()], dtype=bool)
+    n = int(out.sum())
+    g.attrs["n_outside_range"] = n
+    if n:
+        amp = g["amplitude"][()]
+        zeta = np.abs(g["damping_ratio"][()])
+        log.warning("epmc: %d of %d points are outside the method's light-damping range "
+                    "(damping ratio above %g, from modal amplitude %.3g on; largest %.3g): "
+                    "there the extended periodic motion concept no longer describes the "
+                    "free decay; check with time marching (analysis.transient, free decay)",
+                    n, out.size, MAX_DAMPING_RATIO, float(amp[out][0]), float(zeta.max()))
+    return n
 
 
 def _write_header(writer, a, model, em, xi0):
@@ -241,6 +346,9 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
             writer.append("epmc/iterations", np.int64(info.iterations), "1", "Newton iterations")
             writer.append("epmc/residual", info.residual, "1", "max |R| / residual scale")
             writer.append("epmc/step", info.step, "1", "scaled arclength step")
+            writer.append("epmc/outside_range", abs(xi / (2 * omega)) > MAX_DAMPING_RATIO, "1",
+                          f"damping ratio above {MAX_DAMPING_RATIO:g}: outside EPMC's "
+                          "light-damping range")
             writer.append("epmc/y", y, "1", "unknowns (shape, omega, xi, log10 a), for --resume")
             writer.append("epmc/tangent", info.tangent, "1", "unit tangent (scaled)")
             solves, krylov_it, factorizations = system.stats.take()
@@ -263,8 +371,6 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
 def _explain(conv, model, system, ep, writer):
     """The failed branch's convergence, its message extended by the residual jump of a
     law without path continuity (:func:`jointsim.solvers.discontinuity.explain_failure`)."""
-    import dataclasses
-
     from ..contact.laws import continuation_advice
     from ..solvers.discontinuity import explain_failure
 

@@ -31,7 +31,13 @@ tolerances refer to the scaled quantities.
 * Corners (when the step is already small): a point beyond a corner of
   the branch of up to 80 degrees is accepted although it lies far from the
   predictor (``CORNER_JUMP``); failing that, the tangent of the piece beyond
-  the corner is tried in both orientations.
+  the corner is tried in both orientations; failing that, a corrector at
+  fixed ``lam`` a little ahead (a corner sharper than 90 degrees whose new
+  piece still advances in ``lam``).
+* Orientation: the new tangent is oriented like the secant of the last step,
+  or, after a step shorter than a quarter of the one before, like the chord
+  over the last two steps (a tiny step from a poor tangent must not turn the
+  branch round).
 * No retracing: a corrected point that lies back on the last
   ``RETRACE_POINTS`` points of the branch (closer to one of their segments
   than half its distance from the current point) is rejected; at a sharp
@@ -464,6 +470,28 @@ class Continuation:
             self.n_failed += 1
         return ok, yc, R, J, extra, it
 
+    def _orientation(self, yk, yc):
+        """Unit direction the new tangent at ``yc`` is oriented like (scaled points).
+
+        The last secant ``yc - yk``; after a step shorter than a quarter of the
+        one before, the chord from the point before ``yk`` to ``yc``: after a tiny
+        step from a point whose tangent was poor (a near-singular Jacobian, e.g.
+        at an internal resonance of a nonlinear mode), the last secant can point
+        back along the branch and would turn the branch round, which then
+        retraces itself point by point.
+        The chord keeps the direction of travel at folds (and at corners of up to
+        90 degrees); after a normal step the secant does.
+        """
+        ref = yc - yk
+        if len(self.points) > 1:
+            prev = yk - self.points[-2] / self.scale
+            if np.linalg.norm(ref) < 0.25 * np.linalg.norm(prev):
+                ref = ref + prev
+        n = np.linalg.norm(ref)
+        if not np.isfinite(n) or n == 0.0:
+            ref, n = yc - yk, max(np.linalg.norm(yc - yk), 1e-300)
+        return ref / n
+
     def _monitor_change(self, yk, yc) -> float:
         """Largest change of the monitored quantities from ``yk`` to ``yc`` (scaled
         points; 0 without a monitor)."""
@@ -494,7 +522,13 @@ class Continuation:
 
         First accept a point beyond a corner of up to 80 degrees (the
         hyperplane still cuts the branch there, but far from the predictor),
-        then take the tangent of the piece beyond it and try both orientations.
+        then take the tangent of the piece beyond it and try both orientations,
+        and last a corrector at fixed ``lam`` a little ahead (a natural-parameter
+        step, :meth:`_natural_step`): beyond a corner sharper than 90 degrees in
+        the scaled unknowns the new piece runs back against the incoming tangent
+        while ``lam`` still advances, so no hyperplane normal to that tangent cuts
+        it near the corner (the EPMC of a friction contact at the end of its
+        shaken-down stuck range, issue 13 case 14).
         Returns ``(ok, h, y, R, J, extra, iterations)``.
         """
         hc = max(h, 1e3 * self.step_min)
@@ -512,7 +546,29 @@ class Continuation:
             ok = True
             log.debug("%s: passed a corner of the branch at lam = %.8g", self.desc,
                       yk[-1] * self.scale[-1])
+        if not ok:
+            got = self._natural_step(yk, hc)
+            if got is not None:
+                yc, R, J, extra, it = got
+                ok, h = True, float(np.linalg.norm(yc - yk))
         return ok, h, yc, R, J, extra, it
+
+    def _natural_step(self, yk, h):
+        """Newton at fixed ``lam = lam_k + h`` (scaled, towards the end) from ``yk``.
+
+        Accepted when it converges within ``CORNER_JUMP * h`` of ``yk`` and does
+        not lie back on the traced branch.  Returns ``(y, R, J, extra,
+        iterations)`` or None.
+        """
+        lam_h = yk[-1] + self.direction * h
+        yc, R, J, extra, it, ok = self._corrector_fixed(yk, lam_h)
+        if not ok or not np.all(np.isfinite(yc)):
+            return None
+        if np.linalg.norm(yc - yk) > CORNER_JUMP * h or self._retraces(yc, yk):
+            return None
+        log.debug("%s: passed a corner of the branch at lam = %.8g at fixed lam", self.desc,
+                  yk[-1] * self.scale[-1])
+        return yc, R, J, extra, it
 
     def _close_at_end(self, yk, t, yc, R, extra, it, h, t_new) -> str:
         """The corrected point passed ``lam_end``: close the branch exactly there."""
@@ -580,7 +636,7 @@ class Continuation:
                                             f"step_min = {step_min:g} at lam = "
                                             f"{yk[-1] * scale[-1]:.8g} after "
                                             f"{len(self.points)} points")
-        t_new = tangent(J, (yc - yk) / max(np.linalg.norm(yc - yk), 1e-300))
+        t_new = tangent(J, self._orientation(yk, yc))
         lam_new = yc[-1]
         if (lam_new - self._lam_end_h) * direction >= 0:
             return self._close_at_end(yk, t, yc, R, extra, it, h, t_new)

@@ -135,7 +135,15 @@ class EPMCSystem:
 
         The Jacobian is dense on the direct path and a
         :class:`~jointsim.solvers.jacobian.BorderedJacobian` on the Krylov path.
+        A diverged Newton iterate (huge coefficients, e.g. with very stiff
+        contacts) gives non-finite values, which the solvers report as such,
+        not floating-point warnings.
         """
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return self._fun(y)
+
+    def _fun(self, y):
+        """:meth:`fun` without the floating-point error state."""
         s = self.s
         nz = s.n_z
         zh, omega, xi, lam = y[:nz], y[nz], y[nz + 1], y[nz + 2]
