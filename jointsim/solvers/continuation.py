@@ -35,8 +35,8 @@ tolerances refer to the scaled quantities.
   fixed ``lam`` a little ahead (a corner sharper than 90 degrees whose new
   piece still advances in ``lam``).
 * Orientation: the new tangent is oriented like the secant of the last step,
-  or, after a step shorter than a quarter of the one before, like the chord
-  over the last two steps (a tiny step from a poor tangent must not turn the
+  or, after a step shorter than a quarter of the one before that lands
+  straight behind the last point, like the chord over the last two steps (a tiny step from a poor tangent must not turn the
   branch round).
 * No retracing: a corrected point that lies back on the last
   ``RETRACE_POINTS`` points of the branch (closer to one of their segments
@@ -80,6 +80,10 @@ CORNER_JUMP = 5.7
 TARGET_ITER = 4
 #: Points of the traced branch a new point is checked against (no retracing).
 RETRACE_POINTS = 500
+#: Orientation: a short step whose secant makes an angle with the step before
+#: whose cosine is below ``-BEHIND_COS`` (about 155 degrees or more) "landed
+#: behind" the last point; the tangent is then oriented by the chord.
+BEHIND_COS = 0.9
 #: ``adapt_scale``: rescale ``z`` when ``max|z - z0|`` exceeds this many ``z`` scales.
 SCALE_GROWTH = 2.0
 #: ``adapt_scale``: a run of points whose ``max|z - z0|`` never decreases, growing
@@ -474,7 +478,9 @@ class Continuation:
         """Unit direction the new tangent at ``yc`` is oriented like (scaled points).
 
         The last secant ``yc - yk``; after a step shorter than a quarter of the
-        one before, the chord from the point before ``yk`` to ``yc``: after a tiny
+        one before that lands straight behind ``yk`` (the secant runs against the
+        step before to within ``acos(BEHIND_COS)``; a step across a fold turns
+        less sharply and keeps its secant), the chord from the point before ``yk`` to ``yc``: after a tiny
         step from a point whose tangent was poor (a near-singular Jacobian, e.g.
         at an internal resonance of a nonlinear mode), the last secant can point
         back along the branch and would turn the branch round, which then
@@ -485,7 +491,9 @@ class Continuation:
         ref = yc - yk
         if len(self.points) > 1:
             prev = yk - self.points[-2] / self.scale
-            if np.linalg.norm(ref) < 0.25 * np.linalg.norm(prev):
+            n_ref, n_prev = np.linalg.norm(ref), np.linalg.norm(prev)
+            if (n_ref < 0.25 * n_prev
+                    and float(ref @ prev) < -BEHIND_COS * n_ref * n_prev):
                 ref = ref + prev
         n = np.linalg.norm(ref)
         if not np.isfinite(n) or n == 0.0:
