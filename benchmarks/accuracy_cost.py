@@ -207,9 +207,10 @@ def figure(tables, path):
             if k:
                 ax.annotate(f"{label}{str(r[0]).split(',')[0].split(' ')[0]}", (ti, ei),
                             fontsize=7, xytext=(3, 3), textcoords="offset points")
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_xlabel("wall time [ms]")
         ax.set_ylabel("relative error")
-        ax.set_title(title, fontsize=9)
+        ax.set_title(title, fontsize=8)
         ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
     fig.savefig(path, dpi=120)

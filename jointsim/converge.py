@@ -120,8 +120,8 @@ class Dial:
         a = scene.analysis
         secs = [n for n in ("hbm", "epmc") if getattr(a, n, None) is not None]
         if self.name == "harmonics":
-            return tuple(f"analysis.{n}.harmonics={list(_harmonics(getattr(a, n).harmonics, value))}"
-                         for n in secs)
+            return tuple(f"analysis.{n}.harmonics="
+                         f"{list(_harmonics(getattr(a, n).harmonics, value))}" for n in secs)
         if self.name == "samples":
             return tuple(f"analysis.{n}.n_samples={int(value)}" for n in secs)
         if self.name == "tol":

@@ -147,7 +147,7 @@ def test_preset_fills_only_keys_that_are_not_explicit(scene_file, tmp_path):
     explicit = tmp_path / "explicit.toml"
     explicit.write_text(SCENE.replace("[analysis.epmc]\n", "[analysis.epmc]\nn_samples = 96\n"))
     ov = preset_overrides(explicit, "reference")
-    assert "analysis.hbm.n_samples=256" in ov
+    assert "analysis.hbm.n_samples=512" in ov
     assert not any(o.startswith("analysis.epmc.n_samples") for o in ov)
     with pytest.raises(SceneError, match="--preset"):
         preset_overrides(scene_file, "quick")
@@ -168,10 +168,9 @@ def test_presets_order_work_and_error(scene_file, tmp_path):
     scene = load_scene(scene_file)
     oracle = tmp_path / "oracle.h5"
     h = list(range(24))
-    run_scene(load_scene(scene_file, [f"analysis.hbm.harmonics={h}", "analysis.hbm.n_samples=512",
-                                      f"analysis.epmc.harmonics={h}", "analysis.epmc.n_samples=512",
-                                      "analysis.hbm.tol=1e-11", "analysis.epmc.tol=1e-11"]),
-              oracle)
+    fine = [f"analysis.{g}.{k}" for g in ("hbm", "epmc")
+            for k in (f"harmonics={h}", "n_samples=1024", "tol=1e-11")]
+    run_scene(load_scene(scene_file, fine), oracle)
     qo = quantities(oracle, scene)
     work, err = [], []
     for name in ("fast", "balanced", "reference"):
