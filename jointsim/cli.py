@@ -12,6 +12,9 @@
     analyses that will run and the effects that are off (with what that skips).
 ``jointsim sweep SCENE --vary key=v1,v2,... [--scheduler ADDRESS]``
     Run every combination of parameter values on dask.distributed.
+``jointsim converge SCENE [--rtol R] [--dials D ...] [--workers N] [-o DIR]``
+    Run the scene at a ladder of settings per numerical dial, report errors
+    and wall times, and recommend the cheapest setting within ``--rtol``.
 ``jointsim keys``
     Print every scene key with its default, unit and meaning (markdown).
 """
@@ -44,6 +47,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--overwrite", action="store_true",
                    help="replace an existing result file (otherwise it is refused)")
     r.add_argument("--post", action="store_true", help="make the figures afterwards")
+    r.add_argument("--preset", choices=("fast", "balanced", "reference"), default=None,
+                   help="numerical settings for the keys the scene does not give "
+                        "explicitly (jointsim/presets.py)")
 
     q = sub.add_parser("post", parents=[common], help="make figures from result files")
     q.add_argument("results", nargs="+", help="result files (HDF5)")
@@ -67,6 +73,26 @@ def _parser() -> argparse.ArgumentParser:
     w.add_argument("--scheduler", default=None,
                    help="address of a running dask scheduler (default: a local cluster)")
     w.add_argument("--workers", type=int, default=2, help="workers of the local cluster")
+
+    cv = sub.add_parser("converge", parents=[common],
+                        help="errors and wall times at a ladder of settings per dial, and "
+                             "the cheapest setting within --rtol")
+    cv.add_argument("scene")
+    cv.add_argument("--rtol", type=float, default=1e-2, help="requested accuracy")
+    cv.add_argument("--dials", nargs="+", default=None,
+                    help="dials to ladder (default: every one the scene uses): harmonics, "
+                         "samples, tol, dx_lap, steps, iwan_rtol")
+    cv.add_argument("--ladder", action="append", default=[], metavar="DIAL=V1,V2,...",
+                    help="replace a dial's ladder (least refined first; the last is the "
+                         "reference), e.g. harmonics=3,5,7,11")
+    cv.add_argument("--set", dest="overrides", action="append", default=[],
+                    metavar="KEY=VALUE", help="override applied to every run")
+    cv.add_argument("-o", "--outdir", default=None,
+                    help="folder of the runs, converge.h5 and the figures "
+                         "(default: results/<scene>_converge)")
+    cv.add_argument("--scheduler", default=None,
+                    help="address of a running dask scheduler (default: a local cluster)")
+    cv.add_argument("--workers", type=int, default=2, help="workers of the local cluster")
 
     sub.add_parser("keys", parents=[common], help="print every scene key as a markdown table")
 
@@ -184,6 +210,11 @@ def main(argv: list[str] | None = None) -> int:
     limit_blas_threads()
     try:
         if args.command in ("run", "check"):
+            if getattr(args, "preset", None):
+                from .presets import preset_overrides
+                added = preset_overrides(args.scene, args.preset, args.overrides)
+                log.info("preset %s sets %s", args.preset, " ".join(added) or "nothing")
+                args.overrides = added + list(args.overrides)
             scene = load_scene(args.scene, args.overrides)
             if args.command == "check":
                 print(check_text(scene, args.scene))
@@ -217,6 +248,17 @@ def main(argv: list[str] | None = None) -> int:
             print(run_sweep(args.scene, args.vary, outdir, args.scheduler, args.workers,
                             args.overrides))
             return 0
+        if args.command == "converge":
+            from .converge import figures, run_converge, table_text
+            from .converge import parse_ladders
+            res = run_converge(args.scene, args.rtol, args.dials, args.outdir, args.scheduler,
+                               args.workers, args.overrides,
+                               ladders=parse_ladders(args.ladder, args.scene))
+            print(table_text(res))
+            for fig in figures(res):
+                print(fig)
+            print(res.outdir / "converge.h5")
+            return 0 if res.check_ok else 1
         if args.command == "keys":
             from .scene import key_table
             print(key_table())

@@ -214,6 +214,53 @@ def run_sweep(scene_path, vary: list[str], outdir, scheduler: str | None = None,
     OSError
         When ``scheduler`` does not answer (nothing is run).
     """
+    if not scheduler and n_workers < 1:
+        raise ValueError(f"--workers {n_workers}: a local cluster needs at least 1 worker")
+    variants = plan(scene_path, vary, outdir, common)
+    index, results = run_variants(scene_path, variants, outdir, scheduler, n_workers,
+                                  attrs={"axes": list(vary), "common": list(common)})
+    n_failed = sum(r["status"] != "complete" for r in results)
+    log.info("sweep of %d runs done, %d failed; index %s", len(variants), n_failed, index)
+    if n_failed:
+        raise RuntimeError(f"{n_failed} of {len(variants)} sweep variants failed (messages in "
+                           f"{index}); rerun the sweep to compute only those")
+    return index
+
+
+def run_variants(scene_path, variants: list[Variant], outdir, scheduler: str | None = None,
+                 n_workers: int = 2, index_name: str = "sweep.h5",
+                 attrs: dict | None = None, desc: str = "sweep",
+                 client=None) -> tuple[Path, list[dict]]:
+    """Run validated variants on dask workers and keep their index file.
+
+    The pool of :func:`run_sweep`; ``jointsim converge`` submits its ladders
+    here too.  A variant's failure is reported in its row, never raised.
+
+    Parameters
+    ----------
+    scene_path : str or Path
+    variants : list of Variant
+        Validated (see :func:`plan`); ``index`` is the row in the index file.
+    outdir : str or Path
+    scheduler, n_workers
+        As in :func:`run_sweep`.
+    index_name : str
+        File name of the index inside ``outdir``.
+    attrs : dict, optional
+        String lists stored as attributes of the index.
+    desc : str
+        Progress-bar label.
+    client : dask.distributed.Client, optional
+        A client to use (and leave open) instead of connecting to ``scheduler``
+        or starting a local cluster.
+
+    Returns
+    -------
+    index : Path
+    results : list of dict
+        Per variant, in the order of ``variants``: ``index``, ``status``
+        (``complete`` or ``failed``), ``message``.
+    """
     try:
         from dask.distributed import as_completed
     except ModuleNotFoundError:
@@ -221,19 +268,20 @@ def run_sweep(scene_path, vary: list[str], outdir, scheduler: str | None = None,
             from None
     from tqdm import tqdm
 
-    if not scheduler and n_workers < 1:
+    own = client is None
+    if own and not scheduler and n_workers < 1:
         raise ValueError(f"--workers {n_workers}: a local cluster needs at least 1 worker")
-    variants = plan(scene_path, vary, outdir, common)
-    client, cluster = _client(scheduler, n_workers)
+    client, cluster = _client(scheduler, n_workers) if own else (client, None)
     outdir = Path(outdir)
-    n_failed = 0
+    row = {v.index: k for k, v in enumerate(variants)}
+    results: list[dict] = [{}] * len(variants)
     try:
         outdir.mkdir(parents=True, exist_ok=True)
-        index = outdir / "sweep.h5"
+        index = outdir / index_name
         with h5py.File(index, "w", locking=False) as h5:
             h5.attrs["scene_path"] = str(scene_path)
-            h5.attrs["axes"] = np.array(vary, dtype=h5py.string_dtype())
-            h5.attrs["common"] = np.array(list(common), dtype=h5py.string_dtype())
+            for k, v in (attrs or {}).items():
+                h5.attrs[k] = np.array(v, dtype=h5py.string_dtype())
             s = h5py.string_dtype()
             h5.create_dataset("overrides", data=np.array([" ".join(v.overrides)
                                                           for v in variants], dtype=s))
@@ -244,18 +292,16 @@ def run_sweep(scene_path, vary: list[str], outdir, scheduler: str | None = None,
             for name in ("overrides", "output", "status", "message"):
                 h5[name].attrs["unit"] = "1"
         futures = [client.submit(run_variant, str(scene_path), v, pure=False) for v in variants]
-        for fut in tqdm(as_completed(futures), total=len(futures), desc="sweep", unit="run"):
+        for fut in tqdm(as_completed(futures), total=len(futures), desc=desc, unit="run"):
             r = fut.result()
-            _set_status(index, {r["index"]: (r["status"], r["message"])})
+            k = row[r["index"]]
+            results[k] = r
+            _set_status(index, {k: (r["status"], r["message"])})
             if r["status"] != "complete":
-                n_failed += 1
-                log.warning("variant %d failed: %s", r["index"], r["message"])
+                log.warning("variant %s failed: %s", variants[k].output.name, r["message"])
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
-    log.info("sweep of %d runs done, %d failed; index %s", len(variants), n_failed, index)
-    if n_failed:
-        raise RuntimeError(f"{n_failed} of {len(variants)} sweep variants failed (messages in "
-                           f"{index}); rerun the sweep to compute only those")
-    return index
+        if own:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    return index, results

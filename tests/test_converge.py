@@ -1,0 +1,194 @@
+"""``jointsim converge`` and ``jointsim run --preset`` (issue 12 items 2 and 3).
+
+The oracle of ``converge`` is a converged reference run by the same code at
+the most refined settings; the recommendation for ``--rtol`` must reproduce
+it within ``rtol`` in every quantity, which the test recomputes from the two
+result files by its own arithmetic.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from jointsim.cli import main
+from jointsim.converge import Dial, _harmonics, _pick, parse_ladders, quantities
+from jointsim.presets import PRESETS, preset_overrides
+from jointsim.run import run_scene
+from jointsim.scene import SceneError, load_scene
+
+# one DOF with a Jenkins element to ground (the scene of models/hbm/sdof_jenkins_epmc.toml,
+# with light viscous damping), an FRC branch in microslip and its nonlinear mode; no
+# harmonics or samples given, so that presets apply
+SCENE = """
+[scene]
+name = "converge test"
+[model]
+kind = "lumped"
+units = "nondimensional"
+M = [[1.0]]
+K = [[1.0]]
+C = [[0.02]]
+contacts = [{ t_dof = 0, N0 = 1.0 }]
+[joint]
+law = "jenkins"
+kt = 0.25
+mu = 0.2
+[effects]
+normal = "fixed"
+[excitation]
+loads = [{ dof = 0, force = { harmonics = [{ h = 1, cos = 0.1 }] } }]
+[analysis.hbm]
+omega_start = 0.9
+omega_end = 1.25
+force_scale = [1.0]
+response_dof = 0
+step = 0.04
+step_max = 0.08
+[analysis.epmc]
+mode = 1
+loop_amplitudes = [0.5, 2.0]
+log10_amplitude_start = -1.0
+log10_amplitude_end = 1.0
+step = 0.1
+step_max = 0.3
+"""
+
+
+@pytest.fixture
+def scene_file(tmp_path) -> Path:
+    p = tmp_path / "sdof.toml"
+    p.write_text(SCENE)
+    return p
+
+
+def _rel(q, r):
+    return abs(q - r) if r == 0 else abs(q - r) / abs(r)
+
+
+def test_harmonic_pattern_and_pick():
+    assert _harmonics((0, 1, 2, 3), 5) == (0, 1, 2, 3, 4, 5)
+    assert _harmonics((1, 3), 7) == (1, 3, 5, 7)
+    assert _harmonics((0, 1, 3), 5) == (0, 1, 3, 5)
+    # the least refined setting from which on every setting is within rtol
+    assert _pick(np.array([1e-3, 2e-2, 1e-3, 0.0]), 1e-2) == 2
+    assert _pick(np.array([1e-3, 1e-3, 0.0]), 1e-2) == 0
+    assert _pick(np.array([np.inf, 1e-3, 0.0]), 1e-2) == 1
+
+
+def test_bad_ladders_and_dials_name_the_option(scene_file, tmp_path):
+    assert parse_ladders(["harmonics=1,3,7", "tol=1e-4,1e-8"]) == {
+        "harmonics": (1, 3, 7), "tol": (1e-4, 1e-8)}
+    with pytest.raises(SceneError, match="unknown dial"):
+        parse_ladders(["mesh=1,2"])
+    with pytest.raises(SceneError, match="at least two"):
+        parse_ladders(["samples=64"])
+    out = tmp_path / "cv"
+    code = main(["converge", str(scene_file), "--dials", "steps", "-o", str(out), "-q"])
+    assert code == 2 and not out.exists()
+
+
+def test_dial_overrides_are_valid_scene_values(scene_file):
+    scene = load_scene(scene_file)
+    d = Dial("harmonics", (1, 3), 7)
+    ov = d.overrides(3, scene)
+    s = load_scene(scene_file, list(ov))
+    assert s.analysis.hbm.harmonics == (0, 1, 2, 3) == s.analysis.epmc.harmonics
+
+
+def test_converge_recommendation_reproduces_the_reference(scene_file, tmp_path):
+    pytest.importorskip("distributed")
+    out = tmp_path / "cv"
+    code = main(["converge", str(scene_file), "--rtol", "1e-2", "--dials", "harmonics",
+                 "samples", "--ladder", "harmonics=1,3,11", "--ladder", "samples=32,64,256",
+                 "-o", str(out), "--workers", "2", "-q"])
+    assert code == 0
+    scene = load_scene(scene_file)
+    with h5py.File(out / "converge.h5", "r") as h5:
+        g = h5["converge/harmonics"]
+        assert g["setting"][()].tolist() == [1, 3, 11]
+        assert g["error"].attrs["unit"] == "1" and g["wall_time_s"].attrs["unit"] == "s"
+        assert "doc" in g["max_error"].attrs
+        assert g["max_error"][-1] == 0.0
+        names = [s.decode() for s in g["quantity"][()]]
+        rec = h5["converge/recommendation"]
+        assert rec.attrs["check_ok"]
+        overrides = [s.decode() if isinstance(s, bytes) else s for s in rec.attrs["overrides"]]
+    # the scene's quantities: the FRC peak, EPMC at the loop amplitudes, the loop shares
+    assert "FRC peak amplitude, force x 1" in names
+    assert "EPMC damping at a = 2" in names
+    assert any("on-manifold share" in n for n in names)
+    for dial in ("harmonics", "samples"):
+        assert (out / f"converge_{dial}.png").stat().st_size > 0
+    # the recommendation, rerun here, against the reference: every dial at its finest
+    ref = out / "combined_reference.h5"
+    recf = tmp_path / "rec.h5"
+    run_scene(load_scene(scene_file, overrides), recf)
+    qr = {q.name: q for q in quantities(ref, scene)}
+    qs = {q.name: q.value for q in quantities(recf, scene)}
+    assert len(qr) >= 8
+    for name, r in qr.items():
+        err = abs(qs[name] - r.value) if r.absolute else _rel(qs[name], r.value)
+        assert err <= 1e-2, (name, qs[name], r.value)
+    # and it is cheaper than the reference: fewer harmonics or samples
+    s_rec = load_scene(scene_file, overrides)
+    assert (len(s_rec.analysis.hbm.harmonics) * s_rec.analysis.hbm.n_samples
+            < 12 * 256)
+
+
+def test_preset_fills_only_keys_that_are_not_explicit(scene_file, tmp_path):
+    ov = preset_overrides(scene_file, "fast")
+    assert "analysis.hbm.n_samples=32" in ov
+    assert not any(o.startswith("analysis.transient") for o in ov)  # no such analysis
+    ov = preset_overrides(scene_file, "fast", ["analysis.hbm.n_samples=64"])
+    assert not any(o.startswith("analysis.hbm.n_samples") for o in ov)
+    explicit = tmp_path / "explicit.toml"
+    explicit.write_text(SCENE.replace("[analysis.epmc]\n", "[analysis.epmc]\nn_samples = 96\n"))
+    ov = preset_overrides(explicit, "reference")
+    assert "analysis.hbm.n_samples=512" in ov
+    assert not any(o.startswith("analysis.epmc.n_samples") for o in ov)
+    with pytest.raises(SceneError, match="--preset"):
+        preset_overrides(scene_file, "quick")
+    # through the command line: the resolved scene in the file has the preset's value
+    out = tmp_path / "r.h5"
+    assert main(["run", str(explicit), "--preset", "fast", "-o", str(out), "-q",
+                 "--set", "analysis.hbm.harmonics=[0,1,2,3,4,5]"]) == 0
+    with h5py.File(out, "r") as h5:
+        assert h5["hbm/harmonics"][()].tolist() == [0, 1, 2, 3, 4, 5]
+        assert h5["hbm"].attrs["n_samples"] == 32
+        assert h5["epmc/X"].shape[1] == 2 * 3 + 1  # fast: harmonics 0..3
+
+
+def test_presets_order_work_and_error(scene_file, tmp_path):
+    """fast < balanced < reference in work (AFT evaluations x samples x harmonics,
+    from the Newton iterations the files store), errors the other way, against an
+    oracle more refined than every preset."""
+    scene = load_scene(scene_file)
+    oracle = tmp_path / "oracle.h5"
+    h = list(range(24))
+    fine = [f"analysis.{g}.{k}" for g in ("hbm", "epmc")
+            for k in (f"harmonics={h}", "n_samples=1024", "tol=1e-11")]
+    run_scene(load_scene(scene_file, fine), oracle)
+    qo = quantities(oracle, scene)
+    work, err = [], []
+    for name in ("fast", "balanced", "reference"):
+        f = tmp_path / f"{name}.h5"
+        s = load_scene(scene_file, preset_overrides(scene_file, name))
+        run_scene(s, f)
+        with h5py.File(f, "r") as h5:
+            w = 0.0
+            for g in ("hbm", "epmc"):
+                n_h = len(getattr(s.analysis, g).harmonics)
+                w += (h5[f"{g}/iterations"][()].sum() + h5[f"{g}/iterations"].shape[0]) \
+                    * n_h * getattr(s.analysis, g).n_samples
+        q = {x.name: x.value for x in quantities(f, scene)}
+        e = [(abs(q[r.name] - r.value) if r.absolute else _rel(q[r.name], r.value))
+             for r in qo if not r.absolute]
+        work.append(w)
+        err.append(max(e))
+    assert work[0] < work[1] < work[2], work
+    assert err[0] > err[1] > err[2], err
+    assert err[1] < 1e-2 and err[2] < 1e-3, err
+    assert set(PRESETS) == {"fast", "balanced", "reference"}
