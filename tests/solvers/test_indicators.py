@@ -1,0 +1,180 @@
+"""Error indicators of HBM and EPMC points against the true error.
+
+True error (:mod:`jointsim.solvers.indicators`): the relative error of the
+retained harmonic coefficients against a converged refined solve of the same
+point (same frequency / same modal amplitude) at H = 0..63 and N_t = 4096
+(lumped) or H = 0..31, N_t = 2048 (FE joint), normalised by the retained
+harmonics h >= 1 of the reference.  Its two parts are checked separately:
+the truncation error is that of (H, N_ref) against the reference, the
+aliasing error that of (H, N_t) against (H, N_ref).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jointsim.model import build_model
+from jointsim.scene import load_scene
+from jointsim.solvers.condensation import dense_array
+from jointsim.solvers.epmc import EPMCSystem
+from jointsim.solvers.hbm import HBMSystem, solve_point
+from jointsim.solvers.indicators import ErrorEstimator
+from jointsim.solvers.modes import elastic_mode
+from jointsim.solvers.newton import NewtonOptions, newton
+
+from .._scenes import CHAIN2, FIXED, MODELS, lap_scene
+
+FOLD = MODELS / "hbm" / "chain2_friction_fold.toml"
+
+
+def _point(model, H, nt, fs, w, z0=None):
+    s = HBMSystem(model, tuple(range(H + 1)), nt)
+    F = s.force_coefficients(fs)
+    p = solve_point(s, w, F, z0=z0, tol=1e-12, max_iter=60)
+    assert p.convergence.success, p.convergence.message
+    return s, F, p
+
+
+def _embed(s, z, H):
+    """Contact coefficients of ``s`` into the harmonics 0..H (zeros above)."""
+    out = np.zeros((2 * H + 1, s.n_r))
+    out[:s.n_c] = np.asarray(z).reshape(s.n_c, s.n_r)
+    return out.ravel()
+
+
+def _rel(X, Xref, s):
+    n = s.n_c
+    return float(np.linalg.norm(X - Xref[:n]) / np.linalg.norm(Xref[:n][s.basis.hk > 0]))
+
+
+def _check(est, true, what):
+    """Each within a factor of 3, and the same order."""
+    est, true = np.asarray(est), np.asarray(true)
+    ratio = est / true
+    assert np.all((ratio > 1 / 3) & (ratio < 3)), f"{what}: estimate/true = {ratio}"
+    assert np.array_equal(np.argsort(est), np.argsort(true)), \
+        f"{what}: order differs: estimates {est}, true {true}"
+
+
+class _Case:
+    """A forced point: its refined solutions and indicators at several settings."""
+
+    def __init__(self, model, fs, w, href, nref):
+        self.model, self.fs, self.w, self.href, self.nref = model, fs, w, href, nref
+        s, _, p = _point(model, 7, 128, fs, w)
+        self.ref = _point(model, href, nref, fs, w, z0=_embed(s, p.z, href))[2].X
+
+    def truncation(self, Hs):
+        est, true = [], []
+        for H in Hs:
+            s, F, p = _point(self.model, H, self.nref, self.fs, self.w)
+            est.append(ErrorEstimator(s).hbm(p.z, self.w, F, p.X).truncation)
+            true.append(_rel(p.X, self.ref, s))
+        return est, true
+
+    def aliasing(self, H, nts):
+        est, true = [], []
+        fine = _point(self.model, H, self.nref, self.fs, self.w)[2].X
+        for nt in nts:
+            s, F, p = _point(self.model, H, nt, self.fs, self.w)
+            est.append(ErrorEstimator(s).hbm(p.z, self.w, F, p.X).aliasing)
+            true.append(_rel(p.X, fine, s))
+        return est, true
+
+    def total(self, settings):
+        est, true = [], []
+        for H, nt in settings:
+            s, F, p = _point(self.model, H, nt, self.fs, self.w)
+            est.append(ErrorEstimator(s).hbm(p.z, self.w, F, p.X).estimate)
+            true.append(_rel(p.X, self.ref, s))
+        return est, true
+
+
+@pytest.fixture(scope="module")
+def chain():
+    """2-DOF Jenkins chain, force x 0.2 just above its peak (slipping)."""
+    return _Case(build_model(load_scene(CHAIN2)), 0.2, 1.05, 63, 4096)
+
+
+@pytest.fixture(scope="module")
+def fold():
+    """2-DOF coupled-normal friction fold scene, force x 0.1 at omega = 1.2."""
+    return _Case(build_model(load_scene(FOLD)), 0.1, 1.2, 63, 4096)
+
+
+def test_truncation_indicator_tracks_the_true_truncation_error(chain, fold):
+    for case, name in ((chain, "chain"), (fold, "fold")):
+        _check(*case.truncation((3, 5, 7, 11)), f"{name} truncation")
+
+
+def test_aliasing_indicator_tracks_the_true_aliasing_error(chain, fold):
+    _check(*chain.aliasing(7, (32, 128, 512)), "chain aliasing")
+    _check(*fold.aliasing(7, (32, 128, 512)), "fold aliasing")
+
+
+def test_error_estimate_tracks_the_true_error(chain, fold):
+    _check(*chain.total(((3, 128), (7, 128), (15, 1024))), "chain total")
+    _check(*fold.total(((7, 32), (3, 128), (15, 1024))), "fold total")
+
+
+def test_a_stuck_point_has_a_negligible_error():
+    """Below the slip limit the joint is linear: no force tail, no aliasing."""
+    m = build_model(load_scene(CHAIN2))
+    s, F, p = _point(m, 7, 128, 0.01, 1.0)
+    ind = ErrorEstimator(s).hbm(p.z, 1.0, F, p.X)
+    assert ind.estimate < 1e-12 and ind.force_tail < 1e-12
+
+
+# -- EPMC ---------------------------------------------------------------------------
+def _mode_point(model, H, nt, amp, y0=None):
+    """EPMC solution at modal amplitude ``amp`` (Newton at fixed amplitude)."""
+    s = HBMSystem(model, tuple(range(H + 1)), nt)
+    em = elastic_mode(model, 1, None)
+    ep = EPMCSystem(s, em.phi, s.force_coefficients(0.0))
+    lam = np.log10(amp)
+    if y0 is None:
+        Q = np.zeros((s.n_c, s.n_r))
+        Q[s.basis.index[1][0]] = s.T @ em.phi
+        xi0 = float(em.phi @ dense_array(model.C) @ em.phi)
+        y0 = np.concatenate([Q.ravel(), [em.omega, xi0]])
+
+    def fun(x):
+        R, J, ev = ep.fun(np.append(x, lam))
+        return R, J[:, :-1], ev
+
+    res = newton(fun, y0, NewtonOptions(1e-12, 80, line_search="decrease", max_tries=8))
+    assert res.success, res.message
+    return s, ep, np.append(res.x, lam)
+
+
+@pytest.mark.parametrize("amp", [1.5, 5.0])
+def test_epmc_indicators_track_the_true_error(amp):
+    """SDOF Jenkins oscillator in microslip and macroslip: state, frequency, damping."""
+    m = build_model(load_scene(MODELS / "hbm" / "sdof_jenkins_epmc.toml"))
+    s7, _, y7 = _mode_point(m, 7, 128, amp)
+    nz = s7.n_z
+    _, epr, yr = _mode_point(m, 63, 4096, amp, np.append(_embed(s7, y7[:nz], 63),
+                                                          y7[nz:nz + 2]))
+    Xr = epr.coefficients(yr)
+    wr, zr = yr[-3], yr[-2] / (2 * yr[-3])
+    est, true = {"X": [], "w": [], "z": []}, {"X": [], "w": [], "z": []}
+    for H, nt in ((3, 128), (7, 32), (7, 512)):
+        s, ep, y = _mode_point(m, H, nt, amp)
+        ind = ErrorEstimator(s).epmc(ep, y)
+        est["X"].append(ind.estimate)
+        true["X"].append(_rel(ep.coefficients(y), Xr, s))
+        est["w"].append(ind.frequency)
+        true["w"].append(abs(y[-3] - wr) / wr)
+        est["z"].append(ind.damping)
+        true["z"].append(abs(y[-2] / (2 * y[-3]) - zr) / abs(zr))
+    for k, what in (("X", "state"), ("w", "frequency"), ("z", "damping ratio")):
+        _check(est[k], true[k], f"epmc {what} at a = {amp}")
+
+
+# -- the coarse FE joint ----------------------------------------------------------------
+@pytest.mark.slow
+def test_fe_joint_indicators_track_the_true_error():
+    """Fixed-N lap joint (coarse mesh), 200 N at 960 rad/s (microslip, near the peak)."""
+    m = build_model(lap_scene(FIXED))
+    case = _Case(m, 20.0, 960.0, 31, 2048)
+    _check(*case.total(((3, 64), (5, 128), (7, 512))), "FE total")
