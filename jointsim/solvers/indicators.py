@@ -233,29 +233,26 @@ class ErrorEstimator:
         R, J, ev = epx.fun(yx)
         n_rows = s.n_c * s.n_r
         nzx = ext.n_z
-        # retained rows, missing rows, then the amplitude and phase rows (satisfied: kept
-        # with the retained part)
-        r = np.concatenate([R[:nzx], R[nzx:]])
-        perm_alias = np.zeros_like(r)
-        perm_alias[:n_rows] = r[:n_rows]
-        perm_alias[nzx:] = r[nzx:]
-        perm_tail = np.zeros_like(r)
-        perm_tail[n_rows:nzx] = r[n_rows:nzx]
-        A = drop_last_column(J)
+        # rows: retained harmonics, missing harmonics, amplitude and phase (the last two
+        # satisfied at the point; they go with the retained part)
+        r_alias = np.zeros_like(R)
+        r_alias[:n_rows] = R[:n_rows]
+        r_alias[nzx:] = R[nzx:]
+        r_tail = np.zeros_like(R)
+        r_tail[n_rows:nzx] = R[n_rows:nzx]
+        A = drop_last_column(J)          # log10 a fixed
         if is_structured(A):
-            da, dt = -solve(A, perm_alias), -solve(A, perm_tail)
+            da, dt = -solve(A, r_alias), -solve(A, r_tail)
         else:
-            d = solve(A, -np.column_stack([perm_alias, perm_tail]))
+            d = solve(A, -np.column_stack([r_alias, r_tail]))
             da, dt = d[:, 0], d[:, 1]
-        amp = 10.0 ** lam
+        # X is affine in zh, but omega and xi move the condensed part too: take the
+        # difference of the reconstructions
+        X0 = epx.coefficients(yx)
         out = []
         for d in (da, dt):
-            # X = reconstruct(z0 + a zh) is affine in zh; omega and xi move the
-            # condensed part too: take the difference of the reconstructions
             yd = np.concatenate([zh + d[:nzx], [omega + d[nzx], xi + d[nzx + 1], lam]])
-            X1 = epx.coefficients(yd)
-            X0 = epx.coefficients(yx)
-            out.append((X1 - X0, d[nzx], d[nzx + 1]))
+            out.append((epx.coefficients(yd) - X0, d[nzx], d[nzx + 1]))
         (dXa, dwa, dxa), (dXt, dwt, dxt) = out
         ea = ALIAS_RICHARDSON * self._rel(dXa, X)
         et = self._rel(dXt, X)
@@ -310,9 +307,9 @@ class ToleranceWatch:
                 "%s branch %s: estimated discretisation error %.2g at point %d (%s) exceeds "
                 "%s.error_tol = %.2g (truncation %.2g: raise the harmonics; aliasing %.2g: "
                 "raise n_samples); further points of the branch are marked in /%s/error_* "
-                "and on the figure, not warned again", self.what, branch, ind.estimate, point,
-                where, f"analysis.{self.what}", self.tol, ind.truncation, ind.aliasing,
-                self.what, self.what)
+                "and on the figure, not warned again", self.what, branch, ind.estimate,
+                point, where, f"analysis.{self.what}", self.tol, ind.truncation,
+                ind.aliasing, self.what)
         return True
 
 

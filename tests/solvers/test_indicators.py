@@ -178,3 +178,49 @@ def test_fe_joint_indicators_track_the_true_error():
     m = build_model(lap_scene(FIXED))
     case = _Case(m, 20.0, 960.0, 31, 2048)
     _check(*case.total(((3, 64), (5, 128), (7, 512))), "FE total")
+
+
+# -- in the result file, info, figures and warnings --------------------------------------
+def test_runs_store_show_mark_and_warn(tmp_path, caplog):
+    """An FRC and an EPMC run write error_* per point (unit, doc), info shows them, the
+    figures mark the points above tolerance, and each branch warns once."""
+    import logging
+
+    import h5py
+
+    from jointsim.post.hbm_plots import error_flags, plot_epmc, plot_frc
+    from jointsim.post.tables import info_text
+    from jointsim.run import run_scene
+
+    sc = load_scene(CHAIN2, ["analysis.hbm.force_scale=[0.05, 0.2]", "analysis.hbm.workers=1",
+                             "analysis.hbm.omega_start=0.95", "analysis.hbm.omega_end=1.1",
+                             "analysis.hbm.error_tol=1e-4"])
+    out = tmp_path / "frc.h5"
+    with caplog.at_level(logging.WARNING, logger="jointsim.solvers.indicators"):
+        run_scene(sc, out, overwrite=True)
+    warned = [r for r in caplog.records if "error_tol" in r.getMessage()]
+    with h5py.File(out, "r") as h5:
+        g = h5["hbm"]
+        n = g["omega"].shape[0]
+        for k in ("error_estimate", "error_truncation", "error_aliasing", "error_force_tail"):
+            assert g[k].shape == (n,) and g[k].attrs["unit"] == "1" and g[k].attrs["doc"]
+        e = g["error_estimate"][()]
+        assert np.all(np.isfinite(e)) and np.allclose(
+            e, g["error_truncation"][()] + g["error_aliasing"][()])
+        bad = error_flags(g)
+        above = {int(b) for b in np.unique(g["branch"][()][bad])}
+        assert len(warned) == len(above) >= 1      # once per branch above tolerance
+        assert plot_frc(h5, tmp_path)
+    text = info_text(out)
+    assert "error estimate up to" in text and "points above error_tol = 0.0001" in text
+
+    sc = load_scene(MODELS / "hbm" / "sdof_jenkins_epmc.toml",
+                    ["analysis.epmc.log10_amplitude_end=0.5", "analysis.epmc.error_tol=1e-3"])
+    out = tmp_path / "epmc.h5"
+    run_scene(sc, out, overwrite=True)
+    with h5py.File(out, "r") as h5:
+        g = h5["epmc"]
+        for k in ("error_estimate", "error_frequency", "error_damping"):
+            assert g[k].shape == g["omega"].shape and g[k].attrs["doc"]
+        assert plot_epmc(h5, tmp_path)
+    assert "backbone: error estimate up to" in info_text(out)
