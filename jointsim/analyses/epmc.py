@@ -5,7 +5,8 @@ The formulation is in :mod:`jointsim.solvers.epmc`.  Datasets (per point):
 ``/epmc/omega``, ``/epmc/damping_ratio`` (``xi / (2 omega)``), ``/epmc/xi``,
 ``/epmc/X`` [n_points, n_coeff, n_dof] (coefficients of ``x``, not
 normalised), ``/epmc/iterations``, ``/epmc/residual``, ``/epmc/step``,
-``/epmc/y`` and ``/epmc/tangent`` (for ``--resume``); once:
+``/epmc/y`` and ``/epmc/tangent`` (for ``--resume``), the error indicators
+``/epmc/error_*`` (:mod:`jointsim.solvers.indicators`); once:
 ``/epmc/harmonics``, ``/epmc/mode_shape``.  Loops and Masing checks go to
 ``/epmc/loops`` and ``/epmc/masing``.
 

