@@ -220,7 +220,7 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
     d_u = unit("displacement", units)
     amp_unit = "m kg^0.5" if units == "SI" else "length mass^0.5"
     law = model.contacts.law
-    estimator = ErrorEstimator(system) if (a.error_indicators and nz) else None
+    estimator = ErrorEstimator(system) if a.error_indicators else None
     watch = ToleranceWatch(a.error_tol, "epmc")
 
     def on_point(i, y, info):

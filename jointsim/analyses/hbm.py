@@ -415,7 +415,7 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         t0, h0, solve_first, max_pts = None, a.step, True, a.max_points
     nz = system.n_z
     estimator = ErrorEstimator(system, parallel=system.aft.parallel) \
-        if (a.error_indicators and nz) else None
+        if a.error_indicators else None
 
     def fun(y):
         if system.krylov:

@@ -122,9 +122,11 @@ class ErrorEstimator:
         self.n_samples = nx
         self.sample_factor = int(sample_factor)
         aft = system.aft
+        # without contact unknowns the joint is linear: every indicator is 0, no extension
         self.ext = HBMSystem(system.model, self.harmonics, nx, aft.min_periods,
                              aft.max_periods, parallel=parallel,
-                             linear_solver="krylov" if system.krylov else "direct")
+                             linear_solver="krylov" if system.krylov else "direct") \
+            if system.n_z else None
         self._kept = system.basis.hk > 0
 
     # -- helpers ----------------------------------------------------------------
