@@ -84,6 +84,13 @@ class HBMAnalysis:
                                   "preconditioned GMRES on the structured Jacobian without "
                                   "forming it ('krylov'), or 'auto' (Krylov from 1200 "
                                   "unknowns on); see docs/hbm.md")
+    error_indicators: bool = spec(True, doc="compute the error indicators /hbm/error_* of "
+                                            "every point (one extra linear solve each; "
+                                            "jointsim.solvers.indicators)")
+    error_tol: float = spec(1e-2, doc="tolerance on /hbm/error_estimate (estimated relative "
+                                      "error of the retained harmonics): points above it are "
+                                      "marked on the FRC figure and warned about once per "
+                                      "branch; 0: never", ge=0)
 
     def check(self):
         if not self.force_scale:
@@ -125,6 +132,11 @@ class EPMCAnalysis:
     max_periods: int = spec(50, doc="AFT: periods marched at most", ge=2)
     linear_solver: str = spec("auto", choices=("auto", "direct", "krylov"),
                               doc="as analysis.hbm.linear_solver")
+    error_indicators: bool = spec(True, doc="compute the error indicators /epmc/error_* of "
+                                            "every point (one extra linear solve each)")
+    error_tol: float = spec(1e-2, doc="tolerance on /epmc/error_estimate: points above it are "
+                                      "marked on the backbone figure and warned about once; "
+                                      "0: never", ge=0)
     loop_amplitudes: tuple[float, ...] = spec(
         (), doc="modal amplitudes at which the element loops and Masing checks are kept "
                 "(the first point at or past each); empty: the points of "

@@ -6,7 +6,8 @@ The formulation is in :mod:`jointsim.solvers.epmc`.  Datasets (per point):
 ``/epmc/X`` [n_points, n_coeff, n_dof] (coefficients of ``x``, not
 normalised), ``/epmc/iterations``, ``/epmc/residual``, ``/epmc/step``,
 ``/epmc/y`` and ``/epmc/tangent`` (for ``--resume``), ``/epmc/outside_range``
-(the point's damping ratio is above :data:`MAX_DAMPING_RATIO`); once:
+(the point's damping ratio is above :data:`MAX_DAMPING_RATIO`), the error
+indicators ``/epmc/error_*`` (:mod:`jointsim.solvers.indicators`); once:
 ``/epmc/harmonics``, ``/epmc/mode_shape``.  Loops and Masing checks go to
 ``/epmc/loops`` and ``/epmc/masing``.
 
@@ -23,6 +24,7 @@ import time
 
 import numpy as np
 
+from ..io.hbm_points import write_error_indicators
 from ..io.hdf5 import unit, write_loops
 from ..masing import check_loops
 from ..results import SUCCESS, Convergence
@@ -31,6 +33,7 @@ from ..solvers.continuation import (TARGET_ITER, Branch, PointInfo, continue_bra
 from ..solvers.epmc import EPMCSystem
 from ..solvers.condensation import dense_array
 from ..solvers.hbm import HBMSystem
+from ..solvers.indicators import ErrorEstimator, ToleranceWatch, safe_indicators
 from ..solvers.modes import elastic_mode
 
 log = logging.getLogger(__name__)
@@ -254,7 +257,7 @@ def _write_header(writer, a, model, em, xi0):
     w0 = em.omega
     g = writer.group("epmc", mode=a.mode, linear_frequency_hz=w0 / (2 * np.pi),
                      linear_damping_ratio=xi0 / (2 * w0), n_samples=a.n_samples,
-                     mode_index=em.index, n_rigid_below=em.n_rigid,
+                     mode_index=em.index, n_rigid_below=em.n_rigid, error_tol=a.error_tol,
                      amplitude_definition="modal amplitude of the fundamental harmonic, "
                      "|phi^T M (X_1c - i X_1s)|, phi the mass-normalised mode of the "
                      "structure linearised at its static state with the joint stuck")
@@ -326,6 +329,8 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
     d_u = unit("displacement", units)
     amp_unit = "m kg^0.5" if units == "SI" else "length mass^0.5"
     law = model.contacts.law
+    estimator = ErrorEstimator(system) if a.error_indicators else None
+    watch = ToleranceWatch(a.error_tol, "epmc")
 
     def on_point(i, y, info):
         if not solve_first and i == 0:
@@ -333,6 +338,7 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
         omega, xi, lam = float(y[nz]), float(y[nz + 1]), float(y[nz + 2])
         amp = 10.0 ** lam
         X = ep.coefficients(y)
+        errors = safe_indicators(estimator.epmc, ep, y) if estimator is not None else None
         with writer.commit():  # the point and its loops: all or nothing
             p = writer.rows("epmc/omega")
             writer.append("epmc/amplitude", amp, amp_unit, "modal amplitude of the fundamental")
@@ -358,6 +364,9 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
                           "GMRES iterations summed over those solves (0: direct solver)")
             writer.append("epmc/preconditioners", np.int64(factorizations), "1",
                           "harmonic preconditioners factorised since the previous point")
+            if a.error_indicators:
+                write_error_indicators(writer, "epmc", p, errors)
+                watch.check(0, errors, p, f"modal amplitude {amp:.3g}")
             ev = info.extra
             if ev is not None and ev.aft is not None and keep(p, amp):
                 u = system.slips(X)

@@ -12,7 +12,9 @@ File layout (all per solution point unless said otherwise):
   (linear-algebra counts since the previous point; group attribute
   ``linear_solver``: ``"direct"`` or ``"krylov"``),
   ``/hbm/tangent``, ``/hbm/z_scale`` (the contact-coordinate scale the branch
-  continues with, grown with the solution; used by ``--resume``);
+  continues with, grown with the solution; used by ``--resume``), and the error
+  indicators ``/hbm/error_*`` (:mod:`jointsim.solvers.indicators`; group
+  attribute ``error_tol``);
 * once: ``/hbm/harmonics``, ``/hbm/force_scale`` [n_branches], and per
   branch ``/hbm/peak_omega``, ``/hbm/peak_amplitude``, ``/hbm/peak_refined``;
   group attributes ``branch<b>_status`` / ``branch<b>_message``;
@@ -40,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._schema import SceneError
+from ..io.hbm_points import write_error_indicators
 from ..io.hdf5 import unit, write_loops
 from ..masing import check_loops
 from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
@@ -48,6 +51,7 @@ from ..harmonics import harmonic_amplitude
 from ..results import Convergence
 from ..solvers.hbm import (HBMSystem, diagnose_failure, first_point, frc_scales, refine_peak,
                              undamped_resonances)
+from ..solvers.indicators import ErrorEstimator, ToleranceWatch, safe_indicators
 from ..solvers.jacobian import BorderedJacobian
 
 log = logging.getLogger(__name__)
@@ -189,7 +193,8 @@ def _write_header(writer, a, model, system, dof):
                      n_contact_coordinates=system.n_r, condensation=system.lin.kind,
                      linear_solver=system.linear_solver, n_unknowns=system.n_z,
                      amplitude_measure=a.amplitude,
-                     amplitude_definition=AMPLITUDE_MEASURES[a.amplitude])
+                     amplitude_definition=AMPLITUDE_MEASURES[a.amplitude],
+                     error_tol=a.error_tol)
     if "hbm/harmonics" not in writer.h5:
         writer.write("hbm/harmonics", np.array(a.harmonics, dtype=np.int64), "1",
                      "harmonics kept; coefficient order [0, 1c, 1s, 2c, 2s, ...]")
@@ -222,6 +227,7 @@ class _Output:
         n_br = len(a.force_scale)
         self.peaks = {k: np.full(n_br, np.nan) for k in ("omega", "amplitude")}
         self.refined = np.zeros(n_br, dtype=bool)
+        self.watch = ToleranceWatch(a.error_tol, "hbm")
         h5 = writer.h5
         for name in ("omega", "amplitude"):
             if f"hbm/peak_{name}" in h5:
@@ -266,6 +272,10 @@ class _Output:
                           "GMRES iterations summed over those solves (0: direct solver)")
             writer.append("hbm/preconditioners", np.int64(rec["preconditioners"]), "1",
                           "harmonic preconditioners factorised since the previous point")
+            if self.a.error_indicators:
+                write_error_indicators(writer, "hbm", p, rec.get("errors"))
+                self.watch.check(rec["branch"], rec.get("errors"), p,
+                                 f"omega = {rec['omega']:.6g}")
             for k in self.points:
                 self.points[k].append(rec[k])
             if rec.get("f") is not None and (not self.masing_points or p in self.masing_points):
@@ -393,14 +403,18 @@ class _BranchJob:
     start: tuple | None  # (y0, tangent, step, rows stored, z scale) when resuming
 
 
-def _point_record(system, F, y, info, ib, dof, want_aft, measure="fundamental") -> dict:
-    """Everything written for one solution point (plain arrays, picklable)."""
+def _point_record(system, F, y, info, ib, dof, want_aft, measure="fundamental",
+                  estimator=None) -> dict:
+    """Everything written for one solution point (plain arrays, picklable); with an
+    :class:`~jointsim.solvers.indicators.ErrorEstimator`, its indicators (``errors``)."""
     b = system.basis
     w = float(y[-1])
     X = system.reconstruct(y[:-1], w, F)
+    errors = safe_indicators(estimator.hbm, y[:-1], w, F, X) if estimator is not None \
+        else None
     aft = info.extra.aft if info.extra is not None else None
     solves, krylov_it, factorizations = system.stats.take()
-    return dict(linear_solves=solves, krylov_iterations=krylov_it,
+    return dict(errors=errors, linear_solves=solves, krylov_iterations=krylov_it,
                 preconditioners=factorizations, omega=w, X=X, q=np.array(y[:-1]), branch=ib,
                 amplitude=float(response_amplitude(b, X[:, dof], measure)),
                 max_abs=float(np.abs(b.samples(X[:, dof])).max()),
@@ -438,6 +452,8 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         y0 = np.append(first.z, a.omega_start)
         t0, h0, solve_first, max_pts, n_stored = None, a.step, False, a.max_points, 0
     nz = system.n_z
+    estimator = ErrorEstimator(system, parallel=system.aft.parallel) \
+        if a.error_indicators else None
 
     def fun(y):
         if system.krylov:
@@ -453,7 +469,8 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
             return
         if i == 0 and job.start is None:
             info.iterations = first.iterations
-        on_record(_point_record(system, F, y, info, job.ib, dof, want_aft, a.amplitude))
+        on_record(_point_record(system, F, y, info, job.ib, dof, want_aft, a.amplitude,
+                                estimator))
 
     br = continue_branch(
         fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,

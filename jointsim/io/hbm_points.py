@@ -41,3 +41,66 @@ def read_hbm_solutions(h5) -> HBMSolutions | None:
                         q=opt("hbm/q"), branch=opt("hbm/branch"),
                         force_scale=None if "hbm/force_scale" not in h5
                         else np.atleast_1d(h5["hbm/force_scale"][()]))
+
+
+#: The per-point error indicators of /hbm and /epmc: dataset name -> (attribute of
+#: :class:`~jointsim.solvers.indicators.ErrorIndicators`, doc, analyses).
+ERROR_DATASETS = {
+    "error_estimate": ("estimate", "estimated relative error of the retained harmonic "
+                       "coefficients against a converged (larger H and n_samples) solution: "
+                       "error_truncation + error_aliasing (jointsim.solvers.indicators)",
+                       ("hbm", "epmc")),
+    "error_truncation": ("truncation", "estimated relative error of the retained harmonics "
+                         "from the contact-force harmonics above H (one linearised step of "
+                         "the harmonic balance extended to about 2 max(H) + 1)", ("hbm", "epmc")),
+    "error_aliasing": ("aliasing", "estimated relative error of the retained harmonics from "
+                       "the AFT samples n_samples (change when the laws are sampled 4 times "
+                       "finer, the force spectrum that folds back)", ("hbm", "epmc")),
+    "error_force_tail": ("force_tail", "contact-force harmonics above H (up to the extended "
+                         "set) against the retained ones h >= 1, ratio of norms", ("hbm", "epmc")),
+    "error_frequency": ("frequency", "estimated relative error of the frequency (truncation "
+                        "+ aliasing)", ("epmc",)),
+    "error_damping": ("damping", "estimated relative error of the damping ratio (truncation "
+                      "+ aliasing)", ("epmc",)),
+}
+
+
+def write_error_indicators(writer, prefix: str, point: int, ind) -> None:
+    """Append the error indicators of point ``point`` to ``/<prefix>/error_*``.
+
+    Call inside the point's ``writer.commit()`` so that they are committed with
+    the point.  A dataset missing rows of earlier points (a file resumed from
+    an older jointsim) is padded with NaN first, so rows stay aligned.
+
+    Parameters
+    ----------
+    writer : jointsim.io.hdf5.ResultWriter
+    prefix : {'hbm', 'epmc'}
+    point : int
+        Row of the point (``writer.rows(prefix + '/omega')`` before it was appended).
+    ind : jointsim.solvers.indicators.ErrorIndicators or None
+        None (not computed) writes NaN.
+    """
+    for name, (attr, doc, where) in ERROR_DATASETS.items():
+        if prefix not in where:
+            continue
+        path = f"{prefix}/{name}"
+        have = writer.rows(path)
+        if have < point:
+            writer.append_rows(path, np.full(point - have, np.nan), "1", doc)
+        value = np.nan if ind is None else float(getattr(ind, attr))
+        writer.append(path, value, "1", doc)
+
+
+def read_error_indicators(h5, prefix: str) -> dict:
+    """The ``error_*`` datasets of ``/<prefix>`` (``{name: ndarray}``, empty without them).
+
+    Parameters
+    ----------
+    h5 : h5py.File or h5py.Group
+    prefix : {'hbm', 'epmc'}
+    """
+    if prefix not in h5:
+        return {}
+    return {k: h5[prefix][k][()] for k in h5[prefix] if k.startswith("error_")
+            and hasattr(h5[prefix][k], "shape") and len(h5[prefix][k].shape) == 1}

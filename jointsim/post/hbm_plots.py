@@ -32,6 +32,62 @@ def excitation_amplitude(h5) -> float:
     return max(amps) if amps and max(amps) > 0 else float("nan")
 
 
+def error_flags(g) -> np.ndarray | None:
+    """Points of group ``g`` (``/hbm`` or ``/epmc``) whose ``error_estimate`` exceeds the
+    group's ``error_tol`` attribute (bool per point; None without indicators or tolerance)."""
+    tol = float(g.attrs.get("error_tol", 0.0))
+    if "error_estimate" not in g or not tol > 0:
+        return None
+    e = g["error_estimate"][()]
+    return np.isfinite(e) & (e > tol)
+
+
+def _mark_errors(ax, x, y, bad, labelled: bool) -> bool:
+    """Red open squares on the points above the error tolerance; True once labelled."""
+    if bad is None or not np.any(bad):
+        return labelled
+    ax.plot(x[bad], y[bad], "s", mfc="none", mec="tab:red", ms=6, mew=1.0,
+            label=None if labelled else "error estimate > error_tol")
+    return True
+
+
+def error_lines(g, indent: str = "    ", groups=None) -> list[str]:
+    """``jointsim info`` lines of the ``error_*`` indicators of ``/hbm`` or ``/epmc``.
+
+    Parameters
+    ----------
+    g : h5py.Group
+    indent : str
+    groups : list of (str, ndarray of bool), optional
+        (label, point mask) per branch; default: all points as one.
+    """
+    if "error_estimate" not in g:
+        return []
+    e = g["error_estimate"][()]
+    tr = g["error_truncation"][()] if "error_truncation" in g else np.full_like(e, np.nan)
+    al = g["error_aliasing"][()] if "error_aliasing" in g else np.full_like(e, np.nan)
+    tol = float(g.attrs.get("error_tol", 0.0))
+    out = []
+    for label, m in groups or [("all points", np.ones(e.shape, dtype=bool))]:
+        em = np.where(m & np.isfinite(e), e, -np.inf)
+        if not np.any(np.isfinite(em)):
+            out.append(f"{indent}{label}: error estimate not computed")
+            continue
+        i = int(np.argmax(em))
+        n_bad = int(np.sum(em > tol)) if tol > 0 else 0
+        extra = ""
+        for name, what in (("error_frequency", "frequency"), ("error_damping", "damping")):
+            if name in g:
+                v = g[name][()][m]
+                if np.any(np.isfinite(v)):
+                    extra += f", {what} up to {np.nanmax(v):.1e}"
+        out.append(f"{indent}{label}: error estimate up to {e[i]:.1e} (truncation "
+                   f"{tr[i]:.1e}, aliasing {al[i]:.1e}) at point {i}{extra}; "
+                   + (f"{n_bad}/{int(m.sum())} points above error_tol = {tol:g}" if tol > 0
+                      else "no tolerance"))
+    return out
+
+
 def plot_frc(h5: h5py.File, outdir: Path, frequency: str = "Hz") -> list[Path]:
     """Amplitude at the response DOF against frequency, one curve per force level.
 
@@ -40,7 +96,8 @@ def plot_frc(h5: h5py.File, outdir: Path, frequency: str = "Hz") -> list[Path]:
     on a log axis (``F`` the first-harmonic force amplitude of the branch),
     where small and large force levels can be compared.  The frequency axis
     is in Hz (``frequency="rad/s"`` on request: ``jointsim post --rad-s``).
-    A branch that gave up is marked with an x at its last point.
+    A branch that gave up is marked with an x at its last point; points whose
+    ``error_estimate`` exceeds ``analysis.hbm.error_tol`` with red open squares.
 
     Parameters
     ----------
@@ -68,8 +125,10 @@ def plot_frc(h5: h5py.File, outdir: Path, frequency: str = "Hz") -> list[Path]:
     if np.isfinite(F1):
         kinds.append(("frc_receptance.png", F1, True))
     paths = []
+    bad = error_flags(g)
     for name, F1k, receptance in kinds:
         fig, ax = plt.subplots(figsize=(7, 4.6))
+        labelled = False
         for b in np.unique(br):
             m = br == b
             div = F1k * scales[b] if receptance else 1.0
@@ -77,6 +136,8 @@ def plot_frc(h5: h5py.File, outdir: Path, frequency: str = "Hz") -> list[Path]:
             line, = ax.plot(om[m] * to_x, amp[m] / div, ".-", ms=2.5, lw=1.2,
                             label=f"force x {scales[b]:g} ({int(m.sum())} points"
                                   f"{', gave up' if gave_up else ''})")
+            labelled = _mark_errors(ax, om[m] * to_x, amp[m] / div,
+                                    None if bad is None else bad[m], labelled)
             if gave_up:
                 ax.plot(om[m][-1] * to_x, amp[m][-1] / div, "x", ms=8, mew=2,
                         color=line.get_color())
@@ -119,6 +180,11 @@ def plot_epmc(h5: h5py.File, outdir: Path) -> list[Path]:
     ax2.semilogx(a, 100 * z, ".-", ms=3, color="tab:red")
     ax2.set_ylabel("damping ratio [%]")
     ax2.set_xlabel(f"modal amplitude [{g['amplitude'].attrs.get('unit', '')}]")
+    bad = error_flags(g)
+    if bad is not None and bad.shape == a.shape and np.any(bad):
+        _mark_errors(ax1, a, f, bad, False)
+        _mark_errors(ax2, a, 100 * z, bad, False)
+        ax1.legend(fontsize=8)
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
@@ -146,8 +212,14 @@ def hbm_section(h5) -> str:
         lines.append(f"    branch {b} (force x {fs:g}): {int(m.sum())} points, "
                      f"{int(it.sum()) if it.size else 0} Newton iterations; {pk}; "
                      f"{g.attrs.get(f'branch{b}_message', 'not run')}")
+    lines += error_lines(g, groups=[(f"branch {b}", br == b)
+                                    for b in range(len(g["force_scale"][()]))])
     return "\n".join(lines)
 
 
 def epmc_section(h5) -> str:
-    return backbone_section(h5, "epmc", "EPMC")
+    text = backbone_section(h5, "epmc", "EPMC")
+    lines = error_lines(h5["epmc"], groups=[("backbone", np.ones(
+        h5["epmc/error_estimate"].shape, dtype=bool))]) if "error_estimate" in h5["epmc"] \
+        else []
+    return "\n".join(([text] if text else []) + lines)

@@ -1,0 +1,96 @@
+"""Cost of the per-point error indicators: HBM and EPMC runs with and without them.
+
+Each case runs its scene twice per repeat, ``analysis.<kind>.error_indicators``
+true and false, alternating, in this process (numba kernels compiled by a
+warm-up run first), and prints the best wall time of each and their ratio.
+The indicators cost one evaluation and one linear solve of the extended
+harmonic balance per point (:mod:`jointsim.solvers.indicators`).
+
+Cases: ``chain2`` (the 2-DOF Jenkins chain FRC, ``models/hbm/chain2_jenkins.toml``,
+branches serial), ``sdof_epmc`` (``models/hbm/sdof_jenkins_epmc.toml``),
+``lap_fixed`` (the FE lap joint with fixed normal load on the coarse mesh, one
+FRC branch at 200 N over 150-160 Hz).
+
+Usage::
+
+    python benchmarks/indicator_cost.py                 # every case, best of 2
+    python benchmarks/indicator_cost.py --cases chain2 --repeat 3
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from jointsim.run import run_scene  # noqa: E402
+from jointsim.scene import load_scene  # noqa: E402
+
+CASES = {
+    "chain2": ("hbm", ROOT / "models/hbm/chain2_jenkins.toml", ["analysis.hbm.workers=1"]),
+    "sdof_epmc": ("epmc", ROOT / "models/hbm/sdof_jenkins_epmc.toml", []),
+    "lap_fixed": ("hbm", ROOT / "models/lap_joint_fixed_n.toml",
+                  ["model.mesh='../meshes/lap_joint_coarse.msh'", "analysis.hbm.force_scale=[20.0]",
+                   "analysis.hbm.omega_start=942.48", "analysis.hbm.omega_end=1005.3",
+                   "analysis.modes.full_model=false", "analysis.modes.monolithic=false"]),
+}
+
+
+def _drop_others(path, kind):
+    """Overrides are not enough to drop sections: write a copy keeping [analysis.<kind>]."""
+    out, keep = [], True
+    for line in path.read_text().splitlines():
+        s = line.strip()
+        if s.startswith("[") and not s.startswith("[["):
+            keep = not s.startswith("[analysis.") or s[len("[analysis."):-1] in (kind, "modes")
+        if keep:
+            out.append(line)
+    tmp = path.parent / f".indicator_cost_{path.name}"
+    tmp.write_text("\n".join(out) + "\n")
+    return tmp
+
+
+def run_once(kind, path, overrides, on: bool, out: Path) -> tuple[float, int]:
+    sc = load_scene(path, [*overrides, f"analysis.{kind}.error_indicators={str(on).lower()}"])
+    t = time.perf_counter()
+    run_scene(sc, out, overwrite=True)
+    dt = time.perf_counter() - t
+    import h5py
+    with h5py.File(out, "r") as h5:
+        n = int(h5[f"{kind}/omega"].shape[0])
+    return dt, n
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cases", nargs="*", default=list(CASES))
+    ap.add_argument("--repeat", type=int, default=2)
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+    print(f"{'case':10s} {'points':>6s} {'with [s]':>9s} {'without [s]':>11s} {'ratio':>6s}")
+    for name in args.cases:
+        kind, path, ov = CASES[name]
+        scene_path = _drop_others(path, kind)
+        try:
+            with tempfile.TemporaryDirectory() as d:
+                out = Path(d) / "x.h5"
+                run_once(kind, scene_path, ov, True, out)          # warm-up (numba)
+                best = {True: float("inf"), False: float("inf")}
+                n = 0
+                for _ in range(args.repeat):
+                    for on in (True, False):
+                        dt, n = run_once(kind, scene_path, ov, on, out)
+                        best[on] = min(best[on], dt)
+            print(f"{name:10s} {n:6d} {best[True]:9.2f} {best[False]:11.2f} "
+                  f"{best[True] / best[False]:6.2f}", flush=True)
+        finally:
+            scene_path.unlink(missing_ok=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,324 @@
+"""A-posteriori error indicators of a harmonic-balance (HBM or EPMC) point.
+
+A converged point of the condensed AFT harmonic balance (:mod:`.hbm`) keeps
+the harmonics ``H`` (e.g. ``0..7``) and samples the contact laws at ``N_t``
+points per period.  Two discretisation errors remain:
+
+* **truncation** -- the contact forces have harmonics above ``H`` (the AFT
+  samples them anyway); were they kept, the structure would respond at those
+  harmonics, and through the contact tangent that response would change the
+  retained harmonics;
+* **aliasing** -- the laws are marched on ``N_t`` samples, and the force
+  spectrum above ``N_t / 2`` folds back onto the retained harmonics.
+
+Both are estimated at the converged point, without a nonlinear solve, by one
+linearised step of an *extended* harmonic balance: the harmonics
+``H_x = H + {h <= h_ext not in H}`` (``h_ext = min(ext_factor * max(H) + 1,
+N_x / 2 - 1)``) on ``N_x = sample_factor * N_t`` samples (4 N_t by default), evaluated at the
+point (missing harmonics zero).  Its residual has two parts:
+
+* rows of the missing harmonics: their contact forces ``phi_M`` (the force
+  tail), which the truncated solution leaves unbalanced;
+* rows of the retained harmonics: ``phi_R(N_x) - phi_R(N_t)``, the change of
+  the retained contact forces when the laws are sampled finer (plus the
+  Newton residual of the point, below tolerance).
+
+With ``J_x`` the Jacobian of the extended system (dynamic stiffness of every
+harmonic + the AFT contact tangent: the machinery of :class:`.hbm.HBMSystem`),
+one factorisation gives the two corrections ``dz_t = -J_x^-1 [0; phi_M]`` and
+``dz_a = -J_x^-1 [r_R; 0]``; mapped to the full coordinates, their retained
+rows are the estimated errors.  For EPMC the extended system is bordered by
+the amplitude and phase conditions (amplitude fixed), so the step also gives
+the changes of frequency and damping.
+
+The aliasing step measures the change ``N_t -> 4 N_t``, taken as the error of
+``N_t`` itself: the convergence in ``N_t`` of a stick-slip march (a slip
+onset falls between samples) is erratic, and the error of ``4 N_t`` is
+mostly far smaller (on the lumped cases the change is within 0.7..1.7 of
+the true error; ``ALIAS_RICHARDSON`` scales it).
+
+True error (what the indicators estimate, and what the tests check them
+against): with ``X`` the full harmonic coefficients of the point and
+``X_ref`` those of a converged refined solve of the same point (same
+frequency for HBM, same modal amplitude for EPMC; ``H = 0..31`` or more and
+``N_t = 2048`` or more), restricted to the harmonics kept,
+
+    e = || X_R - X_ref,R ||_F / || X_ref,R (h >= 1) ||_F ,
+
+i.e. the error of the retained harmonic coefficients relative to the
+vibration (the static, harmonic-0 part is in the difference but not in the
+reference norm, so a large preload offset does not hide the error).
+``error_truncation`` estimates ``e`` for ``N_t -> infinity``,
+``error_aliasing`` the part due to ``N_t``, ``error_estimate`` is their sum.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from .epmc import EPMCSystem
+from .hbm import HBMSystem
+from .jacobian import drop_last_column, is_structured, solve
+
+log = logging.getLogger(__name__)
+
+#: factor from the change N_t -> sample_factor N_t to the error of N_t
+ALIAS_RICHARDSON = 1.0
+
+
+@dataclass
+class ErrorIndicators:
+    """Error indicators of one point (all relative, dimensionless).
+
+    Attributes
+    ----------
+    truncation : float
+        Estimated error of the retained coefficients from the harmonics above H.
+    aliasing : float
+        Estimated error of the retained coefficients from the AFT samples N_t.
+    estimate : float
+        ``truncation + aliasing``: the estimate of the true error ``e``.
+    force_tail : float
+        ``||phi_M|| / ||phi_R (h >= 1)||``: contact-force harmonics above H
+        against the retained ones (Frobenius norms over elements).
+    frequency, damping : float
+        EPMC only (NaN for HBM): estimated relative error of the frequency and
+        of the damping ratio (truncation and aliasing together).
+    """
+
+    truncation: float
+    aliasing: float
+    estimate: float
+    force_tail: float
+    frequency: float = float("nan")
+    damping: float = float("nan")
+
+
+class ErrorEstimator:
+    """Indicators of the points of one :class:`~.hbm.HBMSystem` (see the module doc).
+
+    Parameters
+    ----------
+    system : HBMSystem
+        The system of the points (its harmonics ``H`` and samples ``N_t``).
+    ext_factor : int
+        Extended harmonics up to ``ext_factor * max(H) + 1``.
+    sample_factor : int
+        The extended system samples ``sample_factor * N_t`` points per period.
+    parallel : bool
+        Numba threads for the extended AFT (False in worker processes).
+    """
+
+    def __init__(self, system: HBMSystem, ext_factor: int = 2, sample_factor: int = 4,
+                 parallel: bool = True):
+        self.system = system
+        H = tuple(system.basis.harmonics)
+        nx = int(sample_factor) * system.basis.n_samples
+        h_ext = min(int(ext_factor) * max(H) + 1, (nx - 1) // 2)
+        extra = tuple(h for h in range(h_ext + 1) if h not in H)
+        self.harmonics = H + extra
+        self.n_samples = nx
+        self.sample_factor = int(sample_factor)
+        aft = system.aft
+        # without contact unknowns the joint is linear: every indicator is 0, no extension
+        self.ext = HBMSystem(system.model, self.harmonics, nx, aft.min_periods,
+                             aft.max_periods, parallel=parallel,
+                             linear_solver="krylov" if system.krylov else "direct") \
+            if system.n_z else None
+        self._kept = system.basis.hk > 0
+
+    # -- helpers ----------------------------------------------------------------
+    def _embed(self, A):
+        """Rows of the retained harmonics into the extended order (zeros elsewhere)."""
+        A = np.asarray(A, dtype=float)
+        out = np.zeros((self.ext.n_c,) + A.shape[1:])
+        out[:A.shape[0]] = A
+        return out
+
+    def _force_tail(self, ev) -> float:
+        nc = self.system.n_c
+        if ev.aft is None:
+            return 0.0
+        parts = [ev.aft.Ft] if self.system.friction else []
+        if self.system.coupled:
+            parts.append(ev.aft.Nc)
+        Fc = np.concatenate(parts, axis=0)       # (n_elem rows, n_c_ext)
+        kept = np.linalg.norm(Fc[:, :nc][:, self._kept])
+        tail = np.linalg.norm(Fc[:, nc:])
+        return float(tail / kept) if kept > 0 else (0.0 if tail == 0 else float("inf"))
+
+    def _split_solve(self, A, r, n_rows):
+        """``-A^-1`` of the residual ``r`` split into (alias: rows < n_rows, tail: the rest)."""
+        ra = np.zeros_like(r)
+        rt = np.zeros_like(r)
+        ra[:n_rows] = r[:n_rows]
+        rt[n_rows:] = r[n_rows:]
+        if is_structured(A):
+            return -solve(A, ra), -solve(A, rt)
+        d = solve(A, -np.column_stack([ra, rt]))
+        return d[:, 0], d[:, 1]
+
+    def _rel(self, dX, X):
+        ref = np.linalg.norm(np.asarray(X)[self._kept])
+        n = self.system.n_c
+        return float(np.linalg.norm(dX[:n]) / ref) if ref > 0 else float("nan")
+
+    # -- HBM ----------------------------------------------------------------------
+    def hbm(self, z, omega: float, F, X=None, xi: float = 0.0) -> ErrorIndicators:
+        """Indicators of a forced-response point.
+
+        Parameters
+        ----------
+        z : ndarray, shape (n_z,)
+            Contact coefficients of the converged point [m].
+        omega : float
+            Angular frequency [rad/s].
+        F : ndarray, shape (n_c, n_dof)
+            Force coefficients of the point [N].
+        X : ndarray, shape (n_c, n_dof), optional
+            Full coefficients (computed when not given) [m].
+        xi : float
+            Self-excitation [1/s] (0 for a forced response).
+
+        Returns
+        -------
+        ErrorIndicators
+        """
+        s, ext = self.system, self.ext
+        if X is None:
+            X = s.reconstruct(z, omega, F, xi)
+        if not s.n_z:
+            return ErrorIndicators(0.0, 0.0, 0.0, 0.0)
+        ze = self._embed(np.asarray(z, dtype=float).reshape(s.n_c, s.n_r)).ravel()
+        Fe = self._embed(F)
+        ev = ext.evaluate(ze, omega, Fe, xi=xi, wrt=())
+        n_rows = s.n_c * s.n_r
+        da, dt = self._split_solve(ev.J, ev.R, n_rows)
+        zero = np.zeros_like(Fe)
+        dXa = ext.reconstruct(da, omega, zero, xi)
+        dXt = ext.reconstruct(dt, omega, zero, xi)
+        ea = ALIAS_RICHARDSON * self._rel(dXa, X)
+        et = self._rel(dXt, X)
+        return ErrorIndicators(truncation=et, aliasing=ea, estimate=et + ea,
+                               force_tail=self._force_tail(ev))
+
+    # -- EPMC ---------------------------------------------------------------------
+    def epmc(self, ep: EPMCSystem, y) -> ErrorIndicators:
+        """Indicators of a nonlinear-mode point ``y = (zh, omega, xi, log10 a)``.
+
+        The extended EPMC system (same mode, same amplitude) is stepped once
+        with the amplitude fixed; frequency and damping-ratio errors come
+        from the same step.
+
+        Parameters
+        ----------
+        ep : EPMCSystem
+            The EPMC system of the point (built on ``self.system``).
+        y : ndarray, shape (n_z + 3,)
+
+        Returns
+        -------
+        ErrorIndicators
+        """
+        s, ext = self.system, self.ext
+        nz = s.n_z
+        y = np.asarray(y, dtype=float)
+        omega, xi, lam = float(y[nz]), float(y[nz + 1]), float(y[nz + 2])
+        if not nz:
+            return ErrorIndicators(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        X = ep.coefficients(y)
+        epx = EPMCSystem(ext, ep.phi, self._embed(ep.F))
+        zh = self._embed(y[:nz].reshape(s.n_c, s.n_r)).ravel()
+        yx = np.concatenate([zh, [omega, xi, lam]])
+        R, J, ev = epx.fun(yx)
+        n_rows = s.n_c * s.n_r
+        nzx = ext.n_z
+        # rows: retained harmonics, missing harmonics, amplitude and phase (the last two
+        # satisfied at the point; they go with the retained part)
+        r_alias = np.zeros_like(R)
+        r_alias[:n_rows] = R[:n_rows]
+        r_alias[nzx:] = R[nzx:]
+        r_tail = np.zeros_like(R)
+        r_tail[n_rows:nzx] = R[n_rows:nzx]
+        A = drop_last_column(J)          # log10 a fixed
+        if is_structured(A):
+            da, dt = -solve(A, r_alias), -solve(A, r_tail)
+        else:
+            d = solve(A, -np.column_stack([r_alias, r_tail]))
+            da, dt = d[:, 0], d[:, 1]
+        # X is affine in zh, but omega and xi move the condensed part too: take the
+        # difference of the reconstructions
+        X0 = epx.coefficients(yx)
+        out = []
+        for d in (da, dt):
+            yd = np.concatenate([zh + d[:nzx], [omega + d[nzx], xi + d[nzx + 1], lam]])
+            out.append((epx.coefficients(yd) - X0, d[nzx], d[nzx + 1]))
+        (dXa, dwa, dxa), (dXt, dwt, dxt) = out
+        ea = ALIAS_RICHARDSON * self._rel(dXa, X)
+        et = self._rel(dXt, X)
+        zeta = xi / (2 * omega)
+
+        def dzeta(dw, dx):
+            return (xi + dx) / (2 * (omega + dw)) - zeta
+        # one linear step: the two changes add with their signs
+        fw = abs(ALIAS_RICHARDSON * dwa + dwt) / abs(omega)
+        fz = abs(ALIAS_RICHARDSON * dzeta(dwa, dxa) + dzeta(dwt, dxt)) / abs(zeta) \
+            if zeta != 0 else float("nan")
+        return ErrorIndicators(truncation=et, aliasing=ea, estimate=et + ea,
+                               force_tail=self._force_tail(ev) if ev is not None else
+                               float("nan"), frequency=float(fw), damping=float(fz))
+
+
+class ToleranceWatch:
+    """Warns once per branch when a point's ``error_estimate`` exceeds the tolerance.
+
+    Parameters
+    ----------
+    tol : float
+        The scene's tolerance (``analysis.hbm.error_tol`` / ``analysis.epmc.error_tol``);
+        0 never warns.
+    what : str
+        Name of the analysis in the message (``"hbm"``, ``"epmc"``).
+    """
+
+    def __init__(self, tol: float, what: str):
+        self.tol = float(tol)
+        self.what = what
+        self.warned: set = set()
+
+    def check(self, branch, ind: ErrorIndicators | None, point: int, where: str) -> bool:
+        """True when ``ind`` is above the tolerance (the first time per branch: a warning).
+
+        Parameters
+        ----------
+        branch : hashable
+            Branch of the point.
+        ind : ErrorIndicators or None
+        point : int
+            Row of the point in the file.
+        where : str
+            Where the point is (e.g. ``"omega = 960"``), for the message.
+        """
+        if ind is None or not self.tol > 0 or not ind.estimate > self.tol:
+            return False
+        if branch not in self.warned:
+            self.warned.add(branch)
+            log.warning(
+                "%s branch %s: estimated discretisation error %.2g at point %d (%s) exceeds "
+                "%s.error_tol = %.2g (truncation %.2g: raise the harmonics; aliasing %.2g: "
+                "raise n_samples); further points of the branch are marked in /%s/error_* "
+                "and on the figure, not warned again", self.what, branch, ind.estimate,
+                point, where, f"analysis.{self.what}", self.tol, ind.truncation,
+                ind.aliasing, self.what)
+        return True
+
+
+def safe_indicators(fn, *args) -> ErrorIndicators | None:
+    """``fn(*args)``, or None (with a debug message) when the extended solve fails."""
+    try:
+        return fn(*args)
+    except (np.linalg.LinAlgError, RuntimeError, ValueError, FloatingPointError) as exc:
+        log.debug("error indicators not computed: %s: %s", type(exc).__name__, exc)
+        return None
