@@ -196,9 +196,37 @@ def _run_steady(scene, model, writer, tr, history, hbm=None) -> Convergence:
         g.attrs["loops_group"] = "/transient/loops"
         log.info("transient: dev_manifold max %.3e, dev_masing max %.3e",
                  report.dev_manifold.max(), report.dev_masing.max())
+    _write_step_error(writer, tr, res, units)
     if hbm is not None:
         write_cross_check(writer, scene, model, res, hbm, tol=tr.crosscheck_tol)
     return res.convergence
+
+
+def _write_step_error(writer, tr, res, units) -> None:
+    """``/transient/error_step*``: the time-step error indicator, and the range warnings."""
+    g = writer.h5["transient"]
+    if res.range_warnings:
+        g.attrs["step_range_warning"] = "; ".join(res.range_warnings)
+    e = res.step_error
+    if e is None:
+        return
+    one = unit("dimensionless", units)
+    writer.write("transient/error_step", np.float64(e.value), one,
+                 "time-step error indicator: estimated |X_1(continuous) - X_1(marched)| / "
+                 "|X_1| of the first harmonic, all DOFs (defect of the marched period in "
+                 "the continuous equations, solved with the harmonic-balance Jacobian)",
+                 tol=tr.error_tol, defect=e.defect, wall_time_s=e.wall_time)
+    writer.write("transient/error_step_harmonics", e.rel_harmonics, one,
+                 "time-step error indicator per harmonic of transient/harmonic_numbers, "
+                 "relative to the first harmonic's norm")
+    writer.write("transient/error_step_dX", e.dX, unit("displacement", units),
+                 "estimated step-size error of transient/harmonics (continuous minus "
+                 "marched), rows [0, 1c, 1s, ...]")
+    if e.value > tr.error_tol:
+        need = int(np.ceil(tr.steps_per_period * np.sqrt(e.value / tr.error_tol)))
+        log.warning("transient: the time-step error indicator is %.2e of the first harmonic,"
+                    " above analysis.transient.error_tol = %g; about %d steps per period "
+                    "would meet it (second order)", e.value, tr.error_tol, need)
 
 
 def _run_free_decay(scene, model, writer, tr, history) -> Convergence:

@@ -246,6 +246,14 @@ def transient_table(h5) -> str:
                          f"{float(a['error_estimate']):.2e} of the amplitude"
                          + (f" ({rigid} rigid-body mode(s) left out of the period change)"
                             if rigid else ""))
+        if "transient/error_step" in h5:
+            ds = h5["transient/error_step"]
+            val, tol = float(ds[()]), float(ds.attrs.get("tol", np.nan))
+            lines.append(f"  time-step error indicator (error_step): {val:.2e} of the first "
+                         f"harmonic" + (f", ABOVE the tolerance {tol:g}" if val > tol else
+                                        f" (tolerance {tol:g})"))
+        if "step_range_warning" in a:
+            lines.append(f"  WARNING: {a['step_range_warning']}")
         if "transient/harmonics" in h5:
             X = h5["transient/harmonics"][()]
             dofs = h5["transient/dofs"][()]
