@@ -102,3 +102,66 @@ def test_step_error_needs_a_period():
     e = step_error(model, res.last, 1.1, 1.0, sc.analysis.transient.harmonics, 32)
     assert e.value == pytest.approx(res.step_error.value, rel=1e-12)
     assert e.rel_harmonics.shape == (8,) and e.dX.shape == res.X.shape
+
+
+# --------------------------------------------------------------------------
+# periodicity: modes the scene leaves undamped (issue 13 item 8)
+# --------------------------------------------------------------------------
+def _half_damped(transient):
+    """M = I, K = [[2, -1], [-1, 2]] (modes at 1 and sqrt 3 rad/s); C damps mode 1
+    only (C = c phi_1 phi_1^T), so mode 2 has no damping at all."""
+    c = 0.05
+    return lumped([[1.0, 0.0], [0.0, 1.0]], [[2.0, -1.0], [-1.0, 2.0]],
+                  [[c / 2, c / 2], [c / 2, c / 2]],
+                  loads=[{"dof": 0, "force": {"harmonics": [{"h": 1, "cos": 1.0}]}}],
+                  transient=transient)
+
+
+def test_undamped_modes_are_found_and_damped_exactly():
+    from jointsim.solvers.transient import undamped_modes, with_mode_damping
+    model = build_model(_half_damped({"omega": 1.2}))
+    modes = undamped_modes(model)
+    assert modes.n == 1 and modes.omega[0] == pytest.approx(np.sqrt(3.0), rel=1e-12)
+    damped = with_mode_damping(model, modes, 0.02)
+    phi = modes.shapes[:, 0]
+    assert phi @ damped.C.toarray() @ phi / (2 * np.sqrt(3.0)) == pytest.approx(0.02,
+                                                                                 rel=1e-12)
+    phi1 = np.array([1.0, 1.0]) / np.sqrt(2.0)   # mode 1 keeps its damping
+    assert phi1 @ damped.C.toarray() @ phi1 == pytest.approx(0.05, rel=1e-12)
+    assert undamped_modes(damped).n == 0
+
+
+def test_undamped_mode_makes_the_march_aperiodic_and_the_option_fixes_it(tmp_path):
+    """With rho_inf = 1 (no numerical dissipation) the free vibration of the
+    undamped mode started at t = 0 never decays: the run fails and says why; with
+    undamped_mode_zeta it becomes periodic, and matches the exact response of the
+    damped structure."""
+    import h5py
+
+    from jointsim.run import run_scene
+    tr = {"omega": 1.2, "rho_inf": 1.0, "steps_per_period": 128, "max_periods": 300,
+          "steady_tol": 1e-8, "harmonics": [0, 1, 2, 3]}
+    with pytest.raises(RuntimeError, match="undamped_mode_zeta"):
+        run_scene(_half_damped(tr), tmp_path / "a.h5")
+    with h5py.File(tmp_path / "a.h5") as h5:
+        assert h5["transient"].attrs["undamped_modes"] == 1
+        assert h5["transient"].attrs["undamped_modes_hz"][0] == pytest.approx(
+            np.sqrt(3.0) / (2 * np.pi))
+    out = run_scene(_half_damped(dict(tr, undamped_mode_zeta=0.05)), tmp_path / "b.h5")
+    with h5py.File(out) as h5:
+        g = h5["transient"]
+        assert g.attrs["success"] and g.attrs["undamped_mode_zeta"] == 0.05
+        X = h5["transient/harmonics"][()]
+        e = h5["transient/error_step"]
+        assert e.attrs["unit"] and "doc" in e.attrs
+        dX = h5["transient/error_step_dX"][()]
+    M, K = np.eye(2), np.array([[2.0, -1.0], [-1.0, 2.0]])
+    p1, p2 = np.array([1.0, 1.0]) / np.sqrt(2), np.array([1.0, -1.0]) / np.sqrt(2)
+    C = 0.05 * np.outer(p1, p1) + 2 * 0.05 * np.sqrt(3) * np.outer(p2, p2)
+    exact = np.linalg.solve(K - 1.44 * M + 1.2j * C, [1.0, 0.0])
+    got = X[1] - 1j * X[2]
+    corrected = (X + dX)[1] - 1j * (X + dX)[2]
+    assert np.abs(corrected - exact).max() < 1e-7 * np.abs(exact).max()
+    assert np.abs(got - exact).max() < 2e-3 * np.abs(exact).max()   # 128 steps
+    from jointsim.post.tables import info_text
+    assert "time-step error indicator" in info_text(out)
