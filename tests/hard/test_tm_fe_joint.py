@@ -43,14 +43,15 @@ def _first(X, H=7):
 def test_fe_joint_march_agrees_with_converged_hbm_at_refined_settings():
     """The refinement path of docs/transient.md: 1,024 steps per period, the
     undamped Craig-Bampton modes damped at 1 % (both methods), linear start,
-    steady_tol 1e-7; HBM at H = 0..31 with 1,024 samples.  The built-in
-    cross-check says agree within 1e-3."""
+    steady_tol 1e-7; against the converged HBM of issue 13 (H = 0..63, 4,096
+    samples; H = 0..31 is 3e-4 from it).  The built-in cross-check says agree
+    within 1e-3."""
     sc = _scene("lap_joint_default.msh", 1024)
     model = _damped_model(sc)
     res = march_steady(model, sc.analysis.transient, scene=sc, progress=False)
     assert res.convergence.success, res.convergence.message
-    hs = tuple(range(32))
-    system = HBMSystem(model, hs, 1024)
+    hs = tuple(range(64))
+    system = HBMSystem(model, hs, 4096)
     X0 = np.zeros((2 * len(hs) - 1, model.n_dof))
     X0[:res.X.shape[0]] = res.X
     sol = solve_point(system, OMEGA, system.force_coefficients(2.0),
@@ -63,8 +64,8 @@ def test_fe_joint_march_agrees_with_converged_hbm_at_refined_settings():
     assert cc.agree, cc.verdict
     assert cc.rel_diff[1] < 1e-3
     # the remaining difference is the step: the indicator is within a factor 3 of it
-    assert res.step_error.value / cc.rel_diff[1] == pytest.approx(1.0, abs=2.0 / 3.0) \
-        or cc.rel_diff[1] < 3e-4
+    print("FE joint, 1024 steps vs HBM 0..63:", cc.verdict, "indicator", res.step_error.value)
+    assert 1 / 3 < res.step_error.value / cc.rel_diff[1] < 3
 
 
 @pytest.mark.slow

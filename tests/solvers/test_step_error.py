@@ -165,3 +165,19 @@ def test_undamped_mode_makes_the_march_aperiodic_and_the_option_fixes_it(tmp_pat
     assert np.abs(got - exact).max() < 2e-3 * np.abs(exact).max()   # 128 steps
     from jointsim.post.tables import info_text
     assert "time-step error indicator" in info_text(out)
+
+
+@pytest.mark.parametrize("n", [8, 100_000])
+def test_slipping_chain_at_extreme_step_counts_stays_finite(n, caplog):
+    """The 2-DOF Jenkins chain, slipping, from rest, at 8 and 100,000 steps per
+    period (3 periods): finite everywhere, the range warning only at 8."""
+    sc = two_dof_jenkins(1.1, F=0.3, transient={"steps_per_period": n, "max_periods": 3,
+                                                 "min_periods": 2, "harmonics": [0, 1, 3]})
+    with caplog.at_level(logging.WARNING):
+        res = march_steady(build_model(sc), sc.analysis.transient, progress=False)
+    assert res.last is not None
+    for a in (res.last.x, res.last.v, res.last.f, res.X, res.step_error.dX):
+        assert np.all(np.isfinite(a))
+    assert np.abs(res.last.f).max() <= 0.2 * (1 + 1e-9)      # the slip limit holds
+    assert (n == 8) == any("outside the accurate range" in r.getMessage()
+                           for r in caplog.records)
