@@ -252,6 +252,14 @@ def transient_table(h5) -> str:
             lines.append(f"  time-step error indicator (error_step): {val:.2e} of the first "
                          f"harmonic" + (f", ABOVE the tolerance {tol:g}" if val > tol else
                                         f" (tolerance {tol:g})"))
+        if int(a.get("undamped_modes", 0)):
+            hz = np.atleast_1d(a.get("undamped_modes_hz", [np.nan]))
+            lines.append(f"  {int(a['undamped_modes'])} modes of the stuck structure "
+                         f"({np.min(hz):.4g} .. {np.max(hz):.4g} Hz) have no damping in the "
+                         "scene: " + (f"damped at {float(a['undamped_mode_zeta']):g} for the "
+                                      "march (undamped_mode_zeta)"
+                                      if "undamped_mode_zeta" in a else
+                                      "they settle only by numerical dissipation"))
         if "step_range_warning" in a:
             lines.append(f"  WARNING: {a['step_range_warning']}")
         if "transient/harmonics" in h5:

@@ -164,7 +164,8 @@ def test_undamped_mode_makes_the_march_aperiodic_and_the_option_fixes_it(tmp_pat
     assert np.abs(corrected - exact).max() < 1e-7 * np.abs(exact).max()
     assert np.abs(got - exact).max() < 2e-3 * np.abs(exact).max()   # 128 steps
     from jointsim.post.tables import info_text
-    assert "time-step error indicator" in info_text(out)
+    text = info_text(out)
+    assert "time-step error indicator" in text and "damped at 0.05" in text
 
 
 @pytest.mark.parametrize("n", [8, 100_000])
