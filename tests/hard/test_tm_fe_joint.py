@@ -70,23 +70,31 @@ def test_fe_joint_march_agrees_with_converged_hbm_at_refined_settings():
 
 @pytest.mark.slow
 def test_step_error_indicator_on_the_coarse_fe_joint():
-    """Coarse mesh, 100 N (the joint microslips): the indicator is within a factor 3
-    of the error against a 2,048-step march for 128, 256 and 512 steps, and
-    ranks them."""
+    """Coarse mesh, 100 N (the joint microslips): the indicator is within a factor
+    3 of the error against a 2,048-step march for 128, 256 and 512 steps, and
+    ranks them.  Errors are measured on the elastic part of the first harmonic:
+    the suspension (rigid-body) modes ring at 3.7 Hz for thousands of periods
+    after the start and leak into the DFT of a period differently in every run
+    (they are left out of the steady-state test for the same reason)."""
+    from jointsim.solvers.transient import rigid_modes
+
     def run(n):
         sc = _scene("lap_joint_coarse.msh", n, force_scale=10.0)
-        res = march_steady(_damped_model(sc), sc.analysis.transient, scene=sc,
-                           progress=False)
+        model = _damped_model(sc)
+        res = march_steady(model, sc.analysis.transient, scene=sc, progress=False)
         assert res.convergence.success, res.convergence.message
-        return res
+        return res, rigid_modes(model)
 
-    ref = _first(run(2048).X)
+    res, rigid = run(2048)
+    ref = rigid.elastic(_first(res.X))
     ind, true = [], []
     for n in (128, 256, 512):
-        res = run(n)
-        true.append(np.linalg.norm(_first(res.X) - ref) / np.linalg.norm(ref))
-        ind.append(res.step_error.value)
+        res, _ = run(n)
+        X1 = rigid.elastic(_first(res.X))
+        dX1 = rigid.elastic(_first(res.step_error.dX))
+        true.append(np.linalg.norm(X1 - ref) / np.linalg.norm(ref))
+        ind.append(np.linalg.norm(dX1) / np.linalg.norm(X1 + dX1))
     ind, true = np.array(ind), np.array(true)
-    assert np.all(np.diff(ind) < 0) and np.all(np.diff(true) < 0)
     print("coarse FE: indicator", ind, "true", true)
+    assert np.all(np.diff(ind) < 0) and np.all(np.diff(true) < 0)
     assert np.all(ind / true < 3.0) and np.all(ind / true > 1 / 3.0), (ind, true)
