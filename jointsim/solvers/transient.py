@@ -14,6 +14,13 @@ kernels) is in :mod:`jointsim.solvers.generalized_alpha`.  This module drives it
   damping from the ring-down by the peak method of
   :func:`~jointsim.solvers.periodic.decay_estimates`.
 
+Accuracy guards: :func:`step_error` estimates the time-step error of a
+steady period (one linear solve with the harmonic-balance Jacobian),
+:func:`scheme_frequency_error` and :func:`step_range_warnings` say when the
+step is outside the scheme's range, and :func:`undamped_modes` /
+:func:`with_mode_damping` find and damp the modes the scene leaves undamped
+(without which a refined march of a Craig-Bampton model is never periodic).
+
 The pure functions of the marched samples (period change, energy balance,
 extrema of a ring-down) are in :mod:`jointsim.solvers.periodic`.
 
