@@ -211,6 +211,18 @@ class TransientAnalysis:
                   "detected like analysis.modes.suspension_hz): a free decay does not count "
                   "them in `mode`, and a steady run leaves them out of the period-to-period "
                   "change", unit="Hz", ge=0)
+    error_indicator: bool = spec(True, doc="steady runs: estimate the time-step error of "
+                                           "the steady period (/transient/error_step: one "
+                                           "linear solve of the harmonic-balance Jacobian)")
+    error_tol: float = spec(1e-2, doc="steady runs: step-size error indicator (first "
+                                      "harmonic, relative) above which a warning asks for "
+                                      "more steps per period", gt=0)
+    undamped_mode_zeta: float = spec(
+        0.0, doc="steady runs: viscous damping ratio given to every mode of the stuck "
+                 "structure that the scene's damping leaves undamped (their free vibration "
+                 "otherwise decays only by the scheme's numerical dissipation and the march "
+                 "is never periodic when the step is refined); HBM in the cross-check gets "
+                 "the same damping. 0: off", ge=0, le=1)
 
     def check(self):
         if 1 not in self.harmonics:

@@ -63,7 +63,11 @@ def write_cross_check(writer, scene, model, result, hbm: HBMSolutions,
         return None
     n = result.last.f.shape[1] - 1
     loops = (result.last.f[:, :n], result.last.N[:, :n])
-    cc = cross_check(result.X, ht, ref.X, ref.harmonics, model=model, loops=loops, tol=tol)
+    se = getattr(result, "step_error", None)
+    if se is not None and tuple(se.harmonics) != tuple(ht):
+        se = None
+    cc = cross_check(result.X, ht, ref.X, ref.harmonics, model=model, loops=loops, tol=tol,
+                     step_error=se)
     verdict = cc.verdict
     if not result.convergence.success:
         verdict += (f" (the march is not steady: {result.convergence.message})")
@@ -74,6 +78,10 @@ def write_cross_check(writer, scene, model, result, hbm: HBMSolutions,
     one = unit("dimensionless", units)
     writer.write("crosscheck/harmonics", np.asarray(cc.harmonics, dtype=np.int64), "1",
                  "harmonics compared")
+    if cc.rel_diff_corrected is not None:
+        writer.write("crosscheck/rel_diff_step_corrected", cc.rel_diff_corrected, one,
+                     "rel_diff of the march corrected by its estimated time-step error "
+                     "(transient/error_step_dX)", step_error=cc.step_error)
     writer.write("crosscheck/rel_diff", cc.rel_diff, one,
                  "||X_tm,h - X_hbm,h|| / ||X_hbm,1|| per harmonic")
     writer.write("crosscheck/rel_own", cc.rel_own, one,

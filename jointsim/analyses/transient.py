@@ -11,6 +11,7 @@ written as the march goes (:class:`_History`).
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 
 import numpy as np
@@ -18,7 +19,8 @@ import numpy as np
 from ..io.hdf5 import unit, write_loops
 from ..masing import check_loops
 from ..results import INTERRUPTED, Convergence
-from ..solvers.transient import PeriodData, free_decay, march_steady
+from ..solvers.transient import (PeriodData, free_decay, march_steady, undamped_modes,
+                                 with_mode_damping)
 from .crosscheck import write_cross_check
 
 log = logging.getLogger(__name__)
@@ -161,7 +163,12 @@ def _run_steady(scene, model, writer, tr, history, hbm=None) -> Convergence:
         writer.append("transient/period_change", np.float64(change), one,
                       "largest displacement change between consecutive periods / amplitude")
 
+    model, note = _periodic_model(model, tr, g)
     res = march_steady(model, tr, scene=scene, on_period=on_period)
+    if note and not res.convergence.success:
+        c = res.convergence
+        res = dataclasses.replace(res, convergence=Convergence(
+            c.success, c.status, f"{c.message}; {note}", c.iterations))
     for k, v in res.stats.items():
         g.attrs[k] = v
     g.attrs["wall_time_s"] = res.wall_time
@@ -196,9 +203,75 @@ def _run_steady(scene, model, writer, tr, history, hbm=None) -> Convergence:
         g.attrs["loops_group"] = "/transient/loops"
         log.info("transient: dev_manifold max %.3e, dev_masing max %.3e",
                  report.dev_manifold.max(), report.dev_masing.max())
+    _write_step_error(writer, tr, res, units)
     if hbm is not None:
         write_cross_check(writer, scene, model, res, hbm, tol=tr.crosscheck_tol)
+        if "crosscheck" in writer.h5 and "undamped_mode_zeta" in g.attrs:
+            cg = writer.h5["crosscheck"]
+            cg.attrs["undamped_mode_zeta"] = g.attrs["undamped_mode_zeta"]
+            cg.attrs["verdict"] = (f"{cg.attrs['verdict']} (both methods with damping ratio "
+                                   f"{g.attrs['undamped_mode_zeta']:g} on the "
+                                   f"{int(g.attrs['undamped_modes'])} modes the scene leaves "
+                                   "undamped)")
     return res.convergence
+
+
+def _periodic_model(model, tr, g):
+    """The model a steady run marches, and a note on its periodicity.
+
+    Counts the modes of the stuck structure that the scene leaves undamped
+    (:func:`~jointsim.solvers.transient.undamped_modes`; attributes
+    ``undamped_modes``, ``undamped_modes_hz``); with
+    ``analysis.transient.undamped_mode_zeta > 0`` they get that damping ratio
+    (:func:`~jointsim.solvers.transient.with_mode_damping`).  The note (empty
+    when none apply) says why the march may never become periodic.
+    """
+    modes = undamped_modes(model)
+    if modes is None:
+        return model, ""
+    g.attrs["undamped_modes"] = modes.n
+    if modes.n == 0:
+        return model, ""
+    hz = modes.frequency_hz
+    g.attrs["undamped_modes_hz"] = hz
+    if tr.undamped_mode_zeta > 0.0:
+        g.attrs["undamped_mode_zeta"] = tr.undamped_mode_zeta
+        log.info("transient: damping ratio %g on %d undamped modes (%.4g .. %.4g Hz)",
+                 tr.undamped_mode_zeta, modes.n, hz.min(), hz.max())
+        return with_mode_damping(model, modes, tr.undamped_mode_zeta), ""
+    note = (f"{modes.n} modes of the stuck structure ({hz.min():.4g} .. {hz.max():.4g} Hz) "
+            "have no damping, so the continuous response is never periodic and the march "
+            "settles only by the scheme's numerical dissipation (slower for smaller steps): "
+            "set analysis.transient.undamped_mode_zeta (e.g. 0.01) or damp them in [damping]")
+    return model, note
+
+
+def _write_step_error(writer, tr, res, units) -> None:
+    """``/transient/error_step*``: the time-step error indicator, and the range warnings."""
+    g = writer.h5["transient"]
+    if res.range_warnings:
+        g.attrs["step_range_warning"] = "; ".join(res.range_warnings)
+    e = res.step_error
+    if e is None:
+        return
+    one = unit("dimensionless", units)
+    writer.write("transient/error_step", np.float64(e.value), one,
+                 "time-step error indicator: estimated |X_1(continuous) - X_1(marched)| / "
+                 "|X_1| of the first harmonic, all DOFs (defect of the marched period in "
+                 "the continuous equations, solved with the harmonic-balance Jacobian); "
+                 "meaningful for a steady period only",
+                 tol=tr.error_tol, defect=e.defect, wall_time_s=e.wall_time)
+    writer.write("transient/error_step_harmonics", e.rel_harmonics, one,
+                 "time-step error indicator per harmonic of transient/harmonic_numbers, "
+                 "relative to the first harmonic's norm")
+    writer.write("transient/error_step_dX", e.dX, unit("displacement", units),
+                 "estimated step-size error of transient/harmonics (continuous minus "
+                 "marched), rows [0, 1c, 1s, ...]")
+    if e.value > tr.error_tol and res.convergence.success:
+        need = int(np.ceil(tr.steps_per_period * np.sqrt(e.value / tr.error_tol)))
+        log.warning("transient: the time-step error indicator is %.2e of the first harmonic,"
+                    " above analysis.transient.error_tol = %g; about %d steps per period "
+                    "would meet it (second order)", e.value, tr.error_tol, need)
 
 
 def _run_free_decay(scene, model, writer, tr, history) -> Convergence:

@@ -1,7 +1,8 @@
 """Figures and the ``jointsim info`` section of time-marching results (``/transient``).
 
 * ``transient_history.png``: the stored time history of the output DOFs;
-* steady runs: ``transient_convergence.png`` (period-to-period change),
+* steady runs: ``transient_convergence.png`` (period-to-period change, with the
+  time-step error indicator in the title),
   ``transient_loops.png`` (element loops of the steady period with the
   manifold and Masing predictions), ``transient_crosscheck.png`` (per-harmonic
   differences against HBM, when present);
@@ -81,7 +82,13 @@ def plot_convergence(h5, outdir: Path) -> Path | None:
     ax.set_xlabel("period")
     ax.set_ylabel("change between periods / amplitude")
     ax.grid(alpha=0.3, which="both")
-    ax.set_title(g.attrs.get("message", ""), fontsize=8)
+    title = str(g.attrs.get("message", ""))
+    if "transient/error_step" in h5:
+        ds = h5["transient/error_step"]
+        val, tol = float(ds[()]), float(ds.attrs.get("tol", np.inf))
+        title += (f"\ntime-step error indicator {val:.2e}"
+                  + (f" > error_tol {tol:g}" if val > tol else f" (error_tol {tol:g})"))
+    ax.set_title(title, fontsize=8)
     fig.tight_layout()
     path = outdir / "transient_convergence.png"
     fig.savefig(path, dpi=120)
@@ -246,6 +253,22 @@ def transient_table(h5) -> str:
                          f"{float(a['error_estimate']):.2e} of the amplitude"
                          + (f" ({rigid} rigid-body mode(s) left out of the period change)"
                             if rigid else ""))
+        if "transient/error_step" in h5:
+            ds = h5["transient/error_step"]
+            val, tol = float(ds[()]), float(ds.attrs.get("tol", np.nan))
+            lines.append(f"  time-step error indicator (error_step): {val:.2e} of the first "
+                         f"harmonic" + (f", ABOVE the tolerance {tol:g}" if val > tol else
+                                        f" (tolerance {tol:g})"))
+        if int(a.get("undamped_modes", 0)):
+            hz = np.atleast_1d(a.get("undamped_modes_hz", [np.nan]))
+            lines.append(f"  {int(a['undamped_modes'])} modes of the stuck structure "
+                         f"({np.min(hz):.4g} .. {np.max(hz):.4g} Hz) have no damping in the "
+                         "scene: " + (f"damped at {float(a['undamped_mode_zeta']):g} for the "
+                                      "march (undamped_mode_zeta)"
+                                      if "undamped_mode_zeta" in a else
+                                      "they settle only by numerical dissipation"))
+        if "step_range_warning" in a:
+            lines.append(f"  WARNING: {a['step_range_warning']}")
         if "transient/harmonics" in h5:
             X = h5["transient/harmonics"][()]
             dofs = h5["transient/dofs"][()]

@@ -77,6 +77,12 @@ class CrossCheck:
     tol : float
     verdict : str
         One line for the log and the report.
+    step_error : float
+        Time-step error indicator of solution ``a`` (first harmonic, relative;
+        nan when not given).
+    rel_diff_corrected : ndarray, shape (n_h,), or None
+        ``rel_diff`` of ``Xa + dXa`` (the march corrected by its estimated
+        step-size error) against ``Xb``.
     """
 
     harmonics: tuple
@@ -92,6 +98,8 @@ class CrossCheck:
     agree: bool
     tol: float
     verdict: str
+    step_error: float = float("nan")
+    rel_diff_corrected: np.ndarray | None = None
 
 
 def first_harmonic_amplitude(X, harmonics) -> np.ndarray:
@@ -165,7 +173,7 @@ def explain_dc(d0, model):
 
 
 def cross_check(Xa, harmonics_a, Xb, harmonics_b, *, model=None, loops=None,
-                tol: float = 1e-3) -> CrossCheck:
+                tol: float = 1e-3, step_error=None) -> CrossCheck:
     """Compare solution ``a`` (time marching) with solution ``b`` (harmonic balance).
 
     Parameters
@@ -180,6 +188,10 @@ def cross_check(Xa, harmonics_a, Xb, harmonics_b, *, model=None, loops=None,
         (n_e, n) each, to tell which elements keep a history.
     tol : float
         Agreement tolerance on ``rel_diff``.
+    step_error : jointsim.solvers.transient.StepError, optional
+        The time-step error indicator of solution ``a`` (on ``harmonics_a``):
+        the verdict then says whether the step size explains the difference
+        (the march plus its estimated step error agrees with ``b``) or not.
 
     Returns
     -------
@@ -234,10 +246,32 @@ def cross_check(Xa, harmonics_a, Xb, harmonics_b, *, model=None, loops=None,
         else:
             parts.append(f"DC differs by {dc_diff:.2e} and the slider history does not "
                          "explain it")
+    e_step, rel_c = float("nan"), None
+    if step_error is not None:
+        e_step = float(step_error.value)
+        Xc = Xa + np.asarray(step_error.dX)
+        rel_c = np.array([np.linalg.norm(Xc[ra[h]] - Xb[rb[h]]) / ref for h in common])
+        worst_c = float(np.max(np.where(higher, rel_c, -np.inf)))
+        if harmonics_ok:
+            if e_step > tol:
+                parts.append(f"but the march's time-step error indicator is {e_step:.2e} > "
+                             f"tol: the agreement is partly luck; refine the step")
+        elif worst_c <= tol:
+            parts.append(f"explained by the time step: its error indicator is "
+                         f"{e_step:.2e} and the march corrected by it differs by "
+                         f"{worst_c:.2e} <= tol; raise analysis.transient.steps_per_period")
+        elif worst_c < 0.5 * rel[worst]:
+            parts.append(f"partly the time step (indicator {e_step:.2e}; corrected by it the "
+                         f"march differs by {worst_c:.2e}): raise steps_per_period, and see "
+                         "the remaining causes in docs/transient.md")
+        else:
+            parts.append(f"not the time step (indicator {e_step:.2e}; corrected by it the "
+                         f"march still differs by {worst_c:.2e}): the march is not steady, "
+                         "or HBM is not converged in its harmonics or samples (docs/transient.md)")
     verdict = ("agree: " if agree else "DISAGREE: ") + "; ".join(parts)
     return CrossCheck(common, rel, own, first_harmonic_amplitude(Xa, harmonics_a),
                       first_harmonic_amplitude(Xb, harmonics_b), dc_diff, dc_history,
-                      df, dN, memory, agree, float(tol), verdict)
+                      df, dN, memory, agree, float(tol), verdict, e_step, rel_c)
 
 
 # --------------------------------------------------------------------------
