@@ -34,7 +34,7 @@ from ..results import (INTERRUPTED, NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, S
 from ..harmonics import coefficient_index, dft_matrix, n_coefficients
 from ..loads import LoadFunction
 from .contact_map import ContactMap, empty_eval
-from .generalized_alpha import GeneralizedAlpha, StepFailure
+from .generalized_alpha import GeneralizedAlpha, StepFailure, StepStats
 from .periodic import (EnergyBalance, ExtremumTracker, PeriodData, decay_estimates,
                        energy_balance, geometric_error, period_change)
 from ._transient_kernels import single_threaded
@@ -248,6 +248,33 @@ def _progress(total, desc, enabled):
                 leave=False)
 
 
+@dataclass(frozen=True)
+class MarchResume:
+    """Where a forced march resumes (``--resume`` of a checkpointed run, issue 11).
+
+    Attributes
+    ----------
+    period : int
+        The period that starts at ``state`` (periods are numbered from 0).
+    state : MarchState
+        The state at the start of that period, exactly as the interrupted
+        march had it.
+    stats : dict
+        The :class:`~jointsim.solvers.generalized_alpha.StepStats` fields at
+        that instant.
+    changes : tuple of float
+        The period changes already known: of periods ``0 .. len - 1``
+        (``len > period``); periods up to ``len - 1`` are marched again with
+        these changes (their output is already stored) and the march goes on
+        after them.
+    """
+
+    period: int
+    state: object
+    stats: dict
+    changes: tuple
+
+
 def march_period(ga: GeneralizedAlpha, s, t, index: int = 0):
     """March from state ``s`` (at ``t[0]``) through the times ``t[1:]``.
 
@@ -279,7 +306,8 @@ def march_period(ga: GeneralizedAlpha, s, t, index: int = 0):
 
 def march_steady(model, settings, *, scene=None, on_period=None, progress: bool = True,
                  frictionless_preload: bool | None = None, initial=None,
-                 fused: bool = True) -> SteadyResult:
+                 fused: bool = True, on_state=None,
+                 resume: MarchResume | None = None) -> SteadyResult:
     """March a forced response until it is periodic.
 
     The structure starts at rest at its static state under the constant
@@ -316,6 +344,12 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
     fused : bool
         Allow the fused numba march (False: step by step in Python; same
         scheme and results, for tests and comparisons).
+    on_state : callable, optional
+        ``on_state(k, state: MarchState, stats: StepStats)`` before period
+        ``k`` is marched (a checkpoint: :class:`MarchResume` rebuilt from
+        it continues the march exactly).
+    resume : MarchResume, optional
+        Continue an interrupted march from a checkpoint instead of starting.
 
     Returns
     -------
@@ -335,10 +369,17 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
     ga = _stepper(model, settings, force, fused)
     h = 2.0 * np.pi / omega / settings.steps_per_period
     s = _steady_initial_state(ga, force, static, h, settings, initial)
+    k0, known = 0, ()
+    if resume is not None:
+        # the first factorisation of an uninterrupted march is at exactly h (period 0)
+        ga._factor(ga.snap(h))
+        s, k0, known = resume.state, int(resume.period), tuple(resume.changes)
+        ga.stats = StepStats(**resume.stats)
     rigid = rigid_modes(model, getattr(settings, "rigid_cutoff_hz", None))
     bar = _progress(settings.max_periods, f"transient w={omega:.4g}", progress)
     try:
-        run = _periods_until_steady(ga, s, settings, h, rigid, on_period, bar)
+        run = _periods_until_steady(ga, s, settings, h, rigid, on_period, bar, k0, known,
+                                    on_state)
     finally:
         bar.close()
     if run.status != SUCCESS:
@@ -391,25 +432,32 @@ class _MarchOutcome:
 
 
 def _periods_until_steady(ga: GeneralizedAlpha, s, settings, h: float, rigid: RigidModes,
-                          on_period, bar) -> _MarchOutcome:
+                          on_period, bar, k0: int = 0, known: tuple = (),
+                          on_state=None) -> _MarchOutcome:
     """March whole periods until the change falls below ``steady_tol`` (step 2 of
     :func:`march_steady`); a failed step or an interrupt ends the loop with
-    what was marched."""
+    what was marched.  Resuming, ``s`` is the state at the start of period
+    ``k0`` and ``known`` the changes of periods ``0 .. len(known) - 1``."""
     n = settings.steps_per_period
-    changes: list[float] = []
+    changes: list[float] = list(known[:k0])
     last: PeriodData | None = None
     status, message = NOT_CONVERGED, ""
-    k = 0
+    k = k0
     try:
         with single_threaded():
-            for k in range(settings.max_periods):
+            for k in range(k0, settings.max_periods):
+                if on_state is not None:
+                    on_state(k, s, ga.stats)
                 t = (k * n + np.arange(n + 1)) * h
                 s, pd = march_period(ga, s, t, k)
                 if not (np.all(np.isfinite(pd.x)) and np.all(np.isfinite(pd.v))):
                     status, message = NON_FINITE, f"non-finite displacement in period {k}"
                     break
-                c = period_change(rigid.elastic(pd.x[1:]), rigid.elastic(last.x[1:])) \
-                    if last is not None else np.nan
+                if k < len(known):   # resumed: this period's change is stored
+                    c = float(known[k])
+                else:
+                    c = period_change(rigid.elastic(pd.x[1:]), rigid.elastic(last.x[1:])) \
+                        if last is not None else np.nan
                 changes.append(c)
                 last = pd
                 bar.update(1)

@@ -1,0 +1,161 @@
+"""Nothing lost (issue 11) for time marching: killed marches resume exactly.
+
+A forced march commits, with each period's history rows and period change,
+the march state at the start of that period (``/transient/checkpoint/state``);
+``--resume`` continues from the last one.  The oracle is the uninterrupted
+run of the same scene: the resumed file's history, period changes, harmonics,
+loops and checkpoints equal it to 1e-8 (in practice bit for bit: the same
+arithmetic from the same state).
+
+The scene is ``models/transient/separation_steady.toml`` (2 DOFs, a Jenkins
+slider and a unilateral normal contact that opens every period), marched for
+at least 150 periods in the process tests (``min_periods``) so that the kill
+times, fractions of the measured uninterrupted run, land inside the march.
+The default suite interrupts in process; the ``slow`` cases kill real
+processes with SIGKILL, SIGTERM and SIGINT at 10 seeded times each.
+"""
+from __future__ import annotations
+
+import os
+import random
+import signal
+import time
+
+import h5py
+import pytest
+
+from jointsim.scene import load_scene
+
+from . import _safety as S
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "fork") or not os.path.isdir("/proc"),
+                                reason="process tests need Linux")
+
+TR = str(S.ROOT / "models" / "transient" / "separation_steady.toml")
+LONG = ("--set", "analysis.transient.min_periods=150")
+DECAY = str(S.ROOT / "models" / "transient" / "jenkins_free_decay.toml")
+DECAY_LONG = ("--set", "analysis.transient.max_periods=300")
+
+#: What a resumed steady march must reproduce.
+STEADY = ("transient/t", "transient/x", "transient/period_change", "transient/harmonics",
+          "transient/period_t", "transient/period_x", "transient/static_x",
+          "transient/loops/u", "transient/loops/f", "transient/loops/N",
+          "transient/masing/dev_manifold", "transient/masing/dev_masing",
+          "transient/checkpoint/state")
+#: What a resumed free decay must reproduce.
+DECAY_SETS = ("transient/t", "transient/x", "transient/q", "transient/time",
+              "transient/amplitude", "transient/frequency_hz", "transient/damping_ratio",
+              "transient/phi", "transient/static_x")
+
+_COUNTERS = ("steps", "substeps", "newton_iterations", "step_cuts", "factorizations",
+             "iterations", "message")
+
+
+def _same_counters(a, b):
+    with h5py.File(a, "r") as x, h5py.File(b, "r") as y:
+        for k in _COUNTERS:
+            if k in y["transient"].attrs:
+                assert x["transient"].attrs[k] == y["transient"].attrs[k], k
+
+
+def test_an_interrupted_march_resumes_to_the_uninterrupted_file(tmp_path, monkeypatch):
+    """In process: the 11th period's commit is cut by an interrupt; resume equals the
+    uninterrupted run (rows, harmonics, loops, checkpoints and step counters)."""
+    from jointsim.analyses import transient as T
+    from jointsim.run import run_scene
+    scene = load_scene(TR)
+    ref = run_scene(scene, tmp_path / "ref.h5")
+    out = tmp_path / "cut.h5"
+    calls = {"n": 0}
+    append = T._Checkpoints.append
+
+    def cut(self, *args):
+        calls["n"] += 1
+        if calls["n"] == 11:
+            raise KeyboardInterrupt("stopped by the test")
+        return append(self, *args)
+
+    monkeypatch.setattr(T._Checkpoints, "append", cut)
+    with pytest.raises(KeyboardInterrupt):
+        run_scene(scene, out)
+    monkeypatch.undo()
+    assert S.status(out) == "interrupted"
+    S.committed_exactly(out)
+    with h5py.File(out, "r") as h5:
+        assert h5["transient/period_change"].shape == (10,)
+        assert h5["transient/checkpoint/state"].shape[0] == 10
+    run_scene(scene, out, resume=True)
+    assert S.status(out) == "complete"
+    S.committed_exactly(out)
+    S.assert_same_datasets(out, ref, STEADY, atol=1e-8)
+    _same_counters(out, ref)
+    # a complete march is not marched again by a second resume of the file
+    before = h5py.File(out, "r")["transient/checkpoint/state"].shape
+    run_scene(scene, out, resume=True)
+    assert h5py.File(out, "r")["transient/checkpoint/state"].shape == before
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """``reference(scene, args)``: the uninterrupted run and its wall time [s]."""
+    d = tmp_path_factory.mktemp("ref")
+    refs = {}
+
+    def get(scene, args):
+        key = (scene, args)
+        if key not in refs:
+            out = d / f"ref{len(refs)}.h5"
+            t0 = time.perf_counter()
+            r = S.run("run", scene, "-o", str(out), *args)
+            assert r.returncode == 0, r.stderr
+            refs[key] = (out, time.perf_counter() - t0)
+        return refs[key]
+    return get
+
+
+def _kill_and_resume(out, scene, args, names, ref, delay, sig):
+    """Kill a run after ``delay`` s; check the file, ``info``, ``--resume`` and the result."""
+    p = S.start("run", scene, "-o", str(out), *args)
+    outlived = S.kill_after(p, delay, sig)
+    assert outlived < 2.0, f"processes of the run outlived it by {outlived:.2f} s"
+    if not out.exists():  # killed before the model was built: nothing written
+        return None
+    status = S.status(out)
+    if p.returncode == 0 or status == "complete":
+        assert status == "complete"
+    elif sig == signal.SIGKILL:
+        assert status == "running"
+    else:
+        assert status == "interrupted", status
+        with h5py.File(out, "r") as h5:
+            assert "continue with --resume" in h5.attrs["message"]
+    S.committed_exactly(out)
+    info = S.run("info", str(out))
+    assert info.returncode == 0, info.stderr
+    r = S.run("run", scene, "-o", str(out), "--resume", *args)
+    assert r.returncode == 0, r.stderr
+    assert S.status(out) == "complete"
+    S.committed_exactly(out)
+    S.assert_same_datasets(out, ref, names, atol=1e-8)
+    _same_counters(out, ref)
+    return status
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGINT])
+def test_a_killed_march_resumes_to_the_uninterrupted_one(tmp_path, reference, sig):
+    ref, duration = reference(TR, LONG)
+    rng = random.Random(7000 + int(sig))
+    seen = [_kill_and_resume(tmp_path / f"k{k}.h5", TR, LONG, STEADY, ref,
+                             rng.uniform(0.15, 0.95) * duration, sig) for k in range(10)]
+    assert sum(s in ("running", "interrupted") for s in seen) >= 5, seen
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_a_killed_free_decay_is_marched_again_by_resume(tmp_path, reference, sig):
+    ref, duration = reference(DECAY, DECAY_LONG)
+    rng = random.Random(8000 + int(sig))
+    seen = [_kill_and_resume(tmp_path / f"d{k}.h5", DECAY, DECAY_LONG, DECAY_SETS, ref,
+                             rng.uniform(0.3, 0.95) * duration, sig) for k in range(5)]
+    assert any(s in ("running", "interrupted") for s in seen), seen
