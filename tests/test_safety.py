@@ -17,8 +17,8 @@ import h5py
 import numpy as np
 import pytest
 
-from jointsim.io.hdf5 import (COMMITTED, FileLockedError, NotAResultError, ResultWriter,
-                              lock_path, open_result)
+from jointsim.io.hdf5 import (COMMITTED, DamagedFileError, FileLockedError, NotAResultError,
+                              ResultWriter, lock_path, open_result)
 from jointsim.scene import load_scene
 
 from . import _safety as S
@@ -189,6 +189,35 @@ def test_a_second_writer_is_refused_before_the_file_is_touched(tmp_path):
         pass
     with h5py.File(out, "r") as h5:
         assert "hbm" not in h5
+
+
+def test_a_damaged_file_is_named_by_info_and_computed_again_by_resume(tmp_path, capsys):
+    """A file torn inside the HDF5 library (here: cut short) is not trusted: readers
+    say so in one line, ``--resume`` keeps it aside and starts the run afresh."""
+    out = tmp_path / "d.h5"
+    scene = _scene()
+    with ResultWriter(out, scene) as w:
+        for i in range(3):
+            with w.commit():
+                w.append("hbm/omega", float(i), "1")
+    data = out.read_bytes()
+    out.write_bytes(data[:len(data) // 2])
+    with pytest.raises(DamagedFileError, match="damaged"):
+        open_result(out)
+    from jointsim.cli import main
+    assert main(["info", str(out)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(out) in err[0] and "--resume" in err[0]
+    with ResultWriter(out, scene, resume=True) as w:
+        assert w.rows("hbm/omega") == 0
+    assert (tmp_path / "d.h5.damaged").read_bytes() == data[:len(data) // 2]
+    assert S.status(out) == "complete"
+    # a file that is not HDF5 at all is refused, not set aside
+    junk = tmp_path / "junk.h5"
+    junk.write_text("not hdf5")
+    with pytest.raises(OSError, match="cannot resume"):
+        ResultWriter(junk, scene, resume=True)
+    assert junk.read_text() == "not hdf5"
 
 
 def test_info_on_an_hdf5_file_jointsim_did_not_write(tmp_path):

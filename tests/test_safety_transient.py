@@ -84,10 +84,22 @@ def test_an_interrupted_march_resumes_to_the_uninterrupted_file(tmp_path, monkey
     with h5py.File(out, "r") as h5:
         assert h5["transient/period_change"].shape == (10,)
         assert h5["transient/checkpoint/state"].shape[0] == 10
+    # the resume is interrupted again, after the loops of the last period are written
+    write_loops = T.write_loops
+
+    def loops_then_stop(*args, **kw):
+        write_loops(*args, **kw)
+        raise KeyboardInterrupt("stopped by the test")
+
+    monkeypatch.setattr(T, "write_loops", loops_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_scene(scene, out, resume=True)
+    monkeypatch.undo()
+    assert S.status(out) == "interrupted"
     run_scene(scene, out, resume=True)
     assert S.status(out) == "complete"
     S.committed_exactly(out)
-    S.assert_same_datasets(out, ref, STEADY, atol=1e-8)
+    S.assert_same_datasets(out, ref, STEADY + ("loops/u", "masing/dev_manifold"), atol=1e-8)
     _same_counters(out, ref)
     # a complete march is not marched again by a second resume of the file
     before = h5py.File(out, "r")["transient/checkpoint/state"].shape

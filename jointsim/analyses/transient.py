@@ -172,13 +172,18 @@ class _Checkpoints:
         return MarchResume(k, s, stats, tuple(float(c) for c in changes))
 
 
-def _drop_transient(h5) -> None:
-    """Remove ``/transient`` (and the root loop links into it) to march again."""
+def _drop_root_links(h5) -> None:
+    """Remove the root ``/loops``, ``/masing`` links when they point into ``/transient``."""
     if h5.attrs.get("loops_of") == "transient":
         for link in ("loops", "masing"):
             if h5.get(link, getlink=True) is not None:
                 del h5[link]
         del h5.attrs["loops_of"]
+
+
+def _drop_transient(h5) -> None:
+    """Remove ``/transient`` (and the root loop links into it) to march again."""
+    _drop_root_links(h5)
     if "transient" in h5:
         del h5["transient"]
 
@@ -194,7 +199,8 @@ def _stored_march(writer, steady: bool):
         return "complete"
     n = writer.rows(_Checkpoints.NAME)
     if steady and n and writer.rows("transient/period_change") == n:
-        for name in ("transient/loops", "transient/masing"):  # of an unfinished ending
+        _drop_root_links(h5)   # the loops of an unfinished ending are written again
+        for name in ("transient/loops", "transient/masing"):
             if name in h5:
                 del h5[name]
         return n

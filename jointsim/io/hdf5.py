@@ -33,6 +33,13 @@ Crash consistency (issue 11):
   that was being written when the process died: readers
   (:func:`open_result`) and ``--resume`` ignore them, and a writer that
   closes normally or resumes trims them.
+* **Damaged files.**  A kill that lands inside the HDF5 library's own
+  flush can leave metadata half written, which no ordering of jointsim's
+  writes prevents.  Readers (:func:`open_result`) then raise
+  :class:`DamagedFileError` (one line naming the file), and ``--resume``
+  renames the file to ``<name>.damaged`` (:func:`set_aside`) and computes
+  the run again from the start, so that the run still completes with the
+  uninterrupted result.
 """
 from __future__ import annotations
 
@@ -68,6 +75,48 @@ class FileLockedError(OSError):
 
 class NotAResultError(ValueError):
     """An HDF5 file that jointsim did not write."""
+
+
+class DamagedFileError(OSError):
+    """An HDF5 file that the HDF5 library cannot read (torn by a crash inside it)."""
+
+
+#: The first bytes of every HDF5 file (superblock at offset 0).
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def is_hdf5(path) -> bool:
+    """Whether ``path`` starts with the HDF5 signature (however damaged the rest is)."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(HDF5_SIGNATURE)) == HDF5_SIGNATURE
+    except OSError:
+        return False
+
+
+def _walk(h5) -> None:
+    """Read the attributes of the root and of every object (all the metadata HDF5 decodes)."""
+    dict(h5.attrs)
+    h5.visititems(lambda name, obj: dict(obj.attrs) and None)
+
+
+def _damaged(path, exc) -> DamagedFileError:
+    why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return DamagedFileError(f"{path}: damaged, the HDF5 library cannot read it ({why}); "
+                            "`jointsim run --resume` sets it aside as "
+                            f"{Path(path).name}.damaged and computes the run again")
+
+
+def set_aside(path) -> Path:
+    """Rename a damaged file to ``<name>.damaged`` (``.damaged.1``, ... if taken)."""
+    path = Path(path)
+    dest = path.with_name(path.name + ".damaged")
+    k = 0
+    while dest.exists():
+        k += 1
+        dest = path.with_name(f"{path.name}.damaged.{k}")
+    os.replace(path, dest)
+    return dest
 
 
 def lock_path(path) -> Path:
@@ -241,7 +290,17 @@ def open_result(path):
     OSError
         When it cannot be opened as HDF5.
     """
-    h5 = h5py.File(path, "r")
+    try:
+        h5 = h5py.File(path, "r")
+    except OSError as exc:
+        if is_hdf5(path):
+            raise _damaged(path, exc) from None
+        raise
+    try:
+        _walk(h5)
+    except (OSError, KeyError, RuntimeError, ValueError) as exc:
+        h5.close()
+        raise _damaged(path, exc) from None
     if "schema_version" not in h5.attrs or "status" not in h5.attrs:
         h5.close()
         raise NotAResultError(f"{path}: an HDF5 file that jointsim did not write (no "
@@ -337,6 +396,17 @@ class ResultWriter:
 
     def _open(self, scene, resume, overwrite):
         self.h5 = None
+        if resume and self.path.exists() and is_hdf5(self.path):
+            try:
+                with h5py.File(self.path, "r", locking=False) as h5:
+                    _walk(h5)
+            except (OSError, KeyError, RuntimeError, ValueError) as exc:
+                # torn inside the HDF5 library (a kill during its flush): what it
+                # held cannot be trusted; keep it aside and compute the run again
+                dest = set_aside(self.path)
+                log.warning("%s; set aside as %s, computing the run again",
+                            _damaged(self.path, exc), dest.name)
+                resume, overwrite = False, True
         if resume:
             if not self.path.exists():
                 raise FileNotFoundError(f"{self.path}: cannot resume, the file does not exist")
