@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from .io.hdf5 import ResultWriter
+from .results import interrupt_cause
 
 log = logging.getLogger(__name__)
 
@@ -85,7 +86,15 @@ def run_scene(scene, out_path, resume: bool = False, overwrite: bool = False) ->
             results: dict[str, object] = {}
             for name in todo:
                 log.info("analysis %s", name)
-                results[name] = ANALYSES[name](scene, model, writer, results)
+                try:
+                    results[name] = ANALYSES[name](scene, model, writer, results)
+                except SystemError as exc:
+                    # a signal handled while a numba kernel was being called comes out
+                    # of the call as a SystemError caused by the KeyboardInterrupt
+                    cause = interrupt_cause(exc)
+                    if cause is None:
+                        raise
+                    raise KeyboardInterrupt(str(cause)) from None
         writer.h5.attrs["wall_time_s"] = time.perf_counter() - t0
     log.info("wrote %s in %.2f s", out_path, time.perf_counter() - t0)
     return out_path

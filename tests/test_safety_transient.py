@@ -171,3 +171,25 @@ def test_a_killed_free_decay_is_marched_again_by_resume(tmp_path, reference, sig
     seen = [_kill_and_resume(tmp_path / f"d{k}.h5", DECAY, DECAY_LONG, DECAY_SETS, ref,
                              rng.uniform(0.3, 0.95) * duration, sig) for k in range(5)]
     assert any(s in ("running", "interrupted") for s in seen), seen
+
+
+def test_an_interrupt_inside_a_numba_call_is_still_an_interrupt():
+    """A signal handled while a numba kernel is called surfaces as a chain of
+    SystemError caused by the KeyboardInterrupt: it is found, other errors are not."""
+    from jointsim.results import interrupt_cause
+    from jointsim.solvers.transient import _interrupted
+
+    try:
+        try:
+            raise KeyboardInterrupt("stopped by SIGTERM")
+        except KeyboardInterrupt as e:
+            raise SystemError("returned a result with an exception set") from e
+    except SystemError as e2:
+        inner = e2
+    outer = SystemError("outer")
+    outer.__cause__ = inner
+    assert str(interrupt_cause(outer)) == "stopped by SIGTERM"
+    assert _interrupted(outer, 7) == "interrupted in period 7 (stopped by SIGTERM)"
+    assert interrupt_cause(SystemError("a real bug")) is None
+    with pytest.raises(SystemError, match="a real bug"):
+        _interrupted(SystemError("a real bug"), 7)

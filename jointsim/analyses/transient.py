@@ -253,7 +253,7 @@ def run_transient(scene, model, writer, results=None) -> None:
         writer.h5.flush()
     log.info("transient: %s", conv.message)
     if conv.status == INTERRUPTED:
-        raise KeyboardInterrupt
+        raise KeyboardInterrupt(conv.message)
     if not conv.success:
         raise RuntimeError(f"transient: {conv.message}")
 

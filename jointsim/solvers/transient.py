@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..results import (INTERRUPTED, NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS,
-                       Convergence)
+                       Convergence, interrupt_cause)
 from ..harmonics import coefficient_index, dft_matrix, n_coefficients
 from ..loads import LoadFunction
 from .contact_map import ContactMap, empty_eval
@@ -246,6 +246,16 @@ def _progress(total, desc, enabled):
     from tqdm import tqdm
     return tqdm(total=total, desc=desc, unit="period", disable=None if enabled else True,
                 leave=False)
+
+
+def _interrupted(exc: BaseException, k: int) -> str:
+    """The message of a march stopped by ``exc`` in period ``k`` (SIGINT, SIGTERM...);
+    a :class:`SystemError` not caused by an interrupt
+    (:func:`~jointsim.results.interrupt_cause`) is re-raised."""
+    cause = interrupt_cause(exc)
+    if cause is None:
+        raise exc
+    return f"interrupted in period {k}" + (f" ({cause})" if str(cause) else "")
 
 
 @dataclass(frozen=True)
@@ -475,8 +485,8 @@ def _periods_until_steady(ga: GeneralizedAlpha, s, settings, h: float, rigid: Ri
                            f"{settings.steady_tol:g}; raise analysis.transient.max_periods")
     except StepFailure as exc:
         status, message = STEP_TOO_SMALL, f"gave up in period {k}: {exc}"
-    except KeyboardInterrupt:
-        status, message = INTERRUPTED, f"interrupted in period {k}"
+    except (KeyboardInterrupt, SystemError) as exc:
+        status, message = INTERRUPTED, _interrupted(exc, k)
     return _MarchOutcome(status, message, len(changes), tuple(changes), last)
 
 
@@ -787,6 +797,6 @@ def _ring_down(ga: GeneralizedAlpha, s, x_static, Mphi, h: float, settings,
                 message = f"marched {settings.max_periods} periods of the linear mode"
     except StepFailure as exc:
         status, message = STEP_TOO_SMALL, f"gave up in period {k}: {exc}"
-    except KeyboardInterrupt:
-        status, message = INTERRUPTED, f"interrupted in period {k}"
+    except (KeyboardInterrupt, SystemError) as exc:
+        status, message = INTERRUPTED, _interrupted(exc, k)
     return _MarchOutcome(status, message, k + 1)
