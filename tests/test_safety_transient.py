@@ -58,12 +58,15 @@ def _same_counters(a, b):
                 assert x["transient"].attrs[k] == y["transient"].attrs[k], k
 
 
-def test_an_interrupted_march_resumes_to_the_uninterrupted_file(tmp_path, monkeypatch):
+@pytest.mark.parametrize("keep", [0, 4])
+def test_an_interrupted_march_resumes_to_the_uninterrupted_file(tmp_path, monkeypatch, keep):
     """In process: the 11th period's commit is cut by an interrupt; resume equals the
-    uninterrupted run (rows, harmonics, loops, checkpoints and step counters)."""
+    uninterrupted run (rows, harmonics, loops, checkpoints and step counters).  With
+    ``history_periods = 4`` only the last 4 periods' history is kept, written at the
+    end: resume marches those 4 again to rebuild it."""
     from jointsim.analyses import transient as T
     from jointsim.run import run_scene
-    scene = load_scene(TR)
+    scene = load_scene(TR, [f"analysis.transient.history_periods={keep}"])
     ref = run_scene(scene, tmp_path / "ref.h5")
     out = tmp_path / "cut.h5"
     calls = {"n": 0}

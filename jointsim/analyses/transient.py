@@ -188,10 +188,12 @@ def _drop_transient(h5) -> None:
         del h5["transient"]
 
 
-def _stored_march(writer, steady: bool):
+def _stored_march(writer, steady: bool, keep: int):
     """What a resumed file holds of this analysis: ``"complete"``, a number of
     committed periods with checkpoints (steady marches), or None (march from the
-    start; whatever was stored of it is removed first)."""
+    start; whatever was stored of it is removed first).  ``keep``: the scene's
+    ``history_periods`` (then the history is written only at the end, so rows of
+    it in an unfinished file are of an unfinished ending)."""
     h5 = writer.h5
     if "transient" not in h5:
         return None
@@ -200,7 +202,10 @@ def _stored_march(writer, steady: bool):
     n = writer.rows(_Checkpoints.NAME)
     if steady and n and writer.rows("transient/period_change") == n:
         _drop_root_links(h5)   # the loops of an unfinished ending are written again
-        for name in ("transient/loops", "transient/masing"):
+        ending = ["transient/loops", "transient/masing"]
+        if keep:
+            ending += ["transient/x", "transient/t", "transient/q"]
+        for name in ending:
             if name in h5:
                 del h5[name]
         return n
@@ -226,7 +231,7 @@ def run_transient(scene, model, writer, results=None) -> None:
     tr = scene.analysis.transient
     units = model.units
     dofs, labels = output_dofs(scene, model, tr)
-    stored = _stored_march(writer, tr.omega > 0.0)
+    stored = _stored_march(writer, tr.omega > 0.0, tr.history_periods)
     if stored == "complete":
         log.info("transient: already complete in %s", writer.path)
         return
