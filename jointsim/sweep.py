@@ -244,42 +244,42 @@ def run_sweep(scene_path, vary: list[str], outdir, scheduler: str | None = None,
     if not scheduler and n_workers < 1:
         raise ValueError(f"--workers {n_workers}: a local cluster needs at least 1 worker")
     variants = plan(scene_path, vary, outdir, common)
-    client, cluster = _client(scheduler, n_workers)
     outdir = Path(outdir)
+    index = outdir / "sweep.h5"
+    head = {"scene_path": str(scene_path), "axes": list(vary), "common": list(common)}
+    cols = {"overrides": [" ".join(v.overrides) for v in variants],
+            "output": [v.output.name for v in variants],
+            "status": ["running"] * len(variants), "message": [""] * len(variants)}
     n_failed = 0
-    try:
-        outdir.mkdir(parents=True, exist_ok=True)
-        index = outdir / "sweep.h5"
-        head = {"scene_path": str(scene_path), "axes": list(vary), "common": list(common)}
-        cols = {"overrides": [" ".join(v.overrides) for v in variants],
-                "output": [v.output.name for v in variants],
-                "status": ["running"] * len(variants), "message": [""] * len(variants)}
-        _write_index(index, head, cols)
-        with _signals_interrupt():
+    with _signals_interrupt():   # SIGINT, SIGTERM, SIGHUP: KeyboardInterrupt
+        client, cluster = _client(scheduler, n_workers)
+        try:
+            outdir.mkdir(parents=True, exist_ok=True)
+            _write_index(index, head, cols)
             futures = [client.submit(run_variant, str(scene_path), v, pure=False)
                        for v in variants]
-            try:
-                for fut in tqdm(as_completed(futures), total=len(futures), desc="sweep",
-                                unit="run"):
-                    r = fut.result()
-                    i = r["index"]
-                    cols["status"][i], cols["message"][i] = r["status"], r["message"]
-                    _write_index(index, head, cols)
-                    if r["status"] != "complete":
-                        n_failed += 1
-                        log.warning("variant %d failed: %s", i, r["message"])
-            except KeyboardInterrupt as exc:  # SIGINT, SIGTERM, SIGHUP: say so, then stop
+            for fut in tqdm(as_completed(futures), total=len(futures), desc="sweep",
+                            unit="run"):
+                r = fut.result()
+                i = r["index"]
+                cols["status"][i], cols["message"][i] = r["status"], r["message"]
+                _write_index(index, head, cols)
+                if r["status"] != "complete":
+                    n_failed += 1
+                    log.warning("variant %d failed: %s", i, r["message"])
+        except KeyboardInterrupt as exc:  # say so in the index, then stop
+            if index.exists():
                 why = str(exc) or "stopped by the user (Ctrl-C)"
                 for i, st in enumerate(cols["status"]):
                     if st == "running":
                         cols["status"][i] = "interrupted"
                         cols["message"][i] = f"{why}; rerun the sweep to finish it"
                 _write_index(index, head, cols)
-                raise
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+            raise
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
     log.info("sweep of %d runs done, %d failed; index %s", len(variants), n_failed, index)
     if n_failed:
         raise RuntimeError(f"{n_failed} of {len(variants)} sweep variants failed (messages in "

@@ -435,7 +435,11 @@ class ResultWriter:
             if self.path.exists() and not overwrite:
                 raise FileExistsError(f"{self.path}: exists; continue it with --resume or "
                                       "replace it with --overwrite (nothing was changed)")
-            self.h5 = h5py.File(self.path, "w", locking=False)
+            # created under a side name and renamed into place once its header is
+            # written: the path never names a half-created file, and an existing
+            # file that is overwritten stays whole until then
+            fresh = self.path.with_name(self.path.name + ".new")
+            self.h5 = h5py.File(fresh, "w", locking=False)
             a = self.h5.attrs
             a["schema_version"] = SCHEMA_VERSION
             a["jointsim_version"] = __version__
@@ -449,6 +453,8 @@ class ResultWriter:
         self.h5.attrs["message"] = ""
         self.h5.attrs["pid"] = os.getpid()
         self.h5.flush()
+        if not resume:
+            os.replace(fresh, self.path)
 
     # -- context management -------------------------------------------------
     def __enter__(self):
