@@ -220,6 +220,31 @@ def test_a_damaged_file_is_named_by_info_and_computed_again_by_resume(tmp_path, 
     assert junk.read_text() == "not hdf5"
 
 
+def test_an_overwrite_stopped_before_its_header_is_written_leaves_the_old_file(
+        tmp_path, monkeypatch):
+    """A new file is created under a side name and renamed into place: a run stopped
+    while creating it leaves the file it was to replace whole."""
+    import jointsim.io.hdf5 as H
+    out = tmp_path / "o.h5"
+    scene = _scene()
+    with ResultWriter(out, scene) as w:
+        with w.commit():
+            w.append("hbm/omega", 1.0, "1")
+    before = out.read_bytes()
+
+    def stop(*args):
+        raise KeyboardInterrupt("stopped by SIGTERM")
+
+    monkeypatch.setattr(H.os, "replace", stop)
+    with pytest.raises(KeyboardInterrupt):
+        ResultWriter(out, scene, overwrite=True)
+    monkeypatch.undo()
+    assert out.read_bytes() == before and not lock_path(out).exists()
+    with ResultWriter(out, scene, overwrite=True):
+        pass
+    assert S.status(out) == "complete" and not (tmp_path / "o.h5.new").exists()
+
+
 def test_info_on_an_hdf5_file_jointsim_did_not_write(tmp_path):
     out = tmp_path / "foreign.h5"
     with h5py.File(out, "w") as h5:
