@@ -23,7 +23,10 @@ Crash consistency (issue 11):
   writer is refused (:class:`FileLockedError`) and nothing is touched.  An
   existing result file is opened for writing only to resume it or when
   overwriting is asked for explicitly.  Forked worker processes never hold
-  the lock (:func:`release_inherited`).
+  the lock (:func:`release_inherited`).  A new file is created as
+  ``<name>.new`` and renamed into place once its header is written, so the
+  path never names a half-created file and a file being overwritten stays
+  whole until then.
 * **Committed points.**  The rows of one point (all its datasets, its loops
   and Masing rows) are appended inside :meth:`ResultWriter.commit`; then the
   file is flushed, the attribute ``committed_rows`` (:data:`COMMITTED`) of
