@@ -103,8 +103,27 @@ def _walk(h5) -> None:
     h5.visititems(lambda name, obj: dict(obj.attrs) and None)
 
 
+def _being_written(path) -> bool:
+    """Whether a live process holds the writer's lock of ``path`` (:func:`acquire_lock`)."""
+    try:
+        fd = os.open(lock_path(path), os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    finally:
+        os.close(fd)  # drops the shared lock if it was taken
+    return False
+
+
 def _damaged(path, exc) -> DamagedFileError:
+    """The error of a reader of an unreadable file (one being written says so)."""
     why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    if _being_written(path):
+        return DamagedFileError(f"{path}: cannot be read while it is being written ({why}); "
+                                "read it again in a moment")
     return DamagedFileError(f"{path}: damaged, the HDF5 library cannot read it ({why}); "
                             "`jointsim run --resume` sets it aside as "
                             f"{Path(path).name}.damaged and computes the run again")
@@ -407,8 +426,10 @@ class ResultWriter:
                 # torn inside the HDF5 library (a kill during its flush): what it
                 # held cannot be trusted; keep it aside and compute the run again
                 dest = set_aside(self.path)
-                log.warning("%s; set aside as %s, computing the run again",
-                            _damaged(self.path, exc), dest.name)
+                log.warning("%s: damaged, the HDF5 library cannot read it (%s); set aside "
+                            "as %s, computing the run again", self.path,
+                            str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
+                            dest.name)
                 resume, overwrite = False, True
         if resume:
             if not self.path.exists():
