@@ -208,6 +208,11 @@ def test_a_damaged_file_is_named_by_info_and_computed_again_by_resume(tmp_path, 
     assert main(["info", str(out)]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(out) in err[0] and "--resume" in err[0]
+    from jointsim.io.hdf5 import acquire_lock, release_lock
+    fd = acquire_lock(out)   # a file being written is not called damaged
+    with pytest.raises(DamagedFileError, match="while it is being written"):
+        open_result(out)
+    release_lock(out, fd)
     with ResultWriter(out, scene, resume=True) as w:
         assert w.rows("hbm/omega") == 0
     assert (tmp_path / "d.h5.damaged").read_bytes() == data[:len(data) // 2]
