@@ -58,9 +58,10 @@ def _same_counters(a, b):
                 assert x["transient"].attrs[k] == y["transient"].attrs[k], k
 
 
-@pytest.mark.parametrize("keep", [0, 4])
-def test_an_interrupted_march_resumes_to_the_uninterrupted_file(tmp_path, monkeypatch, keep):
-    """In process: the 11th period's commit is cut by an interrupt; resume equals the
+@pytest.mark.parametrize("keep,cut", [(0, 11), (4, 11), (0, 2)])
+def test_an_interrupted_march_resumes_to_the_uninterrupted_file(tmp_path, monkeypatch, keep,
+                                                                 cut):
+    """In process: period ``cut``'s commit is cut by an interrupt; resume equals the
     uninterrupted run (rows, harmonics, loops, checkpoints and step counters).  With
     ``history_periods = 4`` only the last 4 periods' history is kept, written at the
     end: resume marches those 4 again to rebuild it."""
@@ -72,21 +73,21 @@ def test_an_interrupted_march_resumes_to_the_uninterrupted_file(tmp_path, monkey
     calls = {"n": 0}
     append = T._Checkpoints.append
 
-    def cut(self, *args):
+    def stop_at_cut(self, *args):
         calls["n"] += 1
-        if calls["n"] == 11:
+        if calls["n"] == cut:
             raise KeyboardInterrupt("stopped by the test")
         return append(self, *args)
 
-    monkeypatch.setattr(T._Checkpoints, "append", cut)
+    monkeypatch.setattr(T._Checkpoints, "append", stop_at_cut)
     with pytest.raises(KeyboardInterrupt):
         run_scene(scene, out)
     monkeypatch.undo()
     assert S.status(out) == "interrupted"
     S.committed_exactly(out)
     with h5py.File(out, "r") as h5:
-        assert h5["transient/period_change"].shape == (10,)
-        assert h5["transient/checkpoint/state"].shape[0] == 10
+        assert h5["transient/period_change"].shape == (cut - 1,)
+        assert h5["transient/checkpoint/state"].shape[0] == cut - 1
     # the resume is interrupted again, after the loops of the last period are written
     write_loops = T.write_loops
 
@@ -163,7 +164,7 @@ def test_a_killed_march_resumes_to_the_uninterrupted_one(tmp_path, reference, si
     rng = random.Random(7000 + int(sig))
     seen = [_kill_and_resume(tmp_path / f"k{k}.h5", TR, LONG, STEADY, ref,
                              rng.uniform(0.15, 0.95) * duration, sig) for k in range(10)]
-    assert sum(s in ("running", "interrupted") for s in seen) >= 5, seen
+    assert sum(s in ("running", "interrupted") for s in seen) >= 3, seen
 
 
 @pytest.mark.slow

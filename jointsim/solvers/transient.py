@@ -381,9 +381,11 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
     s = _steady_initial_state(ga, force, static, h, settings, initial)
     k0, known = 0, ()
     if resume is not None:
-        # the first factorisation of an uninterrupted march is at exactly h (period 0)
-        ga._factor(ga.snap(h))
         s, k0, known = resume.state, int(resume.period), tuple(resume.changes)
+        if k0 > 0:
+            # the first factorisation of an uninterrupted march is at exactly h, in
+            # period 0 (counted in the stored counters)
+            ga._factor(ga.snap(h))
         ga.stats = StepStats(**resume.stats)
     rigid = rigid_modes(model, getattr(settings, "rigid_cutoff_hz", None))
     bar = _progress(settings.max_periods, f"transient w={omega:.4g}", progress)
