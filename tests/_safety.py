@@ -26,11 +26,18 @@ def env() -> dict:
     return e
 
 
+def _default_sigint() -> None:
+    # a shell's background job inherits SIGINT ignored, and Python keeps it ignored:
+    # give the run the SIGINT of a terminal, however the tests were started
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start(*args) -> subprocess.Popen:
-    """Start ``jointsim ARGS`` in a new session (its own process group)."""
+    """Start ``jointsim ARGS`` in a new session (its own process group), SIGINT not ignored."""
     return subprocess.Popen([sys.executable, "-m", "jointsim.cli", *args, "-q"],
                             cwd=ROOT, env=env(), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_default_sigint)
 
 
 def run(*args, timeout: float = 120) -> subprocess.CompletedProcess:
