@@ -88,9 +88,9 @@ def run_scene(scene, out_path, resume: bool = False, overwrite: bool = False) ->
                 log.info("analysis %s", name)
                 try:
                     results[name] = ANALYSES[name](scene, model, writer, results)
-                except SystemError as exc:
-                    # a signal handled while a numba kernel was being called comes out
-                    # of the call as a SystemError caused by the KeyboardInterrupt
+                except (SystemError, ImportError) as exc:
+                    # a signal handled while a numba kernel was being called (or a
+                    # module imported) comes out as an error caused by the interrupt
                     cause = interrupt_cause(exc)
                     if cause is None:
                         raise

@@ -194,6 +194,14 @@ def test_an_interrupt_inside_a_numba_call_is_still_an_interrupt():
     outer.__cause__ = inner
     assert str(interrupt_cause(outer)) == "stopped by SIGTERM"
     assert _interrupted(outer, 7) == "interrupted in period 7 (stopped by SIGTERM)"
+    try:
+        try:
+            raise KeyboardInterrupt("stopped by SIGINT")
+        except KeyboardInterrupt:
+            raise ImportError("initialization failed")
+    except ImportError as e3:
+        assert str(interrupt_cause(e3)) == "stopped by SIGINT"
     assert interrupt_cause(SystemError("a real bug")) is None
+    assert interrupt_cause(ImportError("no module named x")) is None
     with pytest.raises(SystemError, match="a real bug"):
         _interrupted(SystemError("a real bug"), 7)
