@@ -277,8 +277,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: run did not succeed: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as exc:
-        print(f"interrupted ({exc or 'SIGINT'}); the result file holds the committed "
-              "points; continue with --resume", file=sys.stderr)
+        if args.command == "sweep":
+            print(f"interrupted ({exc or 'SIGINT'}); finished variants are kept, rerun the "
+                  "sweep to compute the others", file=sys.stderr)
+        else:
+            print(f"interrupted ({exc or 'SIGINT'}); the result file holds the committed "
+                  "points; continue with --resume", file=sys.stderr)
         return 143 if "SIGTERM" in str(exc) else 130
     return 1
 

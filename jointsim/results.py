@@ -83,3 +83,22 @@ class PrescribedResult:
         """``(u, f, N)`` of the last period, each of shape (n_e, n_samples)."""
         s = slice(-self.n_samples, None)
         return self.u[:, s], self.f[:, s], self.N[:, s]
+
+
+def interrupt_cause(exc: BaseException) -> KeyboardInterrupt | None:
+    """The :class:`KeyboardInterrupt` (SIGINT, SIGTERM) behind ``exc``, or None.
+
+    A signal whose handler raises while a numba kernel is being called (or
+    unpickled) comes out of the call as a chain of :class:`SystemError`
+    ("returned a result with an exception set") caused by the interrupt; one
+    that lands while a module is being imported, as an :class:`ImportError`.
+    """
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        if not isinstance(exc, (SystemError, ImportError)):
+            return None
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None

@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from .io.hdf5 import ResultWriter
+from .results import interrupt_cause
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +93,13 @@ def run_scene(scene, out_path, resume: bool = False, overwrite: bool = False) ->
                 log.info("analysis %s", name)
                 try:
                     results[name] = ANALYSES[name](scene, model, writer, results)
+                except (SystemError, ImportError) as exc:
+                    # a signal handled while a numba kernel was being called (or a
+                    # module imported) comes out as an error caused by the interrupt
+                    cause = interrupt_cause(exc)
+                    if cause is None:
+                        raise
+                    raise KeyboardInterrupt(str(cause)) from None
                 except RuntimeError as exc:
                     # the runner wrote what it computed; no later analysis needs it
                     # (the transient cross-check is skipped without an HBM result)

@@ -5,8 +5,10 @@ one scene.  Every variant is validated before anything is submitted (a bad
 value names the key and writes nothing); each variant then runs as its own
 ``jointsim run`` on a dask worker and writes its own result file.  An index
 file ``sweep.h5`` records, for every variant, its overrides, its result file
-and how it ended; it is written as variants finish, so an interrupted sweep
-shows what is done.
+and how it ended (``running`` until then); it is written as variants finish,
+each time whole and renamed into place, so an interrupted sweep shows what is
+done and the index can be read at any time.  A rerun into the same folder
+keeps complete variants and resumes killed ones.
 
 Without a scheduler address a local cluster of processes is started on this
 machine; with ``--scheduler tcp://host:8786`` the variants go to an existing
@@ -16,12 +18,14 @@ from __future__ import annotations
 
 import itertools
 import logging
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
 import numpy as np
 
+from .run import _signals_interrupt
 from .scene import SceneError, load_scene
 
 log = logging.getLogger(__name__)
@@ -135,17 +139,33 @@ def run_variant(scene_path: str, variant: Variant) -> dict:
                 "message": f"{type(exc).__name__}: {exc}"}
 
 
-def _set_status(index: Path, rows: dict[int, tuple[str, str]]) -> None:
-    """Write ``{row: (status, message)}`` to the index, opened only for this.
+def _write_index(index: Path, head: dict, columns: dict[str, list[str]]) -> None:
+    """Write the whole index afresh beside it, then rename it over the old one.
 
-    The index is open for a moment per update, so it can be read while the
-    sweep runs.
+    A rename is atomic: a reader (or a sweep killed at any instant) sees the
+    old index or the new one, whole, never one torn inside the HDF5 library,
+    and the index is never held open between updates.
+
+    Parameters
+    ----------
+    index : Path
+        ``sweep.h5``.
+    head : dict
+        Root attributes (``scene_path``, ``axes``, ``common``).
+    columns : dict of str to list of str
+        ``overrides``, ``output``, ``status`` and ``message``, one entry per variant.
     """
-    with h5py.File(index, "a", locking=False) as h5:
-        for i, (st, msg) in rows.items():
-            h5["status"][i] = st
-            h5["message"][i] = msg
-        h5.flush()
+    tmp = index.with_name(index.name + ".tmp")
+    s = h5py.string_dtype()
+    with h5py.File(tmp, "w", locking=False) as h5:
+        for k, v in head.items():
+            h5.attrs[k] = np.array(v, dtype=s) if isinstance(v, (list, tuple)) else v
+        for name, col in columns.items():
+            h5.create_dataset(name, data=np.array(col, dtype=s))
+            h5[name].attrs["unit"] = "1"
+    with open(tmp, "rb") as f:
+        os.fsync(f.fileno())
+    os.replace(tmp, index)
 
 
 def _client(scheduler: str | None, n_workers: int, timeout_s: float = 10.0):
@@ -271,37 +291,43 @@ def run_variants(scene_path, variants: list[Variant], outdir, scheduler: str | N
     own = client is None
     if own and not scheduler and n_workers < 1:
         raise ValueError(f"--workers {n_workers}: a local cluster needs at least 1 worker")
-    client, cluster = _client(scheduler, n_workers) if own else (client, None)
     outdir = Path(outdir)
+    index = outdir / index_name
+    head = {"scene_path": str(scene_path), **(attrs or {})}
+    cols = {"overrides": [" ".join(v.overrides) for v in variants],
+            "output": [v.output.name for v in variants],
+            "status": ["running"] * len(variants), "message": [""] * len(variants)}
     row = {v.index: k for k, v in enumerate(variants)}
     results: list[dict] = [{}] * len(variants)
-    try:
-        outdir.mkdir(parents=True, exist_ok=True)
-        index = outdir / index_name
-        with h5py.File(index, "w", locking=False) as h5:
-            h5.attrs["scene_path"] = str(scene_path)
-            for k, v in (attrs or {}).items():
-                h5.attrs[k] = np.array(v, dtype=h5py.string_dtype())
-            s = h5py.string_dtype()
-            h5.create_dataset("overrides", data=np.array([" ".join(v.overrides)
-                                                          for v in variants], dtype=s))
-            h5.create_dataset("output", data=np.array([v.output.name for v in variants],
-                                                      dtype=s))
-            h5.create_dataset("status", data=np.array(["running"] * len(variants), dtype=s))
-            h5.create_dataset("message", data=np.array([""] * len(variants), dtype=s))
-            for name in ("overrides", "output", "status", "message"):
-                h5[name].attrs["unit"] = "1"
-        futures = [client.submit(run_variant, str(scene_path), v, pure=False) for v in variants]
-        for fut in tqdm(as_completed(futures), total=len(futures), desc=desc, unit="run"):
-            r = fut.result()
-            k = row[r["index"]]
-            results[k] = r
-            _set_status(index, {k: (r["status"], r["message"])})
-            if r["status"] != "complete":
-                log.warning("variant %s failed: %s", variants[k].output.name, r["message"])
-    finally:
-        if own:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+    with _signals_interrupt():   # SIGINT, SIGTERM, SIGHUP: KeyboardInterrupt
+        client, cluster = _client(scheduler, n_workers) if own else (client, None)
+        try:
+            outdir.mkdir(parents=True, exist_ok=True)
+            _write_index(index, head, cols)
+            futures = [client.submit(run_variant, str(scene_path), v, pure=False)
+                       for v in variants]
+            for fut in tqdm(as_completed(futures), total=len(futures), desc=desc,
+                            unit="run"):
+                r = fut.result()
+                k = row[r["index"]]
+                results[k] = r
+                cols["status"][k], cols["message"][k] = r["status"], r["message"]
+                _write_index(index, head, cols)
+                if r["status"] != "complete":
+                    log.warning("variant %s failed: %s", variants[k].output.name,
+                                r["message"])
+        except KeyboardInterrupt as exc:  # say so in the index, then stop
+            if index.exists():
+                why = str(exc) or "stopped by the user (Ctrl-C)"
+                for k, st in enumerate(cols["status"]):
+                    if st == "running":
+                        cols["status"][k] = "interrupted"
+                        cols["message"][k] = f"{why}; rerun to finish it"
+                _write_index(index, head, cols)
+            raise
+        finally:
+            if own:
+                client.close()
+                if cluster is not None:
+                    cluster.close()
     return index, results

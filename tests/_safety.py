@@ -26,11 +26,18 @@ def env() -> dict:
     return e
 
 
+def _default_sigint() -> None:
+    # a shell's background job inherits SIGINT ignored, and Python keeps it ignored:
+    # give the run the SIGINT of a terminal, however the tests were started
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start(*args) -> subprocess.Popen:
-    """Start ``jointsim ARGS`` in a new session (its own process group)."""
+    """Start ``jointsim ARGS`` in a new session (its own process group), SIGINT not ignored."""
     return subprocess.Popen([sys.executable, "-m", "jointsim.cli", *args, "-q"],
                             cwd=ROOT, env=env(), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_default_sigint)
 
 
 def run(*args, timeout: float = 120) -> subprocess.CompletedProcess:
@@ -137,3 +144,34 @@ def consistent(path) -> None:
         h5.visititems(visit)
         if "hbm/loops/point" in h5:
             assert h5["hbm/loops/point"][()].max(initial=-1) < h5["hbm/omega"].shape[0]
+
+
+def committed_exactly(path) -> None:
+    """Every extendable dataset, as readers see it, holds exactly its committed rows
+    (groups whose datasets take different rows per commit, such as ``/transient``)."""
+    from jointsim.io.hdf5 import COMMITTED, open_result
+    with open_result(path) as h5:
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset) and obj.maxshape and obj.maxshape[0] is None:
+                assert obj.shape[0] == int(obj.attrs.get(COMMITTED, 0)), (name, obj.shape)
+        h5.visititems(visit)
+
+
+def assert_same_datasets(path, ref, names, atol: float = 1e-8) -> None:
+    """The datasets ``names`` of ``path`` equal those of ``ref`` (to ``atol`` relative
+    to their scale; NaN where the reference has NaN)."""
+    from jointsim.io.hdf5 import open_result
+    with open_result(path) as a, open_result(ref) as b:
+        for name in names:
+            assert (name in a) == (name in b), name
+            if name not in b:
+                continue
+            x, y = a[name][()], b[name][()]
+            assert x.shape == y.shape, f"{name}: {x.shape} against {y.shape}"
+            if x.dtype.kind not in "fc":
+                np.testing.assert_array_equal(x, y, err_msg=name)
+                continue
+            np.testing.assert_array_equal(np.isnan(x), np.isnan(y), err_msg=name)
+            scale = max(float(np.nanmax(np.abs(y), initial=0.0)), 1.0)
+            err = float(np.nanmax(np.abs(x - y), initial=0.0)) / scale
+            assert err <= atol, f"{name}: differs by {err:.3g}"

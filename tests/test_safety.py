@@ -17,8 +17,8 @@ import h5py
 import numpy as np
 import pytest
 
-from jointsim.io.hdf5 import (COMMITTED, FileLockedError, NotAResultError, ResultWriter,
-                              lock_path, open_result)
+from jointsim.io.hdf5 import (COMMITTED, DamagedFileError, FileLockedError, NotAResultError,
+                              ResultWriter, lock_path, open_result)
 from jointsim.scene import load_scene
 
 from . import _safety as S
@@ -189,6 +189,65 @@ def test_a_second_writer_is_refused_before_the_file_is_touched(tmp_path):
         pass
     with h5py.File(out, "r") as h5:
         assert "hbm" not in h5
+
+
+def test_a_damaged_file_is_named_by_info_and_computed_again_by_resume(tmp_path, capsys):
+    """A file torn inside the HDF5 library (here: cut short) is not trusted: readers
+    say so in one line, ``--resume`` keeps it aside and starts the run afresh."""
+    out = tmp_path / "d.h5"
+    scene = _scene()
+    with ResultWriter(out, scene) as w:
+        for i in range(3):
+            with w.commit():
+                w.append("hbm/omega", float(i), "1")
+    data = out.read_bytes()
+    out.write_bytes(data[:len(data) // 2])
+    with pytest.raises(DamagedFileError, match="damaged"):
+        open_result(out)
+    from jointsim.cli import main
+    assert main(["info", str(out)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(out) in err[0] and "--resume" in err[0]
+    from jointsim.io.hdf5 import acquire_lock, release_lock
+    fd = acquire_lock(out)   # a file being written is not called damaged
+    with pytest.raises(DamagedFileError, match="while it is being written"):
+        open_result(out)
+    release_lock(out, fd)
+    with ResultWriter(out, scene, resume=True) as w:
+        assert w.rows("hbm/omega") == 0
+    assert (tmp_path / "d.h5.damaged").read_bytes() == data[:len(data) // 2]
+    assert S.status(out) == "complete"
+    # a file that is not HDF5 at all is refused, not set aside
+    junk = tmp_path / "junk.h5"
+    junk.write_text("not hdf5")
+    with pytest.raises(OSError, match="cannot resume"):
+        ResultWriter(junk, scene, resume=True)
+    assert junk.read_text() == "not hdf5"
+
+
+def test_an_overwrite_stopped_before_its_header_is_written_leaves_the_old_file(
+        tmp_path, monkeypatch):
+    """A new file is created under a side name and renamed into place: a run stopped
+    while creating it leaves the file it was to replace whole."""
+    import jointsim.io.hdf5 as H
+    out = tmp_path / "o.h5"
+    scene = _scene()
+    with ResultWriter(out, scene) as w:
+        with w.commit():
+            w.append("hbm/omega", 1.0, "1")
+    before = out.read_bytes()
+
+    def stop(*args):
+        raise KeyboardInterrupt("stopped by SIGTERM")
+
+    monkeypatch.setattr(H.os, "replace", stop)
+    with pytest.raises(KeyboardInterrupt):
+        ResultWriter(out, scene, overwrite=True)
+    monkeypatch.undo()
+    assert out.read_bytes() == before and not lock_path(out).exists()
+    with ResultWriter(out, scene, overwrite=True):
+        pass
+    assert S.status(out) == "complete" and not (tmp_path / "o.h5.new").exists()
 
 
 def test_info_on_an_hdf5_file_jointsim_did_not_write(tmp_path):

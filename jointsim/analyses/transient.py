@@ -7,6 +7,16 @@ scene also ran harmonic balance, the cross-check against it
 decay (:func:`jointsim.solvers.transient.free_decay`) writes the
 amplitude-dependent frequency and damping.  The time history of chosen DOFs is
 written as the march goes (:class:`_History`).
+
+Resume (issue 11): a forced march commits, with each period's history rows
+and period change, a checkpoint row ``/transient/checkpoint/state`` holding
+the exact march state at the start of that period (displacement, velocity,
+acceleration, contact forces and law state, time, step counters:
+:class:`_Checkpoints`).  ``--resume`` marches the last stored period again
+from its row (the last ``history_periods`` periods, when only those are
+kept) without writing it, then goes on: the resumed file equals the
+uninterrupted one (the same arithmetic from the same state).  A free decay
+keeps no checkpoint: ``--resume`` marches it again from the start.
 """
 from __future__ import annotations
 
@@ -19,8 +29,10 @@ import numpy as np
 from ..io.hdf5 import unit, write_loops
 from ..masing import check_loops
 from ..results import INTERRUPTED, Convergence
-from ..solvers.transient import (PeriodData, free_decay, march_steady, undamped_modes,
-                                 with_mode_damping)
+from ..solvers.contact_map import ContactEval
+from ..solvers.generalized_alpha import MarchState, StepStats
+from ..solvers.transient import (MarchResume, PeriodData, free_decay, march_steady,
+                                 undamped_modes, with_mode_damping)
 from .crosscheck import write_cross_check
 
 log = logging.getLogger(__name__)
@@ -104,6 +116,105 @@ class _History:
         self.blocks.clear()
 
 
+class _Checkpoints:
+    """The march state at the start of every stored period: ``/transient/checkpoint/state``.
+
+    One row per period (row ``k``: the start of period ``k``), appended in the
+    commit of that period's history rows and period change, so that the last
+    committed row always belongs to the last committed period.  A row is the
+    concatenation of :data:`FIELDS` (sizes in the attribute ``sizes``, the
+    law state's shape in ``state_shape``) and the step counters
+    (:class:`~jointsim.solvers.generalized_alpha.StepStats`, attribute
+    ``stats``).
+    """
+
+    NAME = "transient/checkpoint/state"
+    FIELDS = ("t", "x", "v", "a", "phi", "duu", "dug", "dgg", "u", "f", "N", "state")
+    STATS = tuple(f.name for f in dataclasses.fields(StepStats))
+
+    def __init__(self, writer):
+        self.writer = writer
+
+    @property
+    def rows(self) -> int:
+        return self.writer.rows(self.NAME)
+
+    def append(self, s: MarchState, stats: dict) -> None:
+        """Append the state ``s`` at the start of the next period (inside a commit)."""
+        c = s.contact
+        parts = [np.atleast_1d(np.asarray(p, dtype=float)).ravel()
+                 for p in (s.t, s.x, s.v, s.a, c.phi, c.duu, c.dug, c.dgg, c.u, c.f, c.N,
+                           c.state)]
+        row = np.concatenate(parts + [np.array([stats[k] for k in self.STATS], dtype=float)])
+        new = self.NAME not in self.writer.h5
+        self.writer.append(self.NAME, row, "mixed (SI or nondimensional, per field)",
+                           "march state at the start of each period, for --resume")
+        if new:
+            d = self.writer.h5[self.NAME]
+            d.attrs["fields"] = ",".join(self.FIELDS)
+            d.attrs["sizes"] = np.array([p.size for p in parts], dtype=np.int64)
+            d.attrs["state_shape"] = np.array(np.shape(c.state), dtype=np.int64)
+            d.attrs["stats"] = ",".join(self.STATS)
+
+    def load(self, k: int, changes) -> MarchResume:
+        """The :class:`MarchResume` at the start of period ``k`` (a committed row)."""
+        d = self.writer.h5[self.NAME]
+        row = d[k]
+        sizes = [int(n) for n in d.attrs["sizes"]]
+        vals, i = {}, 0
+        for name, n in zip(self.FIELDS, sizes):
+            vals[name] = row[i:i + n].copy()
+            i += n
+        stats = {name: int(v) for name, v in zip(self.STATS, row[i:])}
+        state = vals["state"].reshape(tuple(int(n) for n in d.attrs["state_shape"]))
+        ev = ContactEval(vals["phi"], vals["duu"], vals["dug"], vals["dgg"], state,
+                         vals["u"], vals["f"], vals["N"])
+        s = MarchState(float(vals["t"][0]), vals["x"], vals["v"], vals["a"], ev)
+        return MarchResume(k, s, stats, tuple(float(c) for c in changes))
+
+
+def _drop_root_links(h5) -> None:
+    """Remove the root ``/loops``, ``/masing`` links when they point into ``/transient``."""
+    if h5.attrs.get("loops_of") == "transient":
+        for link in ("loops", "masing"):
+            if h5.get(link, getlink=True) is not None:
+                del h5[link]
+        del h5.attrs["loops_of"]
+
+
+def _drop_transient(h5) -> None:
+    """Remove ``/transient`` (and the root loop links into it) to march again."""
+    _drop_root_links(h5)
+    if "transient" in h5:
+        del h5["transient"]
+
+
+def _stored_march(writer, steady: bool, keep: int):
+    """What a resumed file holds of this analysis: ``"complete"``, a number of
+    committed periods with checkpoints (steady marches), or None (march from the
+    start; whatever was stored of it is removed first).  ``keep``: the scene's
+    ``history_periods`` (then the history is written only at the end, so rows of
+    it in an unfinished file are of an unfinished ending)."""
+    h5 = writer.h5
+    if "transient" not in h5:
+        return None
+    if h5["transient"].attrs.get("complete", False):
+        return "complete"
+    n = writer.rows(_Checkpoints.NAME)
+    if steady and n and writer.rows("transient/period_change") == n:
+        _drop_root_links(h5)   # the loops of an unfinished ending are written again
+        ending = ["transient/loops", "transient/masing"]
+        if keep:
+            ending += ["transient/x", "transient/t", "transient/q"]
+        for name in ending:
+            if name in h5:
+                del h5[name]
+        return n
+    log.info("transient: no checkpoint to resume from; marching again from the start")
+    _drop_transient(h5)
+    return None
+
+
 def run_transient(scene, model, writer, results=None) -> None:
     """The ``transient`` analysis of a scene: march, extract, write ``/transient``.
 
@@ -121,6 +232,10 @@ def run_transient(scene, model, writer, results=None) -> None:
     tr = scene.analysis.transient
     units = model.units
     dofs, labels = output_dofs(scene, model, tr)
+    stored = _stored_march(writer, tr.omega > 0.0, tr.history_periods)
+    if stored == "complete":
+        log.info("transient: already complete in %s", writer.path)
+        return
     g = writer.group("transient", kind="steady" if tr.omega > 0 else "free_decay",
                      rho_inf=tr.rho_inf, steps_per_period=tr.steps_per_period,
                      integrator="generalized-alpha (Chung-Hulbert), force-averaged",
@@ -133,38 +248,64 @@ def run_transient(scene, model, writer, results=None) -> None:
     history = _History(writer, dofs, tr.decimate, tr.history_periods, units)
     if tr.omega > 0.0:
         conv = _run_steady(scene, model, writer, tr, history,
-                           (results or {}).get("hbm"))
+                           (results or {}).get("hbm"), stored or 0)
     else:
         conv = _run_free_decay(scene, model, writer, tr, history)
     history.close()
     for k, v in conv.as_attrs().items():
         writer.h5["transient"].attrs[k] = v
+    if conv.success:
+        writer.h5["transient"].attrs["complete"] = True
+        writer.h5.flush()
     log.info("transient: %s", conv.message)
     if conv.status == INTERRUPTED:
-        raise KeyboardInterrupt
+        raise KeyboardInterrupt(conv.message)
     if not conv.success:
         raise RuntimeError(f"transient: {conv.message}")
 
 
-def _run_steady(scene, model, writer, tr, history, hbm=None) -> Convergence:
-    """March to a steady state and write it; cross-check it against ``hbm`` if given."""
+def _run_steady(scene, model, writer, tr, history, hbm=None, stored: int = 0) -> Convergence:
+    """March to a steady state and write it; cross-check it against ``hbm`` if given.
+
+    ``stored``: periods already committed in a resumed file (with their checkpoints).
+    """
     units = model.units
     g = writer.h5["transient"]
     g.attrs["omega"] = tr.omega
     g.attrs["force_scale"] = tr.force_scale
     g.attrs["steady_tol"] = tr.steady_tol
     one = unit("dimensionless", units)
+    ckpt = _Checkpoints(writer)
+    resume = None
+    if stored:
+        # march the last stored period again (the kept history's periods, if only
+        # the last ones are kept): its state and change are exactly as before
+        k0 = max(0, stored - tr.history_periods) if tr.history_periods else stored - 1
+        resume = ckpt.load(k0, writer.h5["transient/period_change"][:stored])
+        n = tr.steps_per_period
+        history.step = 0 if k0 == 0 else (n + 1) + (k0 - 1) * n
+        log.info("transient: resuming after %d stored periods (from period %d)", stored, k0)
+    start = {}
+
+    def on_state(k, s, stats):
+        start["row"] = (s, dataclasses.asdict(stats))
 
     def on_period(p: PeriodData, change: float):
-        if p.index == 0:
-            history.add(p.t, p.x)
-        else:
-            history.add(p.t[1:], p.x[1:])
-        writer.append("transient/period_change", np.float64(change), one,
-                      "largest displacement change between consecutive periods / amplitude")
+        t, x = (p.t, p.x) if p.index == 0 else (p.t[1:], p.x[1:])
+        if p.index < stored:   # marched again on resume: its rows are in the file
+            if history.keep:
+                history.add(t, x)
+            return
+        with writer.commit():   # the period's rows and its checkpoint: all or nothing
+            history.add(t, x)
+            writer.append("transient/period_change", np.float64(change), one,
+                          "largest displacement change between consecutive periods / "
+                          "amplitude")
+            ckpt.append(*start["row"])
 
     model, note = _periodic_model(model, tr, g)
-    res = march_steady(model, tr, scene=scene, on_period=on_period)
+    res = march_steady(model, tr, scene=scene, on_period=on_period, on_state=on_state,
+                       resume=resume)
     if note and not res.convergence.success:
         c = res.convergence
         res = dataclasses.replace(res, convergence=Convergence(

@@ -23,7 +23,10 @@ Crash consistency (issue 11):
   writer is refused (:class:`FileLockedError`) and nothing is touched.  An
   existing result file is opened for writing only to resume it or when
   overwriting is asked for explicitly.  Forked worker processes never hold
-  the lock (:func:`release_inherited`).
+  the lock (:func:`release_inherited`).  A new file is created as
+  ``<name>.new`` and renamed into place once its header is written, so the
+  path never names a half-created file and a file being overwritten stays
+  whole until then.
 * **Committed points.**  The rows of one point (all its datasets, its loops
   and Masing rows) are appended inside :meth:`ResultWriter.commit`; then the
   file is flushed, the attribute ``committed_rows`` (:data:`COMMITTED`) of
@@ -33,6 +36,13 @@ Crash consistency (issue 11):
   that was being written when the process died: readers
   (:func:`open_result`) and ``--resume`` ignore them, and a writer that
   closes normally or resumes trims them.
+* **Damaged files.**  A kill that lands inside the HDF5 library's own
+  flush can leave metadata half written, which no ordering of jointsim's
+  writes prevents.  Readers (:func:`open_result`) then raise
+  :class:`DamagedFileError` (one line naming the file), and ``--resume``
+  renames the file to ``<name>.damaged`` (:func:`set_aside`) and computes
+  the run again from the start, so that the run still completes with the
+  uninterrupted result.
 """
 from __future__ import annotations
 
@@ -68,6 +78,67 @@ class FileLockedError(OSError):
 
 class NotAResultError(ValueError):
     """An HDF5 file that jointsim did not write."""
+
+
+class DamagedFileError(OSError):
+    """An HDF5 file that the HDF5 library cannot read (torn by a crash inside it)."""
+
+
+#: The first bytes of every HDF5 file (superblock at offset 0).
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def is_hdf5(path) -> bool:
+    """Whether ``path`` starts with the HDF5 signature (however damaged the rest is)."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(HDF5_SIGNATURE)) == HDF5_SIGNATURE
+    except OSError:
+        return False
+
+
+def _walk(h5) -> None:
+    """Read the attributes of the root and of every object (all the metadata HDF5 decodes)."""
+    dict(h5.attrs)
+    h5.visititems(lambda name, obj: dict(obj.attrs) and None)
+
+
+def _being_written(path) -> bool:
+    """Whether a live process holds the writer's lock of ``path`` (:func:`acquire_lock`)."""
+    try:
+        fd = os.open(lock_path(path), os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    finally:
+        os.close(fd)  # drops the shared lock if it was taken
+    return False
+
+
+def _damaged(path, exc) -> DamagedFileError:
+    """The error of a reader of an unreadable file (one being written says so)."""
+    why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    if _being_written(path):
+        return DamagedFileError(f"{path}: cannot be read while it is being written ({why}); "
+                                "read it again in a moment")
+    return DamagedFileError(f"{path}: damaged, the HDF5 library cannot read it ({why}); "
+                            "`jointsim run --resume` sets it aside as "
+                            f"{Path(path).name}.damaged and computes the run again")
+
+
+def set_aside(path) -> Path:
+    """Rename a damaged file to ``<name>.damaged`` (``.damaged.1``, ... if taken)."""
+    path = Path(path)
+    dest = path.with_name(path.name + ".damaged")
+    k = 0
+    while dest.exists():
+        k += 1
+        dest = path.with_name(f"{path.name}.damaged.{k}")
+    os.replace(path, dest)
+    return dest
 
 
 def lock_path(path) -> Path:
@@ -241,7 +312,17 @@ def open_result(path):
     OSError
         When it cannot be opened as HDF5.
     """
-    h5 = h5py.File(path, "r")
+    try:
+        h5 = h5py.File(path, "r")
+    except OSError as exc:
+        if is_hdf5(path):
+            raise _damaged(path, exc) from None
+        raise
+    try:
+        _walk(h5)
+    except (OSError, KeyError, RuntimeError, ValueError) as exc:
+        h5.close()
+        raise _damaged(path, exc) from None
     if "schema_version" not in h5.attrs or "status" not in h5.attrs:
         h5.close()
         raise NotAResultError(f"{path}: an HDF5 file that jointsim did not write (no "
@@ -337,6 +418,19 @@ class ResultWriter:
 
     def _open(self, scene, resume, overwrite):
         self.h5 = None
+        if resume and self.path.exists() and is_hdf5(self.path):
+            try:
+                with h5py.File(self.path, "r", locking=False) as h5:
+                    _walk(h5)
+            except (OSError, KeyError, RuntimeError, ValueError) as exc:
+                # torn inside the HDF5 library (a kill during its flush): what it
+                # held cannot be trusted; keep it aside and compute the run again
+                dest = set_aside(self.path)
+                log.warning("%s: damaged, the HDF5 library cannot read it (%s); set aside "
+                            "as %s, computing the run again", self.path,
+                            str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
+                            dest.name)
+                resume, overwrite = False, True
         if resume:
             if not self.path.exists():
                 raise FileNotFoundError(f"{self.path}: cannot resume, the file does not exist")
@@ -365,7 +459,11 @@ class ResultWriter:
             if self.path.exists() and not overwrite:
                 raise FileExistsError(f"{self.path}: exists; continue it with --resume or "
                                       "replace it with --overwrite (nothing was changed)")
-            self.h5 = h5py.File(self.path, "w", locking=False)
+            # created under a side name and renamed into place once its header is
+            # written: the path never names a half-created file, and an existing
+            # file that is overwritten stays whole until then
+            fresh = self.path.with_name(self.path.name + ".new")
+            self.h5 = h5py.File(fresh, "w", locking=False)
             a = self.h5.attrs
             a["schema_version"] = SCHEMA_VERSION
             a["jointsim_version"] = __version__
@@ -379,6 +477,8 @@ class ResultWriter:
         self.h5.attrs["message"] = ""
         self.h5.attrs["pid"] = os.getpid()
         self.h5.flush()
+        if not resume:
+            os.replace(fresh, self.path)
 
     # -- context management -------------------------------------------------
     def __enter__(self):

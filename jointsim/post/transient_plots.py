@@ -238,6 +238,9 @@ def transient_table(h5) -> str:
     lines = [f"Time marching ({kind}), generalized-alpha rho_inf = {a.get('rho_inf', '?')}, "
              f"{a.get('steps_per_period', '?')} steps per period: "
              f"{a.get('status_name', '?')} - {a.get('message', '')}"]
+    if "status_name" not in a and "transient/period_change" in h5:  # unfinished (issue 11)
+        lines[0] = lines[0].replace("? - ", "unfinished - ") + \
+            f"{h5['transient/period_change'].shape[0]} periods committed"
     if "steps" in a:
         lines.append(f"  {a['steps']} steps, {a.get('newton_iterations', 0)} Newton "
                      f"iterations, {a.get('step_cuts', 0)} step cuts (deepest "

@@ -38,11 +38,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..results import (INTERRUPTED, NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS,
-                       Convergence)
+                       Convergence, interrupt_cause)
 from ..harmonics import coefficient_index, dft_matrix, n_coefficients
 from ..loads import LoadFunction
 from .contact_map import ContactMap, empty_eval
-from .generalized_alpha import GeneralizedAlpha, StepFailure
+from .generalized_alpha import GeneralizedAlpha, StepFailure, StepStats
 from .periodic import (EnergyBalance, ExtremumTracker, PeriodData, decay_estimates,
                        energy_balance, geometric_error, period_change)
 from ._transient_kernels import single_threaded
@@ -264,6 +264,43 @@ def _progress(total, desc, enabled):
                 leave=False)
 
 
+def _interrupted(exc: BaseException, k: int) -> str:
+    """The message of a march stopped by ``exc`` in period ``k`` (SIGINT, SIGTERM...);
+    a :class:`SystemError` not caused by an interrupt
+    (:func:`~jointsim.results.interrupt_cause`) is re-raised."""
+    cause = interrupt_cause(exc)
+    if cause is None:
+        raise exc
+    return f"interrupted in period {k}" + (f" ({cause})" if str(cause) else "")
+
+
+@dataclass(frozen=True)
+class MarchResume:
+    """Where a forced march resumes (``--resume`` of a checkpointed run, issue 11).
+
+    Attributes
+    ----------
+    period : int
+        The period that starts at ``state`` (periods are numbered from 0).
+    state : MarchState
+        The state at the start of that period, exactly as the interrupted
+        march had it.
+    stats : dict
+        The :class:`~jointsim.solvers.generalized_alpha.StepStats` fields at
+        that instant.
+    changes : tuple of float
+        The period changes already known: of periods ``0 .. len - 1``
+        (``len > period``); periods up to ``len - 1`` are marched again with
+        these changes (their output is already stored) and the march goes on
+        after them.
+    """
+
+    period: int
+    state: object
+    stats: dict
+    changes: tuple
+
+
 def march_period(ga: GeneralizedAlpha, s, t, index: int = 0):
     """March from state ``s`` (at ``t[0]``) through the times ``t[1:]``.
 
@@ -295,7 +332,8 @@ def march_period(ga: GeneralizedAlpha, s, t, index: int = 0):
 
 def march_steady(model, settings, *, scene=None, on_period=None, progress: bool = True,
                  frictionless_preload: bool | None = None, initial=None,
-                 fused: bool = True) -> SteadyResult:
+                 fused: bool = True, on_state=None,
+                 resume: MarchResume | None = None) -> SteadyResult:
     """March a forced response until it is periodic.
 
     The structure starts at rest at its static state under the constant
@@ -332,6 +370,12 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
     fused : bool
         Allow the fused numba march (False: step by step in Python; same
         scheme and results, for tests and comparisons).
+    on_state : callable, optional
+        ``on_state(k, state: MarchState, stats: StepStats)`` before period
+        ``k`` is marched (a checkpoint: :class:`MarchResume` rebuilt from
+        it continues the march exactly).
+    resume : MarchResume, optional
+        Continue an interrupted march from a checkpoint instead of starting.
 
     Returns
     -------
@@ -355,10 +399,19 @@ def march_steady(model, settings, *, scene=None, on_period=None, progress: bool 
     for msg in ranges:
         log.warning("transient: %s", msg)
     s = _steady_initial_state(ga, force, static, h, settings, initial)
+    k0, known = 0, ()
+    if resume is not None:
+        s, k0, known = resume.state, int(resume.period), tuple(resume.changes)
+        if k0 > 0:
+            # the first factorisation of an uninterrupted march is at exactly h, in
+            # period 0 (counted in the stored counters)
+            ga._factor(ga.snap(h))
+        ga.stats = StepStats(**resume.stats)
     rigid = rigid_modes(model, getattr(settings, "rigid_cutoff_hz", None))
     bar = _progress(settings.max_periods, f"transient w={omega:.4g}", progress)
     try:
-        run = _periods_until_steady(ga, s, settings, h, rigid, on_period, bar)
+        run = _periods_until_steady(ga, s, settings, h, rigid, on_period, bar, k0, known,
+                                    on_state)
     finally:
         bar.close()
     if run.status != SUCCESS:
@@ -422,25 +475,32 @@ class _MarchOutcome:
 
 
 def _periods_until_steady(ga: GeneralizedAlpha, s, settings, h: float, rigid: RigidModes,
-                          on_period, bar) -> _MarchOutcome:
+                          on_period, bar, k0: int = 0, known: tuple = (),
+                          on_state=None) -> _MarchOutcome:
     """March whole periods until the change falls below ``steady_tol`` (step 2 of
     :func:`march_steady`); a failed step or an interrupt ends the loop with
-    what was marched."""
+    what was marched.  Resuming, ``s`` is the state at the start of period
+    ``k0`` and ``known`` the changes of periods ``0 .. len(known) - 1``."""
     n = settings.steps_per_period
-    changes: list[float] = []
+    changes: list[float] = list(known[:k0])
     last: PeriodData | None = None
     status, message = NOT_CONVERGED, ""
-    k = 0
+    k = k0
     try:
         with single_threaded():
-            for k in range(settings.max_periods):
+            for k in range(k0, settings.max_periods):
+                if on_state is not None:
+                    on_state(k, s, ga.stats)
                 t = (k * n + np.arange(n + 1)) * h
                 s, pd = march_period(ga, s, t, k)
                 if not (np.all(np.isfinite(pd.x)) and np.all(np.isfinite(pd.v))):
                     status, message = NON_FINITE, f"non-finite displacement in period {k}"
                     break
-                c = period_change(rigid.elastic(pd.x[1:]), rigid.elastic(last.x[1:])) \
-                    if last is not None else np.nan
+                if k < len(known):   # resumed: this period's change is stored
+                    c = float(known[k])
+                else:
+                    c = period_change(rigid.elastic(pd.x[1:]), rigid.elastic(last.x[1:])) \
+                        if last is not None else np.nan
                 changes.append(c)
                 last = pd
                 bar.update(1)
@@ -458,8 +518,8 @@ def _periods_until_steady(ga: GeneralizedAlpha, s, settings, h: float, rigid: Ri
                            f"{settings.steady_tol:g}; raise analysis.transient.max_periods")
     except StepFailure as exc:
         status, message = STEP_TOO_SMALL, f"gave up in period {k}: {exc}"
-    except KeyboardInterrupt:
-        status, message = INTERRUPTED, f"interrupted in period {k}"
+    except (KeyboardInterrupt, SystemError) as exc:
+        status, message = INTERRUPTED, _interrupted(exc, k)
     return _MarchOutcome(status, message, len(changes), tuple(changes), last)
 
 
@@ -773,8 +833,8 @@ def _ring_down(ga: GeneralizedAlpha, s, x_static, Mphi, h: float, settings,
                 message = f"marched {settings.max_periods} periods of the linear mode"
     except StepFailure as exc:
         status, message = STEP_TOO_SMALL, f"gave up in period {k}: {exc}"
-    except KeyboardInterrupt:
-        status, message = INTERRUPTED, f"interrupted in period {k}"
+    except (KeyboardInterrupt, SystemError) as exc:
+        status, message = INTERRUPTED, _interrupted(exc, k)
     return _MarchOutcome(status, message, k + 1)
 
 
