@@ -16,9 +16,15 @@ either); :meth:`HBMJacobian.to_dense` is the reference.  Its preconditioner
 (:class:`HarmonicPreconditioner`) is, per harmonic, ``S_h`` plus the harmonic-
 ``h`` part of each element's tangent (the complex-form projection of its
 ``(h, h)`` 2 x 2 coefficient block, coupling the slip and gap rows of one
-element), factorised once per harmonic: ``H + 1`` complex ``n_r x n_r`` LUs
+element), inverted once per harmonic: ``H + 1`` complex ``n_r x n_r`` inverses
 instead of one real LU of size ``n_z``.  With a constant contact tangent
-(linear contact) it is the exact inverse.
+(linear contact) it is the exact inverse.  The rest of the tangent lives on
+the elements that slip or separate during the period; a Woodbury (low-rank)
+stage corrects for it exactly (a dense ``m x m`` LU, ``m`` = all coefficients
+of those elements' rows), so that a fresh preconditioner solves in one GMRES
+iteration.  When too many elements slip (``m`` above ``LOWRANK_MAX_FRACTION
+n_z``) only the largest corrections are kept and an element-block stage
+and GMRES do the rest.
 
 :class:`BorderedJacobian` is ``[[J, C], [R, D]]`` with a few dense columns
 and rows (``dR/domega``, the EPMC unknowns and phase conditions, the
@@ -29,9 +35,9 @@ turning points.
 
 The preconditioner is reused across Newton iterations and continuation
 steps through a :class:`PreconditionerCache` owned by the system (an
-explicit object, not module state): it is rebuilt when a solve needed more
-than ``refresh_iterations`` GMRES iterations, or when GMRES fails with the
-old one.  Every solve is counted in a :class:`LinearStats`.
+explicit object, not module state): it is rebuilt when a solve with it
+needed more than ``refresh_iterations`` GMRES iterations (or twice what its
+first solve needed), or when GMRES fails with the old one.  Every solve is counted in a :class:`LinearStats`.
 
 :func:`solve`, :func:`append_row`, :func:`drop_last_column` and
 :func:`scale_columns` work on dense arrays and on these objects alike; the
@@ -104,8 +110,11 @@ class PreconditionerCache:
     Parameters
     ----------
     refresh_iterations : int
-        A solve that needed more GMRES iterations than this drops the cached
-        preconditioner (the next solve builds a new one from its Jacobian).
+        A solve with the reused preconditioner that needed more GMRES iterations
+        than this, or than twice what its first (fresh) solve needed, drops it (the
+        next solve builds a new one from its Jacobian).  A fresh preconditioner that
+        is not exact (its low-rank stage truncated) is kept: a new one would need as
+        many iterations.
     reuse : bool
         False: build a new preconditioner for every Jacobian.
     """
@@ -115,6 +124,7 @@ class PreconditionerCache:
         self.reuse = bool(reuse)
         self.current = None
         self.owner = None
+        self.base = 0
 
     def get(self, jac) -> tuple["HarmonicPreconditioner", bool]:
         """A preconditioner for ``jac`` and whether it was built from ``jac`` itself."""
@@ -130,8 +140,14 @@ class PreconditionerCache:
             jac.stats.factorizations += 1
         return self.current
 
-    def after_solve(self, iterations: int) -> None:
-        if iterations > self.refresh_iterations:
+    def threshold(self) -> int:
+        """GMRES iterations above which the reused preconditioner is dropped."""
+        return max(self.refresh_iterations, 2 * self.base)
+
+    def after_solve(self, iterations: int, fresh: bool) -> None:
+        if fresh:
+            self.base = iterations
+        elif iterations > self.threshold():
             self.current = None
             self.owner = None
 
@@ -644,8 +660,10 @@ class HarmonicPreconditioner:
 def krylov_solve(core: HBMJacobian, matvec, b, make_psolve):
     """GMRES for ``A x = b`` with the preconditioner of ``core`` (cached or rebuilt).
 
-    A reused preconditioner gets ``2 refresh_iterations`` GMRES iterations;
-    when they do not suffice the solve is repeated with one built from ``core``.  Raises ``RuntimeError`` when GMRES does not reach
+    A reused preconditioner gets ``2 threshold`` GMRES iterations
+    (:meth:`PreconditionerCache.threshold`); when they do not suffice the solve
+    is repeated with one built from ``core``.  Raises ``RuntimeError`` when GMRES
+    does not reach
     ``KRYLOV_RTOL`` and reduces the residual by less than ``1e-6`` (Newton
     treats that as a singular Jacobian).
     """
@@ -655,16 +673,16 @@ def krylov_solve(core: HBMJacobian, matvec, b, make_psolve):
     P, fresh = cache.get(core)
     # a reused preconditioner gets a short budget before it is rebuilt
     x, it, rel = gmres(matvec, b, make_psolve(P),
-                       maxiter=KRYLOV_MAXITER if fresh else 2 * cache.refresh_iterations)
+                       maxiter=KRYLOV_MAXITER if fresh else 2 * cache.threshold())
     total = it
     if rel > KRYLOV_RTOL and not fresh:
-        P = cache.refresh(core)
+        P, fresh = cache.refresh(core), True
         x, it, rel = gmres(matvec, b, make_psolve(P))
         total += it
     if stats is not None:
         stats.solves += 1
         stats.krylov_iterations += total
-    cache.after_solve(it)
+    cache.after_solve(it, fresh)
     if not np.all(np.isfinite(x)) or rel > 1e-6:
         raise RuntimeError(f"GMRES reached only {rel:.1e} relative residual in {total} "
                            f"iterations")
