@@ -574,9 +574,9 @@ class HarmonicPreconditioner:
         a_k = np.arange(nb * nc)
         loc = (a_k % nc)[None, :] * nR + (a_k // nc)[None, :] * nl + np.arange(nl)[:, None]
         Ls = Lk[sel]                                          # (nl, d, d)
-        GL = np.einsum("mld,lde->mle", G[:, loc], Ls)         # G E_l L_l per element
+        GL = np.matmul(G[:, loc].transpose(1, 0, 2), Ls)      # G E_l L_l, (nl, m, d)
         Mk = np.eye(m)
-        Mk[:, loc] += GL
+        Mk[:, loc] += GL.transpose(1, 0, 2)
         self.lowrank = (R, loc, Ls, sla.lu_factor(Mk, check_finite=False), nR)
 
     def _harmonic_solve(self, V):
@@ -651,7 +651,7 @@ class HarmonicPreconditioner:
         yK = Y[:, R].ravel()                                  # coefficient-major K order
         xK = sla.lu_solve(Mlu, yK, check_finite=False)
         w = np.zeros_like(xK)
-        w[loc] = np.einsum("lde,le->ld", Ls, xK[loc])
+        w[loc] = np.matmul(Ls, xK[loc][:, :, None])[:, :, 0]
         W = np.zeros_like(V)
         W[:, R] = w.reshape(jac.n_c, nR)
         return (Y - self._harmonic_solve(W)).ravel()
