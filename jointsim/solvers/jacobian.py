@@ -61,6 +61,10 @@ KRYLOV_MAXITER = 400
 #: Unknowns ``n_z`` from which ``linear_solver = "auto"`` chooses Krylov.
 KRYLOV_MIN_UNKNOWNS = 1200
 LINEAR_SOLVERS = ("auto", "direct", "krylov")
+#: Unformed products ``A v - B E^-1 (B' v)`` of one Jacobian after which its ``S_h``
+#: are formed (a product costs about three formed ones; forming, a BLAS-3 product
+#: of ``n_r^2 n_y`` per harmonic, about as much as ten to twenty of them).
+FORM_AFTER = 12
 #: GMRES iterations above which a reused preconditioner is rebuilt (with the low-rank
 #: correction a fresh one is exact: one iteration; a build costs about as much as
 #: ten iterations at 120 elements).
@@ -274,6 +278,7 @@ class HBMJacobian:
         self._is = np.array([basis.index[k][1] if k else basis.index[k][0] for k in h])
         self._h0 = np.array([k == 0 for k in h])
         self._S = [None] * len(blocks)        # S_h once formed (shared by scaled copies)
+        self._products = [0]                  # unformed J v so far (shared likewise)
 
     # -- pieces -------------------------------------------------------------------
     def scaled(self, col) -> "HBMJacobian":
@@ -281,6 +286,7 @@ class HBMJacobian:
         out = HBMJacobian(self.basis, self.lin, self.blocks, self.t_row, self.n_row,
                           self.Juu, self.Jug, self.JNN, self.col * col, self.stats, self.cache)
         out._S = self._S
+        out._products = self._products
         return out
 
     def form_schur(self) -> None:
@@ -342,7 +348,11 @@ class HBMJacobian:
             out[:, self.n_row] -= np.einsum(sub, self.JNN, V[:, self.n_row].T).T
 
     def matvec(self, v) -> np.ndarray:
-        """``J @ v``, shape (n_z,)."""
+        """``J @ v``, shape (n_z,) (``S_h`` formed after ``FORM_AFTER`` unformed products)."""
+        if self._S and self._S[-1] is None:
+            self._products[0] += 1
+            if self._products[0] > FORM_AFTER:
+                self.form_schur()
         V = (np.asarray(v, dtype=float) * self.col).reshape(self.n_c, self.n_r)
         out = np.zeros_like(V)
         self._from_complex(self._apply_S(self._to_complex(V)), out)
