@@ -35,9 +35,9 @@ turning points.
 
 The preconditioner is reused across Newton iterations and continuation
 steps through a :class:`PreconditionerCache` owned by the system (an
-explicit object, not module state): it is rebuilt when a solve with it
-needed more than ``refresh_iterations`` GMRES iterations (or twice what its
-first solve needed), or when GMRES fails with the old one.  Every solve is counted in a :class:`LinearStats`.
+explicit object, not module state): it is rebuilt when a solve needed more
+than ``refresh_iterations`` GMRES iterations, or when GMRES fails with the
+old one within twice that.  Every solve is counted in a :class:`LinearStats`.
 
 :func:`solve`, :func:`append_row`, :func:`drop_last_column` and
 :func:`scale_columns` work on dense arrays and on these objects alike; the
@@ -114,11 +114,10 @@ class PreconditionerCache:
     Parameters
     ----------
     refresh_iterations : int
-        A solve with the reused preconditioner that needed more GMRES iterations
-        than this, or than twice what its first (fresh) solve needed, drops it (the
-        next solve builds a new one from its Jacobian).  A fresh preconditioner that
-        is not exact (its low-rank stage truncated) is kept: a new one would need as
-        many iterations.
+        A solve that needed more GMRES iterations than this drops the cached
+        preconditioner (the next solve builds a new one from its Jacobian).  (Keeping
+        a truncated one that needed many iterations when fresh was measured worse:
+        it is then kept where a new one would be exact.)
     reuse : bool
         False: build a new preconditioner for every Jacobian.
     """
@@ -128,7 +127,6 @@ class PreconditionerCache:
         self.reuse = bool(reuse)
         self.current = None
         self.owner = None
-        self.base = 0
 
     def get(self, jac) -> tuple["HarmonicPreconditioner", bool]:
         """A preconditioner for ``jac`` and whether it was built from ``jac`` itself."""
@@ -145,13 +143,11 @@ class PreconditionerCache:
         return self.current
 
     def threshold(self) -> int:
-        """GMRES iterations above which the reused preconditioner is dropped."""
-        return max(self.refresh_iterations, 2 * self.base)
+        """GMRES iterations above which the preconditioner is dropped."""
+        return self.refresh_iterations
 
     def after_solve(self, iterations: int, fresh: bool) -> None:
-        if fresh:
-            self.base = iterations
-        elif iterations > self.threshold():
+        if iterations > self.threshold():
             self.current = None
             self.owner = None
 
