@@ -21,11 +21,13 @@ Usage::
 
     python benchmarks/scale.py                      # all sizes (long)
     python benchmarks/scale.py --elements 25 57 121 --points 6
+    python benchmarks/scale.py --quick              # 25, 57, 121 elements, 3 points
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -95,7 +97,7 @@ def _run_child(mesh, analysis, solver, points, tmp) -> dict:
     cmd = [sys.executable, __file__, "--child", str(mesh), analysis, solver, str(points),
            str(out)]
     res = subprocess.run(cmd, check=True, capture_output=True, text=True,
-                         env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+                         env={**os.environ, "PYTHONPATH": str(ROOT)})
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
@@ -106,13 +108,19 @@ def main(argv=None) -> None:
     p.add_argument("--dense-limit", type=float, default=120.0,
                    help="run the dense path while its estimated time is below this [s]")
     p.add_argument("--analyses", nargs="+", default=["hbm", "epmc"])
+    p.add_argument("--quick", action="store_true",
+                   help="25, 57 and 121 elements, 3 points per branch (a few minutes)")
     p.add_argument("--child", nargs=5, help=argparse.SUPPRESS)
     a = p.parse_args(argv)
+    if a.quick and not a.child:
+        a.elements = [n for n in a.elements if n <= 121]
+        a.points = min(a.points, 3)
     if a.child:
         mesh, analysis, solver, points, out = a.child
         r = _case(mesh, analysis, solver, int(points), out)
         print(json.dumps(r))
         return
+    print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     cache = Path(tempfile.gettempdir()) / "jointsim_scale_meshes"
     cache.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
@@ -149,6 +157,7 @@ def main(argv=None) -> None:
                                   np.log([tpp[i] for i in sel]), 1)[0]
                 print(f"growth of Krylov time per point from {sizes[sel[0]]} to "
                       f"{sizes[sel[-1]]} elements: n^{pfit:.2f}")
+    print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
 if __name__ == "__main__":

@@ -16,9 +16,15 @@ either); :meth:`HBMJacobian.to_dense` is the reference.  Its preconditioner
 (:class:`HarmonicPreconditioner`) is, per harmonic, ``S_h`` plus the harmonic-
 ``h`` part of each element's tangent (the complex-form projection of its
 ``(h, h)`` 2 x 2 coefficient block, coupling the slip and gap rows of one
-element), factorised once per harmonic: ``H + 1`` complex ``n_r x n_r`` LUs
+element), inverted once per harmonic: ``H + 1`` complex ``n_r x n_r`` inverses
 instead of one real LU of size ``n_z``.  With a constant contact tangent
-(linear contact) it is the exact inverse.
+(linear contact) it is the exact inverse.  The rest of the tangent lives on
+the elements that slip or separate during the period; a Woodbury (low-rank)
+stage corrects for it exactly (a dense ``m x m`` LU, ``m`` = all coefficients
+of those elements' rows), so that a fresh preconditioner solves in one GMRES
+iteration.  When too many elements slip (``m`` above ``LOWRANK_MAX_FRACTION
+n_z``) only the largest corrections are kept and an element-block stage
+and GMRES do the rest.
 
 :class:`BorderedJacobian` is ``[[J, C], [R, D]]`` with a few dense columns
 and rows (``dR/domega``, the EPMC unknowns and phase conditions, the
@@ -31,7 +37,7 @@ The preconditioner is reused across Newton iterations and continuation
 steps through a :class:`PreconditionerCache` owned by the system (an
 explicit object, not module state): it is rebuilt when a solve needed more
 than ``refresh_iterations`` GMRES iterations, or when GMRES fails with the
-old one.  Every solve is counted in a :class:`LinearStats`.
+old one within twice that.  Every solve is counted in a :class:`LinearStats`.
 
 :func:`solve`, :func:`append_row`, :func:`drop_last_column` and
 :func:`scale_columns` work on dense arrays and on these objects alike; the
@@ -55,8 +61,26 @@ KRYLOV_MAXITER = 400
 #: Unknowns ``n_z`` from which ``linear_solver = "auto"`` chooses Krylov.
 KRYLOV_MIN_UNKNOWNS = 1200
 LINEAR_SOLVERS = ("auto", "direct", "krylov")
-#: Add the element-block stage to the harmonic preconditioner.
+#: Unformed products ``A v - B E^-1 (B' v)`` of one Jacobian after which its ``S_h``
+#: are formed (a product costs about three formed ones; forming, a BLAS-3 product
+#: of ``n_r^2 n_y`` per harmonic, about as much as ten to twenty of them).
+FORM_AFTER = 12
+#: GMRES iterations above which a reused preconditioner is rebuilt (with the low-rank
+#: correction a fresh one is exact: one iteration; a build costs about as much as
+#: ten iterations at 120 elements).
+REFRESH_ITERATIONS = 10
+#: Add the element-block stage to the harmonic preconditioner (when its low-rank
+#: correction is truncated or off).
 TWO_STAGE = True
+#: Correct the harmonic preconditioner exactly on the elements whose tangent couples
+#: harmonics (Woodbury, :meth:`HarmonicPreconditioner._lowrank`).
+LOWRANK = True
+#: Largest low-rank correction: this fraction of ``n_z`` coordinates, and at most
+#: ``LOWRANK_MAX`` (its dense ``m x m`` LU costs ``m^3``).
+#: ``LOWRANK_MIN`` coordinates are always allowed (small systems).
+LOWRANK_MAX_FRACTION = 0.35
+LOWRANK_MAX = 3000
+LOWRANK_MIN = 600
 
 
 @dataclass
@@ -91,12 +115,14 @@ class PreconditionerCache:
     ----------
     refresh_iterations : int
         A solve that needed more GMRES iterations than this drops the cached
-        preconditioner (the next solve builds a new one from its Jacobian).
+        preconditioner (the next solve builds a new one from its Jacobian).  (Keeping
+        a truncated one that needed many iterations when fresh was measured worse:
+        it is then kept where a new one would be exact.)
     reuse : bool
         False: build a new preconditioner for every Jacobian.
     """
 
-    def __init__(self, refresh_iterations: int = 25, reuse: bool = True):
+    def __init__(self, refresh_iterations: int = REFRESH_ITERATIONS, reuse: bool = True):
         self.refresh_iterations = int(refresh_iterations)
         self.reuse = bool(reuse)
         self.current = None
@@ -116,8 +142,12 @@ class PreconditionerCache:
             jac.stats.factorizations += 1
         return self.current
 
-    def after_solve(self, iterations: int) -> None:
-        if iterations > self.refresh_iterations:
+    def threshold(self) -> int:
+        """GMRES iterations above which the preconditioner is dropped."""
+        return self.refresh_iterations
+
+    def after_solve(self, iterations: int, fresh: bool) -> None:
+        if iterations > self.threshold():
             self.current = None
             self.owner = None
 
@@ -244,6 +274,7 @@ class HBMJacobian:
         self._is = np.array([basis.index[k][1] if k else basis.index[k][0] for k in h])
         self._h0 = np.array([k == 0 for k in h])
         self._S = [None] * len(blocks)        # S_h once formed (shared by scaled copies)
+        self._products = [0]                  # unformed J v so far (shared likewise)
 
     # -- pieces -------------------------------------------------------------------
     def scaled(self, col) -> "HBMJacobian":
@@ -251,6 +282,7 @@ class HBMJacobian:
         out = HBMJacobian(self.basis, self.lin, self.blocks, self.t_row, self.n_row,
                           self.Juu, self.Jug, self.JNN, self.col * col, self.stats, self.cache)
         out._S = self._S
+        out._products = self._products
         return out
 
     def form_schur(self) -> None:
@@ -312,7 +344,11 @@ class HBMJacobian:
             out[:, self.n_row] -= np.einsum(sub, self.JNN, V[:, self.n_row].T).T
 
     def matvec(self, v) -> np.ndarray:
-        """``J @ v``, shape (n_z,)."""
+        """``J @ v``, shape (n_z,) (``S_h`` formed after ``FORM_AFTER`` unformed products)."""
+        if self._S and self._S[-1] is None:
+            self._products[0] += 1
+            if self._products[0] > FORM_AFTER:
+                self.form_schur()
         V = (np.asarray(v, dtype=float) * self.col).reshape(self.n_c, self.n_r)
         out = np.zeros_like(V)
         self._from_complex(self._apply_S(self._to_complex(V)), out)
@@ -409,7 +445,9 @@ def _project(Jb, ic, is_, h):
 
 
 class HarmonicPreconditioner:
-    """Per harmonic, LU of ``S_h`` plus the harmonic-``h`` element tangent (module docstring).
+    """Per harmonic, the inverse of ``S_h`` plus the harmonic-``h`` element tangent, with an
+    exact low-rank correction for the elements whose tangent couples harmonics
+    (module docstring, :meth:`_lowrank`).
 
     Parameters
     ----------
@@ -419,7 +457,7 @@ class HarmonicPreconditioner:
 
     def __init__(self, jac: HBMJacobian):
         self.jac = jac
-        self.lu = []
+        blocks = []
         t, n = jac.t_row, jac.n_row
         for i, h in enumerate(jac.basis.harmonics):
             ic, is_ = jac._ic[i], jac._is[i]
@@ -430,10 +468,131 @@ class HarmonicPreconditioner:
                 P[t, n] += _project(jac.Jug, ic, is_, h)
             if jac.JNN is not None:
                 P[n, n] -= _project(jac.JNN, ic, is_, h)
+            blocks.append(P)
+        # explicit inverses, stacked (n_h, n_r, n_r): one batched product per
+        # application, and the (R, R) rows and columns the low-rank stage needs
+        try:
+            self.Pinv = np.linalg.inv(np.array(blocks))
+        except np.linalg.LinAlgError:      # a singular block: GMRES then has to cope
+            log.debug("harmonic preconditioner: a singular block, pseudo-inverse used")
+            self.Pinv = np.linalg.pinv(np.array(blocks))
+        self.Pinv[jac._h0] = self.Pinv[jac._h0].real
+        self.lowrank = None
+        self.truncated = True
+        if LOWRANK:
+            self._lowrank()
+        if TWO_STAGE and self.truncated:
+            self._element_blocks()
+        else:
+            self.Binv = None
+
+    def _element_tangent(self):
+        """Each element's own contact tangent (slip and gap rows over all coefficients,
+        no ``S_h``): ``rows`` (nb n_e,) and blocks (n_e, nb n_c, nb n_c)."""
+        jac = self.jac
+        nc, ne = jac.n_c, len(jac.t_row)
+        if jac.Juu is None:
+            rows = [jac.n_row]
+        else:
+            rows = [jac.t_row] + ([jac.n_row] if jac.JNN is not None else [])
+        nb = len(rows)
+        Tk = np.zeros((ne, nb * nc, nb * nc))
+        if jac.Juu is not None:
+            Tk[:, :nc, :nc] += jac.Juu
+            if jac.Jug is not None and nb == 2:
+                Tk[:, :nc, nc:] += jac.Jug
+        if jac.JNN is not None:
+            Tk[:, -nc:, -nc:] -= jac.JNN
+        return rows, nb, Tk
+
+    def _lowrank(self):
+        """Exact correction for the elements whose tangent couples harmonics.
+
+        The preconditioner ``P`` holds ``S_h`` and the harmonic-``h`` projection of
+        every element's tangent, so ``J = P + E L E^T`` with ``L`` the rest of the
+        element tangents: block-diagonal over elements and zero for an element that
+        sticks (and stays closed) over the whole period.  ``E`` selects the
+        coordinates (all coefficients of the slip and gap rows) of the ``n_l``
+        elements where ``L`` is not negligible.  Woodbury's identity then gives
+        ``J^-1 b = y - P^-1 E L x_K`` with ``y = P^-1 b`` and
+        ``(I + G L) x_K = y_K``, ``G = E^T P^-1 E`` (m x m, ``m = nb n_c n_l``):
+        per harmonic only the ``(R, R)`` rows and columns of ``P_h^-1`` are needed
+        (``R`` the selected rows).  When ``m`` would exceed ``LOWRANK_MAX_FRACTION n_z``
+        (but at least ``LOWRANK_MIN``) or ``LOWRANK_MAX``, only the elements with the largest ``|L_e|`` are kept
+        (``self.truncated``; GMRES and the element-block stage handle the rest).
+        """
+        jac = self.jac
+        nc = jac.n_c
+        rows, nb, Tk = self._element_tangent()
+        ne = Tk.shape[0]
+        if ne == 0:
+            self.truncated = False
+            return
+        Lk = Tk
+        # subtract the harmonic projection that P already holds
+        pairs = []
+        if jac.Juu is not None:
+            pairs.append((0, 0, jac.Juu, 1.0))
+            if jac.Jug is not None and nb == 2:
+                pairs.append((0, 1, jac.Jug, 1.0))
+        if jac.JNN is not None:
+            pairs.append((nb - 1, nb - 1, jac.JNN, -1.0))
+        for a, b, Jb, sgn in pairs:
+            for i, h in enumerate(jac.basis.harmonics):
+                ic, is_ = jac._ic[i], jac._is[i]
+                p = sgn * _project(Jb, ic, is_, h)
+                Lk[:, a * nc + ic, b * nc + ic] -= p.real
+                if h:
+                    Lk[:, a * nc + ic, b * nc + is_] -= p.imag
+                    Lk[:, a * nc + is_, b * nc + ic] += p.imag
+                    Lk[:, a * nc + is_, b * nc + is_] -= p.real
+        norm = np.sqrt(np.einsum("eij,eij->e", Lk, Lk))
+        ref = max(float(np.abs(Tk).max(initial=0.0)), 1e-300)
+        # 1e-13 of the largest tangent entry: below, the correction is round-off
+        sel = np.flatnonzero(norm > 1e-13 * ref)
+        cap = int(min(max(LOWRANK_MAX_FRACTION * jac.n_z, LOWRANK_MIN), LOWRANK_MAX)) \
+            // (nb * nc)
+        self.truncated = sel.size > cap
+        if self.truncated:
+            sel = sel[np.argsort(norm[sel])[::-1][:cap]]
+            sel.sort()
+        if sel.size == 0:
+            return
+        nl = sel.size
+        R = np.concatenate([r[sel] for r in rows])           # (nb nl,) selected rows
+        nR = R.size
+        # K coordinates ordered coefficient-major: index k nR + j (j over R)
+        m = nc * nR
+        G = np.zeros((m, m))
+        for i, h in enumerate(jac.basis.harmonics):
+            Q = self.Pinv[i][np.ix_(R, R)]
+            ic, is_ = jac._ic[i], jac._is[i]
+            c = slice(ic * nR, (ic + 1) * nR)
             if h == 0:
-                P = P.real
-            self.lu.append(sla.lu_factor(P, check_finite=False))
-        self._element_blocks()
+                G[c, c] = Q.real
+                continue
+            sn = slice(is_ * nR, (is_ + 1) * nR)
+            G[c, c] = Q.real
+            G[c, sn] = Q.imag
+            G[sn, c] = -Q.imag
+            G[sn, sn] = Q.real
+        # local coordinate (a, k) of selected element l -> K index k nR + a nl + l
+        a_k = np.arange(nb * nc)
+        loc = (a_k % nc)[None, :] * nR + (a_k // nc)[None, :] * nl + np.arange(nl)[:, None]
+        Ls = Lk[sel]                                          # (nl, d, d)
+        GL = np.matmul(G[:, loc].transpose(1, 0, 2), Ls)      # G E_l L_l, (nl, m, d)
+        Mk = np.eye(m)
+        Mk[:, loc] += GL.transpose(1, 0, 2)
+        self.lowrank = (R, loc, Ls, sla.lu_factor(Mk, check_finite=False), nR)
+
+    def _harmonic_solve(self, V):
+        """``P^-1`` of the harmonic stage; ``V`` (n_c, n_r) real, returns (n_c, n_r)."""
+        jac = self.jac
+        X = jac._to_complex(V)
+        Y = np.matmul(self.Pinv, X[:, :, None])[:, :, 0]
+        out = np.empty_like(V)
+        jac._from_complex(Y, out)
+        return out
 
     def _element_blocks(self):
         """Inverse of each element's own block of ``J`` (its slip and gap rows over all
@@ -469,7 +628,7 @@ class HarmonicPreconditioner:
     def apply(self, v, jac) -> np.ndarray:
         """The preconditioner of the scaled ``jac = J diag(col)``: ``diag(col)^-1 P^-1 v``
         (two-stage when ``TWO_STAGE``)."""
-        if TWO_STAGE:
+        if self.Binv is not None:
             return self.solve2(v, lambda x: jac.matvec(x / jac.col)) / jac.col
         return self.solve(v) / jac.col
 
@@ -491,38 +650,45 @@ class HarmonicPreconditioner:
         """``P^-1 v`` for the unscaled ``J``, shape (n_z,)."""
         jac = self.jac
         V = np.asarray(v, dtype=float).reshape(jac.n_c, jac.n_r)
-        X = jac._to_complex(V)
-        Y = np.empty_like(X)
-        for i, lu in enumerate(self.lu):
-            Y[i] = sla.lu_solve(lu, X[i].real if jac._h0[i] else X[i], check_finite=False)
-        out = np.empty_like(V)
-        jac._from_complex(Y, out)
-        return out.ravel()
+        Y = self._harmonic_solve(V)
+        if self.lowrank is None:
+            return Y.ravel()
+        R, loc, Ls, Mlu, nR = self.lowrank
+        yK = Y[:, R].ravel()                                  # coefficient-major K order
+        xK = sla.lu_solve(Mlu, yK, check_finite=False)
+        w = np.zeros_like(xK)
+        w[loc] = np.matmul(Ls, xK[loc][:, :, None])[:, :, 0]
+        W = np.zeros_like(V)
+        W[:, R] = w.reshape(jac.n_c, nR)
+        return (Y - self._harmonic_solve(W)).ravel()
 
 
 def krylov_solve(core: HBMJacobian, matvec, b, make_psolve):
     """GMRES for ``A x = b`` with the preconditioner of ``core`` (cached or rebuilt).
 
-    A reused preconditioner gets ``2 refresh_iterations`` GMRES iterations;
-    when they do not suffice the solve is repeated with one built from ``core``.  Raises ``RuntimeError`` when GMRES does not reach
+    A reused preconditioner gets ``2 threshold`` GMRES iterations
+    (:meth:`PreconditionerCache.threshold`); when they do not suffice the solve
+    is repeated with one built from ``core``.  Raises ``RuntimeError`` when GMRES
+    does not reach
     ``KRYLOV_RTOL`` and reduces the residual by less than ``1e-6`` (Newton
     treats that as a singular Jacobian).
     """
     cache, stats = core.cache, core.stats
-    core.form_schur()
+    # S_h is formed (n_r^2 n_y per harmonic) only when a preconditioner is built from
+    # core; a reused one leaves J v to the unformed products A v - B E^-1 (B' v)
     P, fresh = cache.get(core)
     # a reused preconditioner gets a short budget before it is rebuilt
     x, it, rel = gmres(matvec, b, make_psolve(P),
-                       maxiter=KRYLOV_MAXITER if fresh else 2 * cache.refresh_iterations)
+                       maxiter=KRYLOV_MAXITER if fresh else 2 * cache.threshold())
     total = it
     if rel > KRYLOV_RTOL and not fresh:
-        P = cache.refresh(core)
+        P, fresh = cache.refresh(core), True
         x, it, rel = gmres(matvec, b, make_psolve(P))
         total += it
     if stats is not None:
         stats.solves += 1
         stats.krylov_iterations += total
-    cache.after_solve(it)
+    cache.after_solve(it, fresh)
     if not np.all(np.isfinite(x)) or rel > 1e-6:
         raise RuntimeError(f"GMRES reached only {rel:.1e} relative residual in {total} "
                            f"iterations")
