@@ -72,3 +72,34 @@ def test_failure_message_names_the_fold():
                           jac=lambda v: fun(v)[1], y_ahead=np.array([1e-3, 1e-3, 1e-3]))
     assert msg.startswith("gave up; ADVICE")
     assert "non-smooth fold" in msg and "no jump found" in msg
+
+
+@pytest.mark.slow
+def test_lap_joint_epmc_with_the_scaled_law_turns_at_the_fold_then_stops_at_a_jump(tmp_path):
+    """models/lap_joint.toml on the coarse mesh, EPMC only, joint.reversal = "scaled": the
+    branch turns back at the non-smooth fold near log10 a = -4.2723 (it gave up there
+    before) and stops later at a true residual jump, which the message names."""
+    from pathlib import Path
+
+    import h5py
+
+    from jointsim import _toml
+    from jointsim.run import run_scene
+    from jointsim.scene import parse_scene
+
+    path = Path("models/lap_joint.toml")
+    data = _toml.loads(path.read_text(encoding="utf-8"))
+    data["model"]["mesh"] = "../meshes/lap_joint_coarse.msh"
+    data["joint"]["reversal"] = "scaled"
+    for key in ("hbm", "qsma"):
+        data["analysis"].pop(key, None)
+    scene = parse_scene(data, str(path), path.parent)
+    with pytest.raises(RuntimeError) as err:
+        run_scene(scene, tmp_path / "x.h5")
+    assert "the residual jumps by" in str(err.value)
+    with h5py.File(tmp_path / "x.h5") as h5:
+        lam = np.log10(h5["epmc/amplitude"][()])
+    assert len(lam) > 32 and np.any(np.diff(lam) > 0)
+    turns = np.nonzero(np.diff(np.sign(np.diff(lam))))[0]
+    assert len(turns) >= 2   # turned back once more after the first turn (at the fold)
+    assert lam[-1] == pytest.approx(-4.27188, abs=1e-4)
