@@ -119,7 +119,7 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
                              lam_start=a.log10_amplitude_start)
     conv = br.convergence
     if not conv.success:
-        conv = _explain(conv, model, system, ep, writer)
+        conv = _explain(conv, model, system, ep, writer, scale)
     if not conv.success and system.n_z and len(br.y):
         cause = stick_resolution(system, ep, br.y[-1], model.contacts.law)
         if cause:
@@ -377,7 +377,7 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
     return on_point
 
 
-def _explain(conv, model, system, ep, writer):
+def _explain(conv, model, system, ep, writer, scale=None):
     """The failed branch's convergence, its message extended by the residual jump of a
     law without path continuity (:func:`jointsim.solvers.discontinuity.explain_failure`)."""
     from ..contact.laws import continuation_advice
@@ -387,9 +387,19 @@ def _explain(conv, model, system, ep, writer):
     if not advice:
         return conv
     y = writer.h5["epmc/y"][()] if "epmc/y" in writer.h5 else np.zeros((0, 0))
+    ahead = None
+    if scale is not None and len(y) and "epmc/tangent" in writer.h5:
+        # the last predictor: one last step along the last (scaled) tangent
+        t, h = writer.h5["epmc/tangent"][-1], float(writer.h5["epmc/step"][-1])
+        if h > 0.0 and np.all(np.isfinite(t)):
+            ahead = y[-1] + h * np.asarray(scale) * t / max(np.linalg.norm(t), 1e-300)
+    def jac(v):
+        J = ep.fun(v)[1]
+        return J.to_dense() if hasattr(J, "to_dense") else J
+
     message = explain_failure(conv.message, advice, lambda v: ep.fun(v)[0],
                               y[-2] if len(y) > 1 else None, y[-1] if len(y) else None,
-                              n_scan=32)
+                              n_scan=32, jac=jac, y_ahead=ahead, scale=scale)
     return dataclasses.replace(conv, message=message)
 
 

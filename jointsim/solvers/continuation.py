@@ -210,6 +210,60 @@ def _corner(F, yk, t, h, tol, max_iter, max_jump=np.inf):
     return None
 
 
+def _orient(J, d):
+    """Sign of ``det [J; d^T]`` (the orientation of the branch along ``d``)."""
+    return int(np.sign(np.linalg.slogdet(append_row_dense(J, d))[0]))
+
+
+def append_row_dense(J, d):
+    """``[J; d^T]`` as a dense array (``J`` dense or with ``to_dense()``)."""
+    Jd = J.to_dense() if hasattr(J, "to_dense") else np.asarray(J, dtype=float)
+    return np.vstack([Jd, np.asarray(d, dtype=float)[None, :]])
+
+
+def _fold(F, yk, t, h, tol, max_iter, n_bisect: int = 24):
+    """Continue through a non-smooth fold between ``yk`` and ``yk + h t``.
+
+    At a kink of the residual where the orientation ``sign det [J; t]``
+    changes (the two pieces are not coherently oriented), the branch turns
+    back: no hyperplane just beyond the kink cuts it, and Newton cycles
+    between the pieces (:class:`jointsim.solvers.discontinuity.Fold`).  The
+    branch goes on along the tangent of the piece beyond the kink oriented so
+    that the orientation is kept (piecewise-linear continuation's rule): the
+    kink is located by bisection on the sign, and Newton is run on the
+    hyperplane ``d . (y - c) = h`` from ``c + h d``, ``c`` the first point
+    beyond the kink.
+
+    Returns ``(y, R, J, extra, iterations)`` or None (no fold, or no point).
+    """
+    _R0, J0, _e0 = F(yk)
+    s0 = _orient(J0, t)
+    _R1, J1, _e1 = F(yk + h * t)
+    if s0 == 0 or _orient(J1, t) != -s0:
+        return None
+    lo, hi = 0.0, h
+    for _ in range(n_bisect):
+        mid = 0.5 * (lo + hi)
+        _R, Jm, _e = F(yk + mid * t)
+        if _orient(Jm, t) == s0:
+            lo = mid
+        else:
+            hi, J1 = mid, Jm
+    c = yk + hi * t
+    d = tangent(J1, t)
+    if _orient(J1, d) != s0:
+        d = -d
+    fun, jac, measure = _bordered(F, d, c, h)
+    res = newton(fun, c + h * d, NewtonOptions(tol, max_iter, line_search="decrease"),
+                 jacobian=jac, measure=measure)
+    if not res.success:
+        return None
+    yc, (R, J, extra) = res.x, res.extra
+    if _orient(J, d) != s0:   # landed back on the piece before the kink
+        return None
+    return yc, R, J, extra, res.iterations
+
+
 class Continuation:
     """Pseudo-arclength continuation of ``R(z, lam) = 0`` as a stepper object.
 
@@ -335,6 +389,7 @@ class Continuation:
         self._lam_end_h = lam_end / self.scale[-1]
         self.status, self.message, self.convergence = "running", None, None
         self.points, self.infos = [], []
+        self._turned = False
         self.nfev = self.n_failed = 0
         self.h = float(step)
         self._start(y0, solve_first, tangent0)
@@ -489,7 +544,7 @@ class Continuation:
         90 degrees); after a normal step the secant does.
         """
         ref = yc - yk
-        if len(self.points) > 1:
+        if len(self.points) > 1 and not self._turned:
             prev = yk - self.points[-2] / self.scale
             n_ref, n_prev = np.linalg.norm(ref), np.linalg.norm(prev)
             if (n_ref < 0.25 * n_prev
@@ -555,6 +610,15 @@ class Continuation:
             log.debug("%s: passed a corner of the branch at lam = %.8g", self.desc,
                       yk[-1] * self.scale[-1])
         if not ok:
+            # a non-smooth fold (kink whose pieces are not coherently oriented):
+            # the point beyond it lies on the other piece, so it is not a retrace
+            got = _fold(self._F, yk, t, h, self.tol, self.max_iter)
+            if got is not None:
+                yc, R, J, extra, it = got
+                ok, self._turned = True, True
+                log.debug("%s: turned at a non-smooth fold at lam = %.8g", self.desc,
+                          yk[-1] * self.scale[-1])
+        if not ok:
             got = self._natural_step(yk, hc)
             if got is not None:
                 yc, R, J, extra, it = got
@@ -610,6 +674,7 @@ class Continuation:
         if self.status != "running":
             raise RuntimeError("attempt to step a finished or failed continuation")
         yk, t, scale = self._yh, self._t, self.scale
+        self._turned = False   # set by a turn at a non-smooth fold (:func:`_fold`)
         direction, step_min, step_max = self.direction, self.step_min, self.step_max
         corner_tries = jump_tries = 0
         while True:

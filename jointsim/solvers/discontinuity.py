@@ -106,7 +106,113 @@ def residual_jump(fun, y0, y1, n_scan: int = 64, n_bisect: int = 60,
                 float(np.linalg.norm(R_lo)), float(np.linalg.norm(R_hi)))
 
 
-def explain_failure(message: str, advice: str, fun, y_prev, y_last, n_scan: int = 64) -> str:
+@dataclass(frozen=True)
+class Fold:
+    """A kink of the residual across which the bordered Jacobian changes orientation.
+
+    On a segment ``y = y0 + s d`` the sign of ``det [J(y); d^T]`` is constant
+    on each smooth piece of a piecewise-smooth residual.  When it differs on
+    the two sides of a kink, the pieces are not coherently oriented: the
+    solution curve turns back at the kink (a *non-smooth fold*), a
+    pseudo-arclength hyperplane just beyond the kink cuts neither piece's
+    solution, and Newton cycles between the two pieces (each linearisation's
+    root lies on the other piece).
+
+    Attributes
+    ----------
+    s_before, s_after : float
+        Segment parameters bracketing the kink [-].
+    sign_before, sign_after : int
+        Sign of ``det [J; d^T]`` on either side.
+    cos_pieces : float
+        Cosine of the angle between the two pieces' unit tangents, each
+        oriented along ``d`` (near 1: the branch beyond turns back by nearly
+        180 degrees, a cusp).
+    """
+
+    s_before: float
+    s_after: float
+    sign_before: int
+    sign_after: int
+    cos_pieces: float
+
+    def describe(self) -> str:
+        turn = float(np.degrees(np.arccos(-np.clip(self.cos_pieces, -1.0, 1.0))))
+        return (f"the residual is continuous but has a kink where det [J; d] changes sign "
+                f"({self.sign_before:+d} to {self.sign_after:+d}): a non-smooth fold, where "
+                f"the branch turns back by about {turn:.0f} degrees, so no solution lies on "
+                f"the hyperplanes just beyond the kink and Newton cycles between the two "
+                f"pieces")
+
+
+def _orientation(J, d):
+    """Sign of ``det [J; d^T]`` and the unit tangent of ``J`` oriented along ``d``."""
+    A = np.vstack([np.asarray(J, dtype=float), d[None, :]])
+    sign = int(np.sign(np.linalg.slogdet(A)[0]))
+    rhs = np.zeros(A.shape[0])
+    rhs[-1] = 1.0
+    try:
+        t = np.linalg.solve(A, rhs)
+    except np.linalg.LinAlgError:
+        return sign, np.zeros_like(d)
+    return sign, t / max(np.linalg.norm(t), 1e-300)
+
+
+def orientation_fold(jac, y0, y1, n_scan: int = 8, n_bisect: int = 40,
+                     scale=None) -> Fold | None:
+    """Look for a non-smooth fold (:class:`Fold`) on the segment ``y0 -> y1``.
+
+    The sign of ``det [J(y); d^T]`` (``d = y1 - y0``) is sampled at
+    ``n_scan + 1`` points; the first change is bisected ``n_bisect`` times.
+    The sign depends on the bordering row, so it is taken in the variables the
+    continuation steps in: ``J diag(scale)`` bordered by ``d / scale``.
+
+    Parameters
+    ----------
+    jac : callable
+        ``jac(y) -> J``, shape (n, n + 1): the Jacobian of the ``n`` equations
+        in the ``n + 1`` unknowns of the branch.
+    y0, y1 : ndarray, shape (n + 1,)
+    n_scan, n_bisect : int
+    scale : ndarray, shape (n + 1,) or None
+        Scales of the continuation's variables (``y = scale * yh``; None: 1).
+
+    Returns
+    -------
+    Fold or None
+        None when the orientation is the same along the segment.
+    """
+    y0 = np.asarray(y0, dtype=float)
+    d = np.asarray(y1, dtype=float) - y0
+    sc = np.ones_like(d) if scale is None else np.asarray(scale, dtype=float)
+    dn = d / sc
+    dn /= max(np.linalg.norm(dn), 1e-300)
+
+    def at(s):
+        return _orientation(np.asarray(jac(y0 + s * d), dtype=float) * sc[None, :], dn)
+
+    s = np.linspace(0.0, 1.0, n_scan + 1)
+    prev = at(s[0])
+    for i in range(1, n_scan + 1):
+        cur = at(s[i])
+        if cur[0] != prev[0] and cur[0] != 0 and prev[0] != 0:
+            lo, hi, o_lo, o_hi = s[i - 1], s[i], prev, cur
+            for _ in range(n_bisect):
+                mid = 0.5 * (lo + hi)
+                if mid in (lo, hi):
+                    break
+                o = at(mid)
+                if o[0] == o_lo[0]:
+                    lo, o_lo = mid, o
+                else:
+                    hi, o_hi = mid, o
+            return Fold(float(lo), float(hi), o_lo[0], o_hi[0], float(o_lo[1] @ o_hi[1]))
+        prev = cur
+    return None
+
+
+def explain_failure(message: str, advice: str, fun, y_prev, y_last, n_scan: int = 64,
+                    jac=None, y_ahead=None, scale=None) -> str:
     """A continuation's failure message, with the residual jump ahead and ``advice``.
 
     When ``advice`` is empty (the law is path-continuous) the message is
@@ -125,6 +231,15 @@ def explain_failure(message: str, advice: str, fun, y_prev, y_last, n_scan: int 
         ``fun(y) -> R`` of the continuation's unknowns.
     y_prev, y_last : ndarray, shape (n,) or None
         The last two converged points (None: no search).
+    jac : callable or None
+        ``jac(y) -> J`` (n_eq, n): when no jump is found, the segment from
+        ``y_last`` to ``y_ahead`` is searched for a non-smooth fold
+        (:func:`orientation_fold`).
+    y_ahead : ndarray, shape (n,) or None
+        End of that segment: the continuation's last predictor (default: one
+        secant step, ``2 y_last - y_prev``).
+    scale : ndarray, shape (n,) or None
+        The continuation's variable scales (see :func:`orientation_fold`).
     """
     if not advice:
         return message
@@ -137,6 +252,18 @@ def explain_failure(message: str, advice: str, fun, y_prev, y_last, n_scan: int 
             found = (f" (found: one secant step past the last point {jump.describe()}, "
                      f"at s = {jump.s_after:.6g} of the step)")
         else:
-            found = (" (no jump found within one secant step past the last point: this "
-                     "failure may also have another cause)")
+            fold = None
+            if jac is not None:
+                end = (2.0 * y_last - np.asarray(y_prev, dtype=float) if y_ahead is None
+                       else np.asarray(y_ahead, dtype=float))
+                fold = orientation_fold(jac, y_last, end, scale=scale)
+            if fold is not None:
+                found = (f" (no jump found within one secant step past the last point; at "
+                         f"s = {fold.s_after:.3g} of the step to the last predictor "
+                         f"{fold.describe()}: the law's "
+                         "kinks are not coherently oriented, README: Continuation with the "
+                         "scaled laws)")
+            else:
+                found = (" (no jump found within one secant step past the last point: this "
+                         "failure may also have another cause)")
     return f"{message}; {advice}{found}"
