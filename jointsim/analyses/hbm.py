@@ -55,6 +55,8 @@ log = logging.getLogger(__name__)
 
 #: ``_explain_steep``: a residual this many times steeper than its Jacobian names the cause.
 STEEP_RATIO = 100.0
+#: ``_explain_steep`` forms a dense ``dR/dz``: only up to this many unknowns.
+STEEP_MAX_UNKNOWNS = 4000
 
 
 def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
@@ -304,13 +306,15 @@ class _Output:
         the residual is nearly discontinuous one step past the last point (issue 13
         case 5: a huge ``mu`` switches a clapping element between free and stuck within
         a change of ``N`` of about ``kt |u - w| / mu``), measured by
-        :func:`jointsim.solvers.discontinuity.steepness` (the Jacobian itself agrees
-        with finite differences there)."""
+        :func:`jointsim.solvers.discontinuity.steepness` (on the fold scene at
+        ``mu = 1e6`` the Jacobian agrees with finite differences at the point; README
+        "Hard cases")."""
         from ..solvers.discontinuity import steepness
 
         system, law, joint = self.system, self.model.contacts.law, self.scene.joint
         if not (system.coupled and law.can_slip and self.scene.effects.separation) \
-                or rows.size < 2 or "corrector failed" not in message:
+                or rows.size < 2 or "corrector failed" not in message \
+                or system.n_z > STEEP_MAX_UNKNOWNS:
             return message
         Z, om = np.asarray(self.points["q"])[rows], np.asarray(self.points["omega"])[rows]
         y = np.column_stack([Z, om])
@@ -327,8 +331,8 @@ class _Output:
         if ratio < STEEP_RATIO:
             return message
         return (f"{message}; one secant step past the last point the residual changes "
-                f"{ratio:.3g} times faster than its Jacobian (which agrees with finite "
-                f"differences at the point) predicts: it is nearly discontinuous there.  At "
+                f"{ratio:.3g} times faster than the Jacobian at the point predicts: it is "
+                f"nearly discontinuous there, and neither Newton nor a smaller step passes.  At "
                 f"each clap of this separating contact the slip force mu N switches the "
                 f"element from free (N = 0) to stuck within a change of N of kt |u - w| / mu, "
                 f"so with joint.mu = {joint.mu:g} the element sticks within about one time "
