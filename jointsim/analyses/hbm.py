@@ -57,6 +57,12 @@ from ..solvers.jacobian import BorderedJacobian
 log = logging.getLogger(__name__)
 
 
+#: ``_explain_steep``: a residual this many times steeper than its Jacobian names the cause.
+STEEP_RATIO = 100.0
+#: ``_explain_steep`` forms a dense ``dR/dz``: only up to this many unknowns.
+STEEP_MAX_UNKNOWNS = 4000
+
+
 def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
     """Runner of ``[analysis.hbm]``: one FRC branch per force scale, written point by point.
 
@@ -297,13 +303,54 @@ class _Output:
         system = self.system
         advice = continuation_advice(self.model.contacts.law, system.coupled)
         if not advice:
-            return message
+            return self._explain_steep(message, F, rows)
         Z, om = np.asarray(self.points["q"])[rows], np.asarray(self.points["omega"])[rows]
         y = np.column_stack([Z, om])
         return explain_failure(
             message, advice,
             lambda v: system.evaluate(v[:-1], float(v[-1]), F, jacobian=False).R,
             y[-2] if len(y) > 1 else None, y[-1])
+
+    def _explain_steep(self, message, F, rows) -> str:
+        """A failed branch of a slipping law with a coupled, separating contact: say when
+        the residual is nearly discontinuous one step past the last point (issue 13
+        case 5: a huge ``mu`` switches a clapping element between free and stuck within
+        a change of ``N`` of about ``kt |u - w| / mu``), measured by
+        :func:`jointsim.solvers.discontinuity.steepness` (on the fold scene at
+        ``mu = 1e6`` the Jacobian agrees with finite differences at the point; README
+        "Hard cases")."""
+        from ..solvers.discontinuity import steepness
+
+        system, law, joint = self.system, self.model.contacts.law, self.scene.joint
+        if not (system.coupled and law.can_slip and self.scene.effects.separation) \
+                or rows.size < 2 or "corrector failed" not in message \
+                or system.n_z > STEEP_MAX_UNKNOWNS:
+            return message
+        Z, om = np.asarray(self.points["q"])[rows], np.asarray(self.points["omega"])[rows]
+        y = np.column_stack([Z, om])
+
+        def fun(v):
+            return system.evaluate(v[:-1], float(v[-1]), F, jacobian=False).R
+
+        def jac(v):
+            ev = system.evaluate(v[:-1], float(v[-1]), F, wrt=("omega",), J_out=np.zeros(
+                (system.n_z, system.n_z)))
+            return np.column_stack([ev.J, ev.dR["omega"].ravel()])
+
+        ratio = steepness(fun, jac, y[-1], 2.0 * y[-1] - y[-2])
+        if ratio < STEEP_RATIO:
+            return message
+        return (f"{message}; one secant step past the last point the residual changes "
+                f"{ratio:.3g} times faster than the Jacobian at the point predicts: it is "
+                f"nearly discontinuous there, and neither Newton nor a smaller step passes.  At "
+                f"each clap of this separating contact the slip force mu N switches the "
+                f"element from free (N = 0) to stuck within a change of N of kt |u - w| / mu, "
+                f"so with joint.mu = {joint.mu:g} the element sticks within about one time "
+                f"sample of closing and its anchor jumps when the first closed sample of the "
+                f"AFT grid changes (the mu -> infinity limit of a clapping contact: physics of "
+                f"the model, not a numerical defect); lower joint.mu so that the element slips "
+                f"over several samples after each closure, or compute this response by time "
+                f"marching")
 
     def finish_branch(self, ib, fs, success, message) -> str | None:
         """Status, peak and peak loops of a finished branch; the failure, if any."""

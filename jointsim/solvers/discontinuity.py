@@ -267,3 +267,43 @@ def explain_failure(message: str, advice: str, fun, y_prev, y_last, n_scan: int 
                 found = (" (no jump found within one secant step past the last point: this "
                          "failure may also have another cause)")
     return f"{message}; {advice}{found}"
+
+
+def steepness(fun, jac, y0, y1, n_scan: int = 24) -> float:
+    """How much faster the residual changes along a segment than its Jacobian at ``y0`` says.
+
+    A residual that is smooth but nearly discontinuous (a slip force ``mu N``
+    with a huge ``mu`` switching an element between free and stuck within a
+    tiny change of ``N`` at a clap) has a correct Jacobian at the last point and
+    a change of ``R`` just beyond it that no linear model predicts; Newton's
+    region of convergence then shrinks with that band, and so does the step.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(y) -> R``, shape (n_r,).
+    jac : callable
+        ``jac(y) -> dR/dy``, shape (n_r, n).
+    y0, y1 : ndarray, shape (n,)
+        Segment ends (``y0``: the last converged point).
+    n_scan : int
+        Geometrically spaced samples ``s`` in ``[1e-3, 1]``.
+
+    Returns
+    -------
+    float
+        ``max_s |R(y0 + s d) - R(y0) - s J d| / (s |J d|)`` [-]: about 0 where the
+        linear model holds over the segment, >> 1 in a steep band.
+    """
+    y0 = np.asarray(y0, dtype=float)
+    d = np.asarray(y1, dtype=float) - y0
+    R0 = np.asarray(fun(y0), dtype=float)
+    Jd = np.asarray(jac(y0), dtype=float) @ d
+    nJd = float(np.linalg.norm(Jd))
+    if nJd == 0.0:
+        return 0.0
+    worst = 0.0
+    for s in np.geomspace(1e-3, 1.0, n_scan):
+        Rs = np.asarray(fun(y0 + s * d), dtype=float)
+        worst = max(worst, float(np.linalg.norm(Rs - R0 - s * Jd)) / (s * nJd))
+    return worst
