@@ -20,7 +20,7 @@ from jointsim.model import build_model
 from jointsim.scene import parse_scene
 from jointsim.loads import LoadFunction
 from jointsim.solvers.generalized_alpha import GeneralizedAlpha
-from jointsim.solvers.transient import static_start
+from jointsim.solvers.static import static_start
 from jointsim.solvers._transient_kernels import single_threaded
 
 

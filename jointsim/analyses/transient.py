@@ -31,8 +31,8 @@ from ..masing import check_loops
 from ..results import INTERRUPTED, Convergence
 from ..solvers.contact_map import ContactEval
 from ..solvers.generalized_alpha import MarchState, StepStats
-from ..solvers.transient import (MarchResume, PeriodData, free_decay, march_steady,
-                                 undamped_modes, with_mode_damping)
+from ..solvers.march_accuracy import undamped_modes, with_mode_damping
+from ..solvers.transient import MarchResume, PeriodData, free_decay, march_steady
 from .crosscheck import write_cross_check
 
 log = logging.getLogger(__name__)
@@ -361,10 +361,10 @@ def _periodic_model(model, tr, g):
     """The model a steady run marches, and a note on its periodicity.
 
     Counts the modes of the stuck structure that the scene leaves undamped
-    (:func:`~jointsim.solvers.transient.undamped_modes`; attributes
+    (:func:`~jointsim.solvers.march_accuracy.undamped_modes`; attributes
     ``undamped_modes``, ``undamped_modes_hz``); with
     ``analysis.transient.undamped_mode_zeta > 0`` they get that damping ratio
-    (:func:`~jointsim.solvers.transient.with_mode_damping`).  The note (empty
+    (:func:`~jointsim.solvers.march_accuracy.with_mode_damping`).  The note (empty
     when none apply) says why the march may never become periodic.
     """
     modes = undamped_modes(model)

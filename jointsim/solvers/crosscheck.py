@@ -188,7 +188,7 @@ def cross_check(Xa, harmonics_a, Xb, harmonics_b, *, model=None, loops=None,
         (n_e, n) each, to tell which elements keep a history.
     tol : float
         Agreement tolerance on ``rel_diff``.
-    step_error : jointsim.solvers.transient.StepError, optional
+    step_error : jointsim.solvers.march_accuracy.StepError, optional
         The time-step error indicator of solution ``a`` (on ``harmonics_a``):
         the verdict then says whether the step size explains the difference
         (the march plus its estimated step error agrees with ``b``) or not.

@@ -44,6 +44,7 @@ import scipy.sparse.linalg as spla
 
 from ..loads import static_load
 from ..results import NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS, Convergence
+from .contact_map import ContactMap, empty_eval
 from .newton import NewtonOptions, newton
 
 log = logging.getLogger(__name__)
@@ -457,3 +458,88 @@ def stuck_linearisation(model, *, tol: float = 1e-10) -> StuckLinearisation:
     log.debug("stuck linearisation: %d/%d elements closed at x0 (%s)", int(closed.sum()),
               c.n_elements, conv.message)
     return lin
+
+
+@dataclass(frozen=True)
+class StartState:
+    """The static state a march starts from, with the contact laws' state there.
+
+    Attributes
+    ----------
+    x : ndarray, shape (n_dof,)
+        Static displacement [m].
+    contact : ContactEval
+        Contact forces at ``x``; ``contact.state`` is the law state to start from.
+    iterations : int
+        Newton iterations of the static solves.
+    source : str
+        Where ``x`` comes from (the stuck linearisation's ``source``, or
+        ``"frictionless"``).
+    """
+
+    x: np.ndarray
+    contact: object
+    iterations: int
+    source: str
+
+
+def static_start(model, frictionless: bool = False, tol: float = 1e-10) -> StartState:
+    """The static state under the constant loads, and the laws' state there.
+
+    The state is the one every solver starts from,
+    :func:`jointsim.solvers.static.stuck_linearisation` (the model builder's
+    preload state when it has one, else solved with the joint stuck), with
+    the sliders at rest: anchors at zero slip, so that a stuck slider carries
+    ``kt A u_t``.  Where that force exceeds the slip limit, one
+    :func:`~jointsim.solvers.static.solve_static` step with the law itself
+    (``tangential = "law"``) lets the slider slip to equilibrium.
+
+    With ``frictionless`` (``model.preload_tangential = "frictionless"``) the
+    static state carries no tangential force (``solve_static`` with
+    ``tangential = "frictionless"``), and the sliders rest, unloaded, at the
+    slip it leaves.
+
+    Parameters
+    ----------
+    model : jointsim.model.StructuralModel
+    frictionless : bool
+    tol : float
+        Residual tolerance of the static solves.
+
+    Returns
+    -------
+    StartState
+
+    Raises
+    ------
+    RuntimeError
+        When a static solve fails (the message says why).
+    """
+    c = model.contacts
+    cmap = ContactMap(c)
+    f0 = static_load(model)
+    if frictionless and cmap.active:
+        x_start = None if model.preload is None else model.preload.x0
+        res = solve_static(model.K, f0, c, tangential="frictionless", tol=tol,
+                           x_start=x_start, f_start=None if x_start is None else f0)
+        if not res.convergence.success:
+            raise RuntimeError(f"the static (preload) state, frictionless: "
+                               f"{res.convergence.message}")
+        state = cmap.state_at(res.u_t, res.N)
+        ev = cmap.evaluate(cmap.B @ res.x, state)
+        return StartState(res.x, ev, res.convergence.iterations, "frictionless")
+    lin = model.linearisation
+    if not cmap.active:
+        return StartState(lin.x0, empty_eval(c.law.rest_state(np.zeros(0))),
+                          lin.convergence.iterations, lin.source)
+    rest = c.law.rest_state(lin.N)
+    if not c.law.can_slip:   # linear or no friction: no history to solve for
+        return StartState(lin.x0, cmap.evaluate(cmap.B @ lin.x0, rest),
+                          lin.convergence.iterations, lin.source)
+    res = solve_static(model.K, f0, c, tangential="law", state=rest, tol=tol,
+                       x_start=lin.x0, f_start=f0)
+    if not res.convergence.success:
+        raise RuntimeError(f"the static state with the contact law: {res.convergence.message}")
+    ev = cmap.evaluate(cmap.B @ res.x, res.state)
+    return StartState(res.x, ev, lin.convergence.iterations + res.convergence.iterations,
+                      lin.source)

@@ -13,7 +13,8 @@ from jointsim.model import build_model
 from jointsim.scene import load_scene
 from jointsim.solvers.crosscheck import cross_check
 from jointsim.solvers.hbm import HBMSystem, solve_point
-from jointsim.solvers.transient import march_steady, undamped_modes, with_mode_damping
+from jointsim.solvers.march_accuracy import undamped_modes, with_mode_damping
+from jointsim.solvers.transient import march_steady
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENE = ROOT / "models" / "lap_joint_fixed_n.toml"

@@ -12,7 +12,7 @@ import pytest
 from jointsim.loads import LoadFunction
 from jointsim.model import build_model
 from jointsim.solvers.generalized_alpha import GeneralizedAlpha
-from jointsim.solvers.transient import static_start
+from jointsim.solvers.static import static_start
 
 from .._transient_scenes import sdof_jenkins
 

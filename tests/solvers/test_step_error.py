@@ -10,8 +10,9 @@ import pytest
 
 from jointsim.harmonics import coefficient_index
 from jointsim.model import build_model
-from jointsim.solvers.transient import (march_steady, scheme_frequency_error, step_error,
-                                        step_range_warnings)
+from jointsim.solvers.march_accuracy import (scheme_frequency_error, step_error,
+                                             step_range_warnings)
+from jointsim.solvers.transient import march_steady
 
 from .._transient_scenes import lumped, two_dof_jenkins
 
@@ -118,7 +119,7 @@ def _half_damped(transient):
 
 
 def test_undamped_modes_are_found_and_damped_exactly():
-    from jointsim.solvers.transient import undamped_modes, with_mode_damping
+    from jointsim.solvers.march_accuracy import undamped_modes, with_mode_damping
     model = build_model(_half_damped({"omega": 1.2}))
     modes = undamped_modes(model)
     assert modes.n == 1 and modes.omega[0] == pytest.approx(np.sqrt(3.0), rel=1e-12)

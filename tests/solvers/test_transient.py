@@ -16,7 +16,8 @@ from jointsim.harmonics import dft_matrix
 from jointsim.loads import LoadFunction
 from jointsim.solvers.generalized_alpha import GeneralizedAlpha
 from jointsim.solvers.periodic import ExtremumTracker, decay_estimates
-from jointsim.solvers.transient import free_decay, march_steady, rigid_modes, static_start
+from jointsim.solvers.static import static_start
+from jointsim.solvers.transient import free_decay, march_steady, rigid_modes
 
 from .._transient_scenes import (jenkins_backbone, jenkins_dissipation, lumped, separating,
                                 sdof_jenkins, two_dof_jenkins)

@@ -13,7 +13,7 @@ from jointsim.solvers import generalized_alpha as GA
 from jointsim.solvers import _transient_kernels as TK
 from jointsim.loads import LoadFunction
 from jointsim.solvers.generalized_alpha import GeneralizedAlpha
-from jointsim.solvers.transient import static_start
+from jointsim.solvers.static import static_start
 
 from .._transient_scenes import lumped, separating, sdof_jenkins, two_dof_jenkins
 

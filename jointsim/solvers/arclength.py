@@ -1,0 +1,140 @@
+"""The geometry of an arclength step: tangent, bordered corrector, corners and folds.
+
+Building blocks of :class:`jointsim.solvers.continuation.Continuation`, in the
+scaled unknowns ``y = (z, lam)`` of that module:
+
+* :func:`tangent`: the unit tangent from ``[J; t_prev^T] t = [0; 1]``;
+* :func:`bordered`: ``R`` with the hyperplane row ``t . (y - yk) - h``, the
+  corrector's system;
+* :func:`corner_step`: a point beyond a corner of a piecewise-smooth branch,
+  from the tangent of the piece beyond it;
+* :func:`fold_step`: a turn at a non-smooth fold (a kink where the orientation
+  ``sign det [J; t]`` changes; ``docs/hbm.md``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .jacobian import append_row, solve
+from .newton import NewtonOptions, newton
+
+
+def bordered(F, t, yk, h):
+    """``F`` with the hyperplane row ``t . (y - yk) - h``, for :func:`newton`.
+
+    Returns ``(fun, jacobian, measure)``: the extra of ``fun`` is ``F``'s
+    ``(R, J, extra)`` and the measure is ``max|R|`` of ``F`` alone.
+    """
+    def fun(y):
+        R, J, extra = F(y)
+        return np.concatenate([R, [t @ (y - yk) - h]]), (R, J, extra)
+
+    def jacobian(_y, _r, got):
+        return append_row(got[1], t)
+
+    def measure(_r, got):
+        return np.abs(got[0]).max(initial=0.0)
+
+    return fun, jacobian, measure
+
+
+def tangent(J, t_prev):
+    """Unit tangent of ``J t = 0`` oriented like ``t_prev`` (scaled variables)."""
+    n1 = J.shape[1]
+    A = append_row(J, t_prev)
+    rhs = np.zeros(n1)
+    rhs[-1] = 1.0
+    try:
+        t = solve(A, rhs)
+    except (np.linalg.LinAlgError, RuntimeError):
+        return t_prev.copy()
+    nt = np.linalg.norm(t)
+    if not np.isfinite(nt) or nt == 0.0:
+        return t_prev.copy()
+    t /= nt
+    if t @ t_prev < 0.0:
+        t = -t
+    return t
+
+
+def corner_step(F, yk, t, h, tol, max_iter, max_jump=np.inf):
+    """Try to leave a corner at ``yk`` along the tangent of the piece beyond it.
+
+    Returns ``(y, R, J, extra, iterations)`` or None.
+    """
+    dirs = []
+    for eps in (1e-7, 1e-5, 1e-3):   # the Jacobian just beyond the corner
+        _R, Jb, _e = F(yk + eps * t)
+        tb = tangent(Jb, t)
+        if not any(abs(tb @ d) > 1 - 1e-6 for d in dirs):
+            dirs += [tb, -tb]
+    best = None
+    for d in dirs:
+        if d @ (-t) > 0.99:  # that is the branch we came along
+            continue
+        yk1 = yk + h * d
+        fun, jac, measure = bordered(F, d, yk, h)
+        res = newton(fun, yk1, NewtonOptions(tol, max_iter, line_search="none"),
+                     jacobian=jac, measure=measure)
+        if res.success:
+            yc, (R, J, extra) = res.x, res.extra
+            back = (yc - yk) @ (-t) / max(np.linalg.norm(yc - yk), 1e-300) >= 0.99
+            if not back and np.linalg.norm(yc - yk1) <= max_jump * h:
+                best = (yc, R, J, extra, res.iterations)
+        if best is not None:
+            return best
+    return None
+
+
+def _orient(J, d):
+    """Sign of ``det [J; d^T]`` (the orientation of the branch along ``d``)."""
+    return int(np.sign(np.linalg.slogdet(append_row_dense(J, d))[0]))
+
+
+def append_row_dense(J, d):
+    """``[J; d^T]`` as a dense array (``J`` dense or with ``to_dense()``)."""
+    Jd = J.to_dense() if hasattr(J, "to_dense") else np.asarray(J, dtype=float)
+    return np.vstack([Jd, np.asarray(d, dtype=float)[None, :]])
+
+
+def fold_step(F, yk, t, h, tol, max_iter, n_bisect: int = 24):
+    """Continue through a non-smooth fold between ``yk`` and ``yk + h t``.
+
+    At a kink of the residual where the orientation ``sign det [J; t]``
+    changes (the two pieces are not coherently oriented), the branch turns
+    back: no hyperplane just beyond the kink cuts it, and Newton cycles
+    between the pieces (:class:`jointsim.solvers.discontinuity.Fold`).  The
+    branch goes on along the tangent of the piece beyond the kink oriented so
+    that the orientation is kept (piecewise-linear continuation's rule): the
+    kink is located by bisection on the sign, and Newton is run on the
+    hyperplane ``d . (y - c) = h`` from ``c + h d``, ``c`` the first point
+    beyond the kink.
+
+    Returns ``(y, R, J, extra, iterations)`` or None (no fold, or no point).
+    """
+    _R0, J0, _e0 = F(yk)
+    s0 = _orient(J0, t)
+    _R1, J1, _e1 = F(yk + h * t)
+    if s0 == 0 or _orient(J1, t) != -s0:
+        return None
+    lo, hi = 0.0, h
+    for _ in range(n_bisect):
+        mid = 0.5 * (lo + hi)
+        _R, Jm, _e = F(yk + mid * t)
+        if _orient(Jm, t) == s0:
+            lo = mid
+        else:
+            hi, J1 = mid, Jm
+    c = yk + hi * t
+    d = tangent(J1, t)
+    if _orient(J1, d) != s0:
+        d = -d
+    fun, jac, measure = bordered(F, d, c, h)
+    res = newton(fun, c + h * d, NewtonOptions(tol, max_iter, line_search="decrease"),
+                 jacobian=jac, measure=measure)
+    if not res.success:
+        return None
+    yc, (R, J, extra) = res.x, res.extra
+    if _orient(J, d) != s0:   # landed back on the piece before the kink
+        return None
+    return yc, R, J, extra, res.iterations
