@@ -490,6 +490,11 @@ class Continuation:
             log.debug("%s: passed a corner of the branch at lam = %.8g", self.desc,
                       yk[-1] * self.scale[-1])
         if not ok:
+            got = self._natural_step(yk, hc)
+            if got is not None:
+                yc, R, J, extra, it = got
+                ok, h = True, float(np.linalg.norm(yc - yk))
+        if not ok:
             # a non-smooth fold (kink whose pieces are not coherently oriented):
             # the point beyond it lies on the other piece, so it is not a retrace
             got = fold_step(self._F, yk, t, h, self.tol, self.max_iter)
@@ -498,11 +503,6 @@ class Continuation:
                 ok, self._turned = True, True
                 log.debug("%s: turned at a non-smooth fold at lam = %.8g", self.desc,
                           yk[-1] * self.scale[-1])
-        if not ok:
-            got = self._natural_step(yk, hc)
-            if got is not None:
-                yc, R, J, extra, it = got
-                ok, h = True, float(np.linalg.norm(yc - yk))
         return ok, h, yc, R, J, extra, it
 
     def _natural_step(self, yk, h):
