@@ -87,8 +87,12 @@ def corner_step(F, yk, t, h, tol, max_iter, max_jump=np.inf):
 
 
 def _orient(J, d):
-    """Sign of ``det [J; d^T]`` (the orientation of the branch along ``d``)."""
-    return int(np.sign(np.linalg.slogdet(append_row_dense(J, d))[0]))
+    """Sign of ``det [J; d^T]`` (the orientation of the branch along ``d``); 0 when
+    ``J`` is not finite (a diverged iterate has no orientation)."""
+    A = append_row_dense(J, d)
+    if not np.all(np.isfinite(A)):
+        return 0
+    return int(np.sign(np.linalg.slogdet(A)[0]))
 
 
 def append_row_dense(J, d):
