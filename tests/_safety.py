@@ -175,3 +175,21 @@ def assert_same_datasets(path, ref, names, atol: float = 1e-8) -> None:
             scale = max(float(np.nanmax(np.abs(y), initial=0.0)), 1.0)
             err = float(np.nanmax(np.abs(x - y), initial=0.0)) / scale
             assert err <= atol, f"{name}: differs by {err:.3g}"
+
+
+def assert_killed_file(p: subprocess.Popen, out, sig: int, interrupted_text: str) -> str:
+    """The state a killed run left in ``out``: ``complete`` (the signal came after the
+    file was done), ``running`` after SIGKILL, else ``interrupted`` with a message
+    containing ``interrupted_text``; ``info`` reads it.  Returns the status."""
+    st = status(out)
+    if p.returncode == 0 or st == "complete":
+        assert st == "complete"
+    elif sig == signal.SIGKILL:
+        assert st == "running"
+    else:
+        assert st == "interrupted", st
+        with h5py.File(out, "r") as h5:
+            assert interrupted_text in h5.attrs["message"]
+    info = run("info", str(out))
+    assert info.returncode == 0, info.stderr
+    return st

@@ -55,18 +55,8 @@ def _kill_and_resume(out, ref, delay, sig, workers):
     if not out.exists():  # killed before the model was built: nothing written
         return None
     assert not lock_path(out).exists() or sig == signal.SIGKILL
-    status = S.status(out)
-    if p.returncode == 0 or status == "complete":  # the signal came after the file was done
-        assert status == "complete"
-    elif sig == signal.SIGKILL:
-        assert status == "running"
-    else:
-        assert status == "interrupted", status
-        with h5py.File(out, "r") as h5:
-            assert "committed points" in h5.attrs["message"]
+    status = S.assert_killed_file(p, out, sig, "committed points")
     S.consistent(out)
-    info = S.run("info", str(out))
-    assert info.returncode == 0, info.stderr
     r = S.run("run", S.CHAIN, "-o", str(out), "--resume", "--set",
               f"analysis.hbm.workers={workers}")
     assert r.returncode == 0, r.stderr

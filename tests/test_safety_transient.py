@@ -136,18 +136,8 @@ def _kill_and_resume(out, scene, args, names, ref, delay, sig):
     assert outlived < 2.0, f"processes of the run outlived it by {outlived:.2f} s"
     if not out.exists():  # killed before the model was built: nothing written
         return None
-    status = S.status(out)
-    if p.returncode == 0 or status == "complete":
-        assert status == "complete"
-    elif sig == signal.SIGKILL:
-        assert status == "running"
-    else:
-        assert status == "interrupted", status
-        with h5py.File(out, "r") as h5:
-            assert "continue with --resume" in h5.attrs["message"]
+    status = S.assert_killed_file(p, out, sig, "continue with --resume")
     S.committed_exactly(out)
-    info = S.run("info", str(out))
-    assert info.returncode == 0, info.stderr
     r = S.run("run", scene, "-o", str(out), "--resume", *args)
     assert r.returncode == 0, r.stderr
     assert S.status(out) == "complete"
