@@ -21,17 +21,21 @@ from jointsim.solvers.modes import stuck_modes
 from .._scenes import MODELS
 
 
+def _resonances(system, w0, w1):
+    """The stuck linear resonances [rad/s] inside the range."""
+    lo, hi = sorted((w0, w1))
+    return [2 * np.pi * f for f in stuck_modes(system.model, min(system.model.n_dof, 40))
+            .frequency_hz if lo < 2 * np.pi * f < hi]
+
+
 def _stuck_estimate(system, F, w0, w1):
     """max |z - z0| of the stuck responses at 9 frequencies and the resonances."""
     z0 = system.static_coordinates()
-    lo, hi = sorted((w0, w1))
-    res = [2 * np.pi * f for f in stuck_modes(system.model, min(system.model.n_dof, 40))
-           .frequency_hz if lo < 2 * np.pi * f < hi]
+    res = _resonances(system, w0, w1)
     q = 0.0
     for w in list(np.linspace(w0, w1, 9)) + res:
         ev = system.evaluate(z0, w, F, wrt=())
-        J = ev.J if isinstance(ev.J, np.ndarray) else ev.J.to_dense()
-        q = max(q, float(np.abs(np.linalg.solve(J, -ev.R)).max()))
+        q = max(q, float(np.abs(np.linalg.solve(ev.J, -ev.R)).max()))
     return q, res
 
 
@@ -60,12 +64,16 @@ def test_gross_slip_resonance_solve_gives_up_early(coarse_model, monkeypatch):
     a = load_scene(MODELS / "lap_joint.toml").analysis.hbm
     system = _system(coarse_model, a, parallel=False)
     F = system.force_coefficients(2.0)
-    q_lin, res = _stuck_estimate(system, F, a.omega_start, a.omega_end)
+    z0 = system.static_coordinates()
+    res = _resonances(system, a.omega_start, a.omega_end)
+    assert len(res) == 1
+    ev = system.evaluate(z0, res[0], F, wrt=())
+    q_res = float(np.abs(np.linalg.solve(ev.J, -ev.R)).max())    # the stuck resonance
     calls = []
     evaluate = system.evaluate
     monkeypatch.setattr(system, "evaluate", lambda *x, **k: calls.append(1) or evaluate(*x, **k))
-    scale, _ = H.frc_scales(system, F, a.omega_start, a.omega_end)
-    # the stuck estimate, and at most two Newton steps (with their line searches)
-    # after the 9 + len(res) stuck solves
-    assert scale[0] == pytest.approx(q_lin, rel=1e-10)
-    assert len(calls) - (9 + len(res)) <= 1 + 2 * 6
+    n = 2                                   # the range's ends, below the resonance's q
+    scale, _ = H.frc_scales(system, F, a.omega_start, a.omega_end, n=n)
+    # the stuck estimate, after at most two Newton steps (with their line searches)
+    assert scale[0] == pytest.approx(q_res, rel=1e-10)
+    assert len(calls) - (n + len(res)) <= 1 + 2 * 6
