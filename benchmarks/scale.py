@@ -14,7 +14,8 @@ while the dense path's estimated time stays below ``--dense-limit`` seconds,
 once with ``"direct"``.  Printed per case: unknowns, Newton iterations, GMRES
 iterations, time per point (analysis time / points) of both paths, their
 ratio, the largest relative difference of ``X`` between the two paths over
-the points they share, and peak memory; then the fitted exponent ``p`` of
+the points they placed at the same frequency (FRC) or amplitude (EPMC), with
+how many those are, and peak memory; then the fitted exponent ``p`` of
 time per point ~ n^p (Krylov path, least squares over the sizes from 57 on).
 
 Usage::
@@ -88,6 +89,9 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str) -> dict:
                     newton=int(f[f"{analysis}/iterations"][()].sum()),
                     krylov=int(f[f"{analysis}/krylov_iterations"][()].sum()),
                     X=f[f"{analysis}/X"][()].tolist(),
+                    # the continuation parameter of each point (frequency or amplitude)
+                    lam=f[f"{analysis}/{'omega' if analysis == 'hbm' else 'amplitude'}"][()]
+                    .tolist(),
                     rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
 
 
@@ -140,17 +144,23 @@ def main(argv=None) -> None:
                     dense_est = d["time"] * 10.0      # next size: about n^3, x 2^3
                 kt = k["time"] / max(k["points"], 1)
                 dt = d["time"] / max(d["points"], 1) if d else np.nan
-                dx = np.nan
+                dx, same = np.nan, ""
                 if d:
+                    # compare the points both paths placed at the same parameter (a failed
+                    # step, e.g. a GMRES that did not converge, makes the paths diverge)
                     Xk, Xd = np.asarray(k["X"]), np.asarray(d["X"])
-                    m = min(len(Xk), len(Xd))
-                    dx = float(max(np.abs(Xk[i] - Xd[i]).max() / np.abs(Xd[i]).max()
-                                   for i in range(m)))
+                    lk, ld = np.asarray(k["lam"]), np.asarray(d["lam"])
+                    pairs = [(i, int(np.argmin(np.abs(ld - x)))) for i, x in enumerate(lk)]
+                    pairs = [(i, j) for i, j in pairs if abs(ld[j] - lk[i]) <= 1e-9 * abs(ld[j])]
+                    if pairs:
+                        dx = float(max(np.abs(Xk[i] - Xd[j]).max() / np.abs(Xd[j]).max()
+                                       for i, j in pairs))
+                    same = f" ({len(pairs)}/{len(lk)} points)"
                 sizes.append(n)
                 tpp.append(kt)
                 print(f"{n:>5} {k['n_z']:>6} {k['points']:>4} {k['newton']:>6} "
                       f"{k['krylov']:>6} {kt:>11.3f} {dt:>10.3f} {dt / kt:>6.2f} {dx:>8.1e} "
-                      f"{k['rss_mb']:>9.0f} {d['rss_mb'] if d else np.nan:>8.0f}", flush=True)
+                      f"{k['rss_mb']:>9.0f} {d['rss_mb'] if d else np.nan:>8.0f}{same}", flush=True)
             sel = [i for i, n in enumerate(sizes) if n >= 57]
             if len(sel) >= 2:
                 pfit = np.polyfit(np.log([sizes[i] for i in sel]),

@@ -377,6 +377,16 @@ def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: in
       it does not converge), so that a branch whose friction damping keeps it
       far below the linear peak is still resolved.
 
+    The scale only needs its order of magnitude, so the nonlinear solve gives
+    up early where it cannot succeed (the stuck estimate is then kept, as for
+    any failed solve): when its best residual has not fallen by 10 % in
+    ``RESONANCE_STALL`` steps, or when an iterate lies farther than
+    ``RESONANCE_BOUND`` times the stuck estimate from ``z0`` (in gross slip the
+    joint's static position drifts along its nearly free slip, metres away;
+    friction only damps and softens, so a converging solve stays below the
+    stuck resonance).  A solve that converges is unchanged: the same
+    iterations to ``tol``.
+
     The residual scale is the largest condensed force ``max |R(z0)|``.
 
     Returns
@@ -414,14 +424,62 @@ def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: in
         rref = 1.0
     qref = max(q_off, q_res)
     if best[1] is not None:
-        sol = solve_point(system, best[1], F, z0=best[2], tol=tol, max_iter=15, rscale=rref)
-        if sol.convergence.success:
-            qref = max(q_off, float(np.abs(sol.z - z0).max()))
+        q_nl = _resonance_response(system, best[1], F, best[2], z0, rref, tol,
+                                   RESONANCE_BOUND * qref)
+        if q_nl is not None:
+            qref = max(q_off, q_nl)
     if not qref > 0.0:
         qref = 1.0
     scale = np.full(system.n_z + 1, qref)
     scale[-1] = max(abs(omega_end - omega_start), 1e-12 * abs(omega_start), 1e-300)
     return scale, rref
+
+
+#: :func:`frc_scales`: the resonance solve gives up when its best residual has not
+#: fallen by 10 % in this many Newton steps
+RESONANCE_STALL = 3
+#: :func:`frc_scales`: ... or when an iterate is farther from the static state than
+#: this many times the stuck response
+RESONANCE_BOUND = 10.0
+
+
+class _Implausible(Exception):
+    """An iterate of the resonance solve beyond its bound (:func:`_resonance_response`)."""
+
+
+def _resonance_response(system: HBMSystem, omega: float, F, z_start, z0, rscale: float,
+                        tol: float, bound: float):
+    """``max |z - z0|`` of the nonlinear response at ``omega`` (for :func:`frc_scales`).
+
+    Newton from ``z_start`` to ``max|R| / rscale <= tol`` (at most 15 steps), given
+    up after ``RESONANCE_STALL`` steps without progress or at an iterate with
+    ``max |z - z0| > bound``.
+
+    Returns
+    -------
+    float or None
+        None when the solve did not converge.
+    """
+    def fun(z):
+        if not float(np.abs(z - z0).max(initial=0.0)) <= bound:
+            raise _Implausible
+        ev = system.evaluate(z, omega, F, wrt=())
+        return ev.R, ev.J, ev
+
+    try:
+        res = newton(fun, np.asarray(z_start, dtype=float),
+                     NewtonOptions(tol, 15, line_search="decrease", max_tries=6,
+                                   stall=RESONANCE_STALL),
+                     solve=solve, measure=lambda R, _ev: np.abs(R).max(initial=0.0) / rscale)
+    except _Implausible:
+        log.debug("frc_scales: the resonance solve at omega = %g left %g of z0; "
+                  "the stuck estimate is kept", omega, bound)
+        return None
+    if not res.success:
+        log.debug("frc_scales: the resonance solve at omega = %g: %s; the stuck estimate "
+                  "is kept", omega, res.message)
+        return None
+    return float(np.abs(res.x - z0).max(initial=0.0))
 
 
 def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,

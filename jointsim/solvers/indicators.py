@@ -127,6 +127,11 @@ class ErrorEstimator:
                              aft.max_periods, parallel=parallel,
                              linear_solver="krylov" if system.krylov else "direct") \
             if system.n_z else None
+        if self.ext is not None:
+            # each point is a new Jacobian far from the last one: a preconditioner kept
+            # from the last point fails its GMRES budget (20 iterations) and is rebuilt
+            # anyway, so build each point's own (its two solves share it)
+            self.ext.preconditioner.reuse = False
         self._kept = system.basis.hk > 0
 
     # -- helpers ----------------------------------------------------------------

@@ -1,0 +1,79 @@
+"""The FRC scale estimate (:func:`jointsim.solvers.hbm.frc_scales`).
+
+Its resonance solve only needs an order of magnitude: where it converges it is the
+plain Newton solve (oracle: :func:`~jointsim.solvers.hbm.solve_point` to the same
+tolerance, and to 1e-12); where it cannot (the coupled lap joint in gross slip at
+its stuck resonance, whose static position drifts metres along the free slip) it
+gives up within two steps and the scale is the stuck estimate (oracle: the stuck
+linear responses solved independently).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jointsim.analyses.hbm import _system
+from jointsim.model import build_model
+from jointsim.scene import load_scene
+from jointsim.solvers import hbm as H
+from jointsim.solvers.modes import stuck_modes
+
+from .._scenes import MODELS
+
+
+def _resonances(system, w0, w1):
+    """The stuck linear resonances [rad/s] inside the range."""
+    lo, hi = sorted((w0, w1))
+    return [2 * np.pi * f for f in stuck_modes(system.model, min(system.model.n_dof, 40))
+            .frequency_hz if lo < 2 * np.pi * f < hi]
+
+
+def _stuck_estimate(system, F, w0, w1):
+    """max |z - z0| of the stuck responses at 9 frequencies and the resonances."""
+    z0 = system.static_coordinates()
+    res = _resonances(system, w0, w1)
+    q = 0.0
+    for w in list(np.linspace(w0, w1, 9)) + res:
+        ev = system.evaluate(z0, w, F, wrt=())
+        q = max(q, float(np.abs(np.linalg.solve(ev.J, -ev.R)).max()))
+    return q, res
+
+
+def test_resonance_solve_that_converges_is_the_plain_newton_solve():
+    scene = load_scene(MODELS / "hbm" / "chain2_jenkins.toml")
+    a = scene.analysis.hbm
+    system = _system(build_model(scene), a, parallel=False)
+    F = system.force_coefficients(0.2)
+    z0 = system.static_coordinates()
+    q_lin, res = _stuck_estimate(system, F, a.omega_start, a.omega_end)
+    assert len(res) == 1
+    ev = system.evaluate(z0, res[0], F, wrt=())
+    start = z0 + np.linalg.solve(ev.J, -ev.R)
+    rref = 1.0
+    q = H._resonance_response(system, res[0], F, start, z0, rref, 1e-6, 10 * q_lin)
+    plain = H.solve_point(system, res[0], F, z0=start, tol=1e-6, max_iter=15, rscale=rref)
+    tight = H.solve_point(system, res[0], F, z0=start, tol=1e-12, rscale=rref)
+    assert plain.convergence.success and tight.convergence.success
+    assert q == float(np.abs(plain.z - z0).max())
+    assert q == pytest.approx(float(np.abs(tight.z - z0).max()), rel=1e-6)
+    # friction damps: the nonlinear response at the stuck resonance is below the stuck one
+    assert q < q_lin
+
+
+def test_gross_slip_resonance_solve_gives_up_early(coarse_model, monkeypatch):
+    a = load_scene(MODELS / "lap_joint.toml").analysis.hbm
+    system = _system(coarse_model, a, parallel=False)
+    F = system.force_coefficients(2.0)
+    z0 = system.static_coordinates()
+    res = _resonances(system, a.omega_start, a.omega_end)
+    assert len(res) == 1
+    ev = system.evaluate(z0, res[0], F, wrt=())
+    q_res = float(np.abs(np.linalg.solve(ev.J, -ev.R)).max())    # the stuck resonance
+    calls = []
+    evaluate = system.evaluate
+    monkeypatch.setattr(system, "evaluate", lambda *x, **k: calls.append(1) or evaluate(*x, **k))
+    n = 2                                   # the range's ends, below the resonance's q
+    scale, _ = H.frc_scales(system, F, a.omega_start, a.omega_end, n=n)
+    # the stuck estimate, after at most two Newton steps (with their line searches)
+    assert scale[0] == pytest.approx(q_res, rel=1e-10)
+    assert len(calls) - (n + len(res)) <= 1 + 2 * 6
