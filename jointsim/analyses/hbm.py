@@ -49,8 +49,8 @@ from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
 from ..solvers.crosscheck import HBMSolutions
 from ..harmonics import harmonic_amplitude
 from ..results import Convergence
-from ..solvers.hbm import (HBMSystem, diagnose_failure, first_point, frc_scales, refine_peak,
-                             undamped_resonances)
+from ..solvers.frc_diagnosis import diagnose_failure, undamped_resonances
+from ..solvers.hbm import HBMSystem, first_point, frc_scales, refine_peak
 from ..solvers.indicators import ErrorEstimator, ToleranceWatch, safe_indicators
 from ..solvers.jacobian import BorderedJacobian
 
@@ -530,7 +530,7 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
 
 def _explain_failure(conv, system, F, a, lam):
     """A failed branch's convergence, its message extended by the physical cause when it
-    stopped near an undamped resonance (:func:`~jointsim.solvers.hbm.undamped_resonances`)."""
+    stopped near an undamped resonance (:func:`~jointsim.solvers.frc_diagnosis.undamped_resonances`)."""
     if conv.success:
         return conv
     res = undamped_resonances(system.model, system.basis, F, a.omega_start, a.omega_end)

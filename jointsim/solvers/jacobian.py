@@ -13,7 +13,7 @@ unknowns, harmonic-major) is the sum of
 :class:`HBMJacobian` keeps these pieces and applies ``J v`` and ``J^T v``
 without forming ``J`` (``S_h v = A v - B E^-1 (B' v)``, never formed
 either); :meth:`HBMJacobian.to_dense` is the reference.  Its preconditioner
-(:class:`HarmonicPreconditioner`) is, per harmonic, ``S_h`` plus the harmonic-
+(:class:`~jointsim.solvers.preconditioner.HarmonicPreconditioner`) is, per harmonic, ``S_h`` plus the harmonic-
 ``h`` part of each element's tangent (the complex-form projection of its
 ``(h, h)`` 2 x 2 coefficient block, coupling the slip and gap rows of one
 element), inverted once per harmonic: ``H + 1`` complex ``n_r x n_r`` inverses
@@ -34,7 +34,7 @@ column and an ``m x m`` Schur complement), which stays regular through
 turning points.
 
 The preconditioner is reused across Newton iterations and continuation
-steps through a :class:`PreconditionerCache` owned by the system (an
+steps through a :class:`~jointsim.solvers.preconditioner.PreconditionerCache` owned by the system (an
 explicit object, not module state): it is rebuilt when a solve needed more
 than ``refresh_iterations`` GMRES iterations, or when GMRES fails with the
 old one within twice that.  Every solve is counted in a :class:`LinearStats`.
@@ -51,6 +51,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
+from .preconditioner import PreconditionerCache
+
 log = logging.getLogger(__name__)
 
 #: Relative residual ``|b - A x| / |b|`` at which GMRES stops.
@@ -65,23 +67,6 @@ LINEAR_SOLVERS = ("auto", "direct", "krylov")
 #: are formed (a product costs about three formed ones; forming, a BLAS-3 product
 #: of ``n_r^2 n_y`` per harmonic, about as much as ten to twenty of them).
 FORM_AFTER = 12
-#: GMRES iterations above which a reused preconditioner is rebuilt (with the low-rank
-#: correction a fresh one is exact: one iteration; a build costs about as much as
-#: ten iterations at 120 elements).
-REFRESH_ITERATIONS = 10
-#: Add the element-block stage to the harmonic preconditioner (when its low-rank
-#: correction is truncated or off).
-TWO_STAGE = True
-#: Correct the harmonic preconditioner exactly on the elements whose tangent couples
-#: harmonics (Woodbury, :meth:`HarmonicPreconditioner._lowrank`).
-LOWRANK = True
-#: Largest low-rank correction: this fraction of ``n_z`` coordinates, and at most
-#: ``LOWRANK_MAX`` (its dense ``m x m`` LU costs ``m^3``).
-#: ``LOWRANK_MIN`` coordinates are always allowed (small systems).
-LOWRANK_MAX_FRACTION = 0.35
-LOWRANK_MAX = 3000
-LOWRANK_MIN = 600
-
 
 @dataclass
 class LinearStats:
@@ -106,50 +91,6 @@ class LinearStats:
         out = (self.solves, self.krylov_iterations, self.factorizations)
         self.solves = self.krylov_iterations = self.factorizations = 0
         return out
-
-
-class PreconditionerCache:
-    """The harmonic preconditioner in use, shared by successive Jacobians.
-
-    Parameters
-    ----------
-    refresh_iterations : int
-        A solve that needed more GMRES iterations than this drops the cached
-        preconditioner (the next solve builds a new one from its Jacobian).  (Keeping
-        a truncated one that needed many iterations when fresh was measured worse:
-        it is then kept where a new one would be exact.)
-    reuse : bool
-        False: build a new preconditioner for every Jacobian.
-    """
-
-    def __init__(self, refresh_iterations: int = REFRESH_ITERATIONS, reuse: bool = True):
-        self.refresh_iterations = int(refresh_iterations)
-        self.reuse = bool(reuse)
-        self.current = None
-        self.owner = None
-
-    def get(self, jac) -> tuple["HarmonicPreconditioner", bool]:
-        """A preconditioner for ``jac`` and whether it was built from ``jac`` itself."""
-        if self.current is not None and (self.reuse or self.owner is jac):
-            return self.current, self.owner is jac
-        return self.refresh(jac), True
-
-    def refresh(self, jac) -> "HarmonicPreconditioner":
-        """Build the preconditioner of ``jac`` and keep it."""
-        self.current = HarmonicPreconditioner(jac)
-        self.owner = jac
-        if jac.stats is not None:
-            jac.stats.factorizations += 1
-        return self.current
-
-    def threshold(self) -> int:
-        """GMRES iterations above which the preconditioner is dropped."""
-        return self.refresh_iterations
-
-    def after_solve(self, iterations: int, fresh: bool) -> None:
-        if iterations > self.threshold():
-            self.current = None
-            self.owner = None
 
 
 # --------------------------------------------------------------------------
@@ -435,232 +376,6 @@ def add_element_blocks(J, nr, nc, t_row, n_row, Juu, Jug, JNN):
     if JNN is not None:
         ri, ci = idx(n_row)
         J[ri, ci] -= JNN
-
-
-def _project(Jb, ic, is_, h):
-    """Complex-form projection of the ``(h, h)`` coefficient blocks (n_e,) of ``Jb``."""
-    if h == 0:
-        return Jb[:, ic, ic].astype(complex)
-    return 0.5 * (Jb[:, ic, ic] + Jb[:, is_, is_]) + 0.5j * (Jb[:, ic, is_] - Jb[:, is_, ic])
-
-
-class HarmonicPreconditioner:
-    """Per harmonic, the inverse of ``S_h`` plus the harmonic-``h`` element tangent, with an
-    exact low-rank correction for the elements whose tangent couples harmonics
-    (module docstring, :meth:`_lowrank`).
-
-    Parameters
-    ----------
-    jac : HBMJacobian
-        The Jacobian it is built from (its unscaled pieces).
-    """
-
-    def __init__(self, jac: HBMJacobian):
-        self.jac = jac
-        blocks = []
-        t, n = jac.t_row, jac.n_row
-        for i, h in enumerate(jac.basis.harmonics):
-            ic, is_ = jac._ic[i], jac._is[i]
-            P = jac.schur(i)
-            if jac.Juu is not None:
-                P[t, t] += _project(jac.Juu, ic, is_, h)
-            if jac.Jug is not None:
-                P[t, n] += _project(jac.Jug, ic, is_, h)
-            if jac.JNN is not None:
-                P[n, n] -= _project(jac.JNN, ic, is_, h)
-            blocks.append(P)
-        # explicit inverses, stacked (n_h, n_r, n_r): one batched product per
-        # application, and the (R, R) rows and columns the low-rank stage needs
-        try:
-            self.Pinv = np.linalg.inv(np.array(blocks))
-        except np.linalg.LinAlgError:      # a singular block: GMRES then has to cope
-            log.debug("harmonic preconditioner: a singular block, pseudo-inverse used")
-            self.Pinv = np.linalg.pinv(np.array(blocks))
-        self.Pinv[jac._h0] = self.Pinv[jac._h0].real
-        self.lowrank = None
-        self.truncated = True
-        if LOWRANK:
-            self._lowrank()
-        if TWO_STAGE and self.truncated:
-            self._element_blocks()
-        else:
-            self.Binv = None
-
-    def _element_tangent(self):
-        """Each element's own contact tangent (slip and gap rows over all coefficients,
-        no ``S_h``): ``rows`` (nb n_e,) and blocks (n_e, nb n_c, nb n_c)."""
-        jac = self.jac
-        nc, ne = jac.n_c, len(jac.t_row)
-        if jac.Juu is None:
-            rows = [jac.n_row]
-        else:
-            rows = [jac.t_row] + ([jac.n_row] if jac.JNN is not None else [])
-        nb = len(rows)
-        Tk = np.zeros((ne, nb * nc, nb * nc))
-        if jac.Juu is not None:
-            Tk[:, :nc, :nc] += jac.Juu
-            if jac.Jug is not None and nb == 2:
-                Tk[:, :nc, nc:] += jac.Jug
-        if jac.JNN is not None:
-            Tk[:, -nc:, -nc:] -= jac.JNN
-        return rows, nb, Tk
-
-    def _lowrank(self):
-        """Exact correction for the elements whose tangent couples harmonics.
-
-        The preconditioner ``P`` holds ``S_h`` and the harmonic-``h`` projection of
-        every element's tangent, so ``J = P + E L E^T`` with ``L`` the rest of the
-        element tangents: block-diagonal over elements and zero for an element that
-        sticks (and stays closed) over the whole period.  ``E`` selects the
-        coordinates (all coefficients of the slip and gap rows) of the ``n_l``
-        elements where ``L`` is not negligible.  Woodbury's identity then gives
-        ``J^-1 b = y - P^-1 E L x_K`` with ``y = P^-1 b`` and
-        ``(I + G L) x_K = y_K``, ``G = E^T P^-1 E`` (m x m, ``m = nb n_c n_l``):
-        per harmonic only the ``(R, R)`` rows and columns of ``P_h^-1`` are needed
-        (``R`` the selected rows).  When ``m`` would exceed ``LOWRANK_MAX_FRACTION n_z``
-        (but at least ``LOWRANK_MIN``) or ``LOWRANK_MAX``, only the elements with the largest ``|L_e|`` are kept
-        (``self.truncated``; GMRES and the element-block stage handle the rest).
-        """
-        jac = self.jac
-        nc = jac.n_c
-        rows, nb, Tk = self._element_tangent()
-        ne = Tk.shape[0]
-        if ne == 0:
-            self.truncated = False
-            return
-        Lk = Tk
-        # subtract the harmonic projection that P already holds
-        pairs = []
-        if jac.Juu is not None:
-            pairs.append((0, 0, jac.Juu, 1.0))
-            if jac.Jug is not None and nb == 2:
-                pairs.append((0, 1, jac.Jug, 1.0))
-        if jac.JNN is not None:
-            pairs.append((nb - 1, nb - 1, jac.JNN, -1.0))
-        for a, b, Jb, sgn in pairs:
-            for i, h in enumerate(jac.basis.harmonics):
-                ic, is_ = jac._ic[i], jac._is[i]
-                p = sgn * _project(Jb, ic, is_, h)
-                Lk[:, a * nc + ic, b * nc + ic] -= p.real
-                if h:
-                    Lk[:, a * nc + ic, b * nc + is_] -= p.imag
-                    Lk[:, a * nc + is_, b * nc + ic] += p.imag
-                    Lk[:, a * nc + is_, b * nc + is_] -= p.real
-        norm = np.sqrt(np.einsum("eij,eij->e", Lk, Lk))
-        ref = max(float(np.abs(Tk).max(initial=0.0)), 1e-300)
-        # 1e-13 of the largest tangent entry: below, the correction is round-off
-        sel = np.flatnonzero(norm > 1e-13 * ref)
-        cap = int(min(max(LOWRANK_MAX_FRACTION * jac.n_z, LOWRANK_MIN), LOWRANK_MAX)) \
-            // (nb * nc)
-        self.truncated = sel.size > cap
-        if self.truncated:
-            sel = sel[np.argsort(norm[sel])[::-1][:cap]]
-            sel.sort()
-        if sel.size == 0:
-            return
-        nl = sel.size
-        R = np.concatenate([r[sel] for r in rows])           # (nb nl,) selected rows
-        nR = R.size
-        # K coordinates ordered coefficient-major: index k nR + j (j over R)
-        m = nc * nR
-        G = np.zeros((m, m))
-        for i, h in enumerate(jac.basis.harmonics):
-            Q = self.Pinv[i][np.ix_(R, R)]
-            ic, is_ = jac._ic[i], jac._is[i]
-            c = slice(ic * nR, (ic + 1) * nR)
-            if h == 0:
-                G[c, c] = Q.real
-                continue
-            sn = slice(is_ * nR, (is_ + 1) * nR)
-            G[c, c] = Q.real
-            G[c, sn] = Q.imag
-            G[sn, c] = -Q.imag
-            G[sn, sn] = Q.real
-        # local coordinate (a, k) of selected element l -> K index k nR + a nl + l
-        a_k = np.arange(nb * nc)
-        loc = (a_k % nc)[None, :] * nR + (a_k // nc)[None, :] * nl + np.arange(nl)[:, None]
-        Ls = Lk[sel]                                          # (nl, d, d)
-        GL = np.matmul(G[:, loc].transpose(1, 0, 2), Ls)      # G E_l L_l, (nl, m, d)
-        Mk = np.eye(m)
-        Mk[:, loc] += GL.transpose(1, 0, 2)
-        self.lowrank = (R, loc, Ls, sla.lu_factor(Mk, check_finite=False), nR)
-
-    def _harmonic_solve(self, V):
-        """``P^-1`` of the harmonic stage; ``V`` (n_c, n_r) real, returns (n_c, n_r)."""
-        jac = self.jac
-        X = jac._to_complex(V)
-        Y = np.matmul(self.Pinv, X[:, :, None])[:, :, 0]
-        out = np.empty_like(V)
-        jac._from_complex(Y, out)
-        return out
-
-    def _element_blocks(self):
-        """Inverse of each element's own block of ``J`` (its slip and gap rows over all
-        coefficients, contact tangent with its harmonic coupling plus the diagonal of
-        ``S_h``): the second stage of the preconditioner."""
-        jac = self.jac
-        nc, ne = jac.n_c, len(jac.t_row)
-        rows = [jac.t_row] + ([jac.n_row] if jac.JNN is not None else [])
-        if jac.Juu is None:
-            rows = [jac.n_row]
-        nb = len(rows)
-        Bk = np.zeros((ne, nb * nc, nb * nc))
-        for a, ra in enumerate(rows):
-            for b, rb in enumerate(rows):
-                for i, h in enumerate(jac.basis.harmonics):
-                    S = jac._S[i][ra, rb] if jac._S[i] is not None else jac.schur(i)[ra, rb]
-                    ic, is_ = jac._ic[i], jac._is[i]
-                    Bk[:, a * nc + ic, b * nc + ic] += S.real
-                    if h:
-                        Bk[:, a * nc + ic, b * nc + is_] += S.imag
-                        Bk[:, a * nc + is_, b * nc + ic] -= S.imag
-                        Bk[:, a * nc + is_, b * nc + is_] += S.real
-        if jac.Juu is not None:
-            Bk[:, :nc, :nc] += jac.Juu
-            if jac.Jug is not None and nb == 2:
-                Bk[:, :nc, nc:] += jac.Jug
-        if jac.JNN is not None:
-            Bk[:, -nc:, -nc:] -= jac.JNN
-        self.rows = np.concatenate(rows)
-        self.nb = nb
-        self.Binv = np.linalg.inv(Bk)
-
-    def apply(self, v, jac) -> np.ndarray:
-        """The preconditioner of the scaled ``jac = J diag(col)``: ``diag(col)^-1 P^-1 v``
-        (two-stage when ``TWO_STAGE``)."""
-        if self.Binv is not None:
-            return self.solve2(v, lambda x: jac.matvec(x / jac.col)) / jac.col
-        return self.solve(v) / jac.col
-
-    def solve2(self, v, matvec) -> np.ndarray:
-        """Two-stage: ``x = P^-1 v``, then ``x += B^-1 (v - J x)`` (element blocks)."""
-        jac = self.jac
-        x = self.solve(v)
-        r = (v - matvec(x)).reshape(jac.n_c, jac.n_r)
-        ne = len(jac.t_row)
-        rb = r[:, self.rows].T.reshape(self.nb, ne, jac.n_c).transpose(1, 0, 2) \
-            .reshape(ne, -1)
-        d = np.einsum("eij,ej->ei", self.Binv, rb)
-        d = d.reshape(ne, self.nb, jac.n_c).transpose(1, 0, 2).reshape(-1, jac.n_c).T
-        X = x.reshape(jac.n_c, jac.n_r).copy()
-        X[:, self.rows] += d
-        return X.ravel()
-
-    def solve(self, v) -> np.ndarray:
-        """``P^-1 v`` for the unscaled ``J``, shape (n_z,)."""
-        jac = self.jac
-        V = np.asarray(v, dtype=float).reshape(jac.n_c, jac.n_r)
-        Y = self._harmonic_solve(V)
-        if self.lowrank is None:
-            return Y.ravel()
-        R, loc, Ls, Mlu, nR = self.lowrank
-        yK = Y[:, R].ravel()                                  # coefficient-major K order
-        xK = sla.lu_solve(Mlu, yK, check_finite=False)
-        w = np.zeros_like(xK)
-        w[loc] = np.matmul(Ls, xK[loc][:, :, None])[:, :, 0]
-        W = np.zeros_like(V)
-        W[:, R] = w.reshape(jac.n_c, nR)
-        return (Y - self._harmonic_solve(W)).ravel()
 
 
 def krylov_solve(core: HBMJacobian, matvec, b, make_psolve):

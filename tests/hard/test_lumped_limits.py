@@ -19,7 +19,7 @@ from jointsim.analyses.hbm import _system
 from jointsim.model import build_model
 from jointsim.run import run_scene
 from jointsim.scene import load_scene
-from jointsim.solvers.hbm import undamped_resonances
+from jointsim.solvers.frc_diagnosis import undamped_resonances
 
 from .._scenes import CHAIN2, MODELS
 from ._files import assert_all_finite

@@ -9,7 +9,8 @@ from jointsim.model import build_model
 from jointsim.run import run_scene
 from jointsim.scene import load_scene
 from jointsim.solvers.hbm import HBMSystem, solve_point
-from jointsim.solvers.jacobian import BorderedJacobian, HarmonicPreconditioner, gmres
+from jointsim.solvers.jacobian import BorderedJacobian, gmres
+from jointsim.solvers.preconditioner import HarmonicPreconditioner
 
 from .._scenes import ROOT, four_dof, lap_scene
 
@@ -79,7 +80,7 @@ def test_lowrank_preconditioner_is_exact_at_stick_slip_and_separation(law, norma
     harmonics, the preconditioner is the inverse of J at a state with stick, slip and
     separation (against the dense solve: GMRES in one iteration); capped to fewer
     elements it is not exact and GMRES still reaches the dense solution."""
-    import jointsim.solvers.jacobian as jm
+    import jointsim.solvers.preconditioner as jm
     sd, sk = _pair(build_model(four_dof(law, "anchor", normal)))
     F = sd.force_coefficients(0.3)
     rng = np.random.default_rng(5)
