@@ -263,15 +263,28 @@ def _extendable_datasets(h5) -> list:
 def torn_groups(h5) -> dict[str, int]:
     """Datasets holding rows beyond their committed count: ``{dataset: committed rows}``.
 
+    A dataset's committed count is its own :data:`COMMITTED`; in a group with a
+    count (one row per point) it is the smallest of the group's and its
+    committed datasets' counts (a dataset never committed counts 0 alone).
     In a file with :data:`COMMITS`, an extendable dataset without the
     :data:`COMMITTED` attribute has committed nothing.  A file of an older
     jointsim (without :data:`COMMITS`) is taken as it is.
     """
     if not h5.attrs.get(COMMITS, 0):
         return {}
+    datasets = _extendable_datasets(h5)
+    # one row per point (the group has a count): a kill inside the commit's final
+    # flush can leave some of the group's and its datasets' counts on disk and not
+    # others; the smallest keeps the rows aligned and drops the half-committed point
+    point_rows: dict[str, int] = {}
+    for d in datasets:
+        g = d.parent
+        if COMMITTED in g.attrs and COMMITTED in d.attrs:
+            n = min(int(g.attrs[COMMITTED]), int(d.attrs[COMMITTED]))
+            point_rows[g.name] = min(point_rows.get(g.name, n), n)
     out = {}
-    for d in _extendable_datasets(h5):
-        n = int(d.attrs.get(COMMITTED, 0))
+    for d in datasets:
+        n = point_rows.get(d.parent.name, int(d.attrs.get(COMMITTED, 0)))
         if d.shape[0] > n:
             out[d.name] = n
     return out

@@ -100,3 +100,30 @@ def test_append_rows_matches_row_by_row_appends(tmp_path):
         assert np.array_equal(h5["a"][()], data) and np.array_equal(h5["b"][()], data)
         assert h5["b"].attrs["unit"] == "s" and h5["b"].attrs["doc"] == "doc"
         assert h5["a"].maxshape == (None, 3)
+
+
+@pytest.mark.parametrize("stale", ["group", "dataset"])
+def test_a_half_committed_point_is_dropped_from_the_whole_group(tmp_path, stale):
+    """A kill inside a commit's final flush can put some committed counts on disk and
+    not others.  Readers and --resume then keep the smaller count for every dataset of
+    a one-row-per-point group: its rows stay aligned and the half-committed point is
+    dropped (here: point 3 of 3, with the group's or one dataset's count stale)."""
+    from jointsim.io.hdf5 import COMMITTED, open_result
+    scene = load_scene(SEED / "const.toml")
+    path = tmp_path / "r.h5"
+    with ResultWriter(path, scene) as w:
+        for k in range(3):
+            with w.commit():
+                w.append("hbm/omega", np.float64(k), "rad/s")
+                w.append("hbm/X", np.full(2, float(k)), "m")
+        w.finish("interrupted", "stopped")
+    with h5py.File(path, "r+") as h5:     # as the killed flush left it
+        if stale == "group":
+            h5["hbm"].attrs[COMMITTED] = 2
+        else:
+            h5["hbm/X"].attrs[COMMITTED] = 2
+    with open_result(path) as h5:
+        assert h5["hbm/omega"].shape[0] == h5["hbm/X"].shape[0] == 2
+        assert int(h5["hbm"].attrs[COMMITTED]) == 2
+    with ResultWriter(path, scene, resume=True) as w:
+        assert w.rows("hbm/omega") == w.rows("hbm/X") == 2
