@@ -287,6 +287,11 @@ class _Output:
             if rec.get("f") is not None and (not self.masing_points or p in self.masing_points):
                 self._write_loops(p, rec["X"], rec["f"], rec["N"])
 
+    def _has_loops(self, p: int) -> bool:
+        """Whether the file already holds the element loops of point ``p``."""
+        h5 = self.writer.h5
+        return "hbm/loops/point" in h5 and bool(np.any(h5["hbm/loops/point"][()] == p))
+
     def _write_loops(self, p, X, f, N) -> None:
         """Element loops of point ``p`` and their Masing check."""
         u = self.system.slips(X)
@@ -373,9 +378,11 @@ class _Output:
                 pw, pa, ok = float(om[i]), float(amp[i]), False
             self.peaks["omega"][ib], self.peaks["amplitude"][ib], self.refined[ib] = pw, pa, ok
             with writer.commit():   # the peak loops and tables: all or nothing
-                if self.rule == "peaks":
+                i = int(np.argmax(amp))
+                if self.rule == "peaks" and not self._has_loops(int(rows[i])):
                     # the element loops and Masing checks of the branch's largest point
-                    i = int(np.argmax(amp))
+                    # (once: a run stopped after this commit, before the branch's
+                    # status, finishes the branch again on --resume)
                     ev = system.evaluate(Z[i], float(om[i]), F, jacobian=False)
                     if ev.aft is not None:   # None: no contact unknowns (a linear joint)
                         X = system.reconstruct(Z[i], float(om[i]), F)
