@@ -86,7 +86,7 @@ def corner_step(F, yk, t, h, tol, max_iter, max_jump=np.inf):
     return None
 
 
-def _orient(J, d):
+def orientation(J, d):
     """Sign of ``det [J; d^T]`` (the orientation of the branch along ``d``); 0 when
     ``J`` is not finite (a diverged iterate has no orientation)."""
     A = append_row_dense(J, d)
@@ -128,15 +128,15 @@ def fold_step(F, yk, t, h, tol, max_iter, n_bisect: int = 24):
     Returns ``(y, R, J, extra, iterations)`` or None (no fold, or no point).
     """
     _R0, J0, _e0 = F(yk)
-    s0 = _orient(J0, t)
+    s0 = orientation(J0, t)
     _R1, J1, _e1 = F(yk + h * t)
-    if s0 == 0 or _orient(J1, t) != -s0:
+    if s0 == 0 or orientation(J1, t) != -s0:
         return None
     lo, hi = 0.0, h
     for _ in range(n_bisect):
         mid = 0.5 * (lo + hi)
         _R, Jm, _e = F(yk + mid * t)
-        if _orient(Jm, t) == s0:
+        if orientation(Jm, t) == s0:
             lo, J0 = mid, Jm
         else:
             hi, J1 = mid, Jm
@@ -146,7 +146,7 @@ def fold_step(F, yk, t, h, tol, max_iter, n_bisect: int = 24):
         # the null directions on the two sides agree: J is continuous there (a
         # smooth fold or a branch point seen off the branch), not a kink
         return None
-    if _orient(J1, d) != s0:
+    if orientation(J1, d) != s0:
         d = -d
     fun, jac, measure = bordered(F, d, c, h)
     res = newton(fun, c + h * d, NewtonOptions(tol, max_iter, line_search="decrease"),
@@ -154,6 +154,6 @@ def fold_step(F, yk, t, h, tol, max_iter, n_bisect: int = 24):
     if not res.success:
         return None
     yc, (R, J, extra) = res.x, res.extra
-    if _orient(J, d) != s0:   # landed back on the piece before the kink
+    if orientation(J, d) != s0:   # landed back on the piece before the kink
         return None
     return yc, R, J, extra, res.iterations

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .arclength import orientation, tangent
+
 
 @dataclass(frozen=True)
 class Jump:
@@ -147,15 +149,7 @@ class Fold:
 
 def _orientation(J, d):
     """Sign of ``det [J; d^T]`` and the unit tangent of ``J`` oriented along ``d``."""
-    A = np.vstack([np.asarray(J, dtype=float), d[None, :]])
-    sign = int(np.sign(np.linalg.slogdet(A)[0]))
-    rhs = np.zeros(A.shape[0])
-    rhs[-1] = 1.0
-    try:
-        t = np.linalg.solve(A, rhs)
-    except np.linalg.LinAlgError:
-        return sign, np.zeros_like(d)
-    return sign, t / max(np.linalg.norm(t), 1e-300)
+    return orientation(J, d), tangent(J, d)
 
 
 def orientation_fold(jac, y0, y1, n_scan: int = 8, n_bisect: int = 40,
