@@ -15,18 +15,21 @@ For each element and steady period, with samples ``(u_k, f_k, N_k)``:
   - classical Masing: ``F_mas = f_r + 2 s f_bb(|u_k - u_r| / 2; Nbar)``,
     ``Nbar`` the period mean of ``N``;
 
-* the predictions are these constructions clipped to the friction limit of
-  the sample, ``f_pred = clip(F, -mu N_k, mu N_k)`` (laws that can slip):
-  the manifold is the seed's Eq. 7 with its second case, ``mu N(t) sign(u -
+* the manifold prediction is its construction clipped to the friction
+  limit of the sample, ``f_man = clip(F_man, -mu N_k, mu N_k)`` (laws that
+  can slip): the seed's Eq. 7 with its second case, ``mu N(t) sign(u -
   u_0)`` once the first case would leave ``+-mu N(t)``.  A reversal taken
   while separated (``N_r <= 0``, the reloading branch asks for up to
   ``2 mu N``) or in microslip with N differing between the outer reversals
   makes the unclipped construction leave the limit; how far is kept as a
-  diagnostic, ``manifold_excess = max_k (|F_man| - mu N_k)_+ / max_k mu N_k``
-  (``masing_excess`` likewise).  Classical Masing takes the same clip: at
-  constant N it is a no-op (from a stack of reversals a Jenkins or Iwan
-  Masing curve saturates at ``+-mu N`` by itself), and under varying N no
-  law bounded by ``mu N(t)`` can follow a prediction outside it;
+  diagnostic, ``manifold_excess = max_k (|F_man| - mu N_k)_+ / max_k mu N_k``;
+* the classical Masing prediction is not clipped: ``f_mas = F_mas``.  It is
+  the constant-N prediction (what QSMA assumes), which knows nothing of
+  N(t); at constant N the clip would be a no-op for it and for the manifold
+  alike (from a stack of reversals a Jenkins or Iwan Masing curve saturates
+  at ``+-mu N`` by itself, tested), so the two predictions still coincide
+  there.  ``masing_excess`` (defined like ``manifold_excess``) says how far
+  it leaves ``+-mu N(t)`` under varying N;
 * each deviation is ``max_k |f_k - f_pred| / max_k (mu N_k)``;
 * the seed's conditions are checked along the loop, with ``s`` the distance
   travelled from the last reversal and ``kt`` the element's stuck stiffness:
@@ -68,11 +71,13 @@ class MasingReport:
     Attributes
     ----------
     f_manifold, f_masing : ndarray, shape (n_e, n)
-        Predicted forces [N] (clipped to ``+-mu N``), in the original sample order.
+        Predicted forces [N] (the manifold's clipped to ``+-mu N``), in the
+        original sample order.
     dev_manifold, dev_masing : ndarray, shape (n_e,)
         Normalised deviations [-].
     manifold_excess, masing_excess : ndarray, shape (n_e,)
-        How far the unclipped construction leaves ``+-mu N``,
+        How far the unclipped manifold construction (the classical Masing
+        prediction) leaves ``+-mu N``,
         ``max_k (|F_k| - mu N_k)_+ / max_k mu N_k`` [-] (0 inside the limit).
     on_manifold, on_masing : ndarray of bool, shape (n_e,)
         ``dev <= tol``.
@@ -157,7 +162,7 @@ def check_loops(u, f, N, law, tol: float = 0.01) -> MasingReport:
     if law.can_slip:
         # seed Eq. 7, second case: the branch is held at the friction limit
         f_man = np.clip(raw_man, -slip, slip)
-        f_mas = np.clip(raw_mas, -slip, slip)
+        f_mas = raw_mas  # the constant-N prediction: no knowledge of N(t)
         exc_man = np.maximum(np.abs(raw_man) - slip, 0.0).max(axis=1) / norm_safe
         exc_mas = np.maximum(np.abs(raw_mas) - slip, 0.0).max(axis=1) / norm_safe
     else:

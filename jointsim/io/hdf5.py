@@ -741,7 +741,7 @@ def write_loops(writer: ResultWriter, point: int, u, f, N, report, units: str,
                           "max (|unclipped manifold construction| - mu N)_+ / max(mu N); "
                           "f_manifold is clipped to +-mu N (seed Eq. 7, second case)")
             writer.append(f"{p}masing/masing_excess", report.masing_excess, one,
-                          "the same for the classical Masing construction")
+                          "the same for the (unclipped) classical Masing prediction")
         writer.h5[f"{p}masing"].attrs["tol"] = report.tol
         if p and "loops" not in writer.h5:
             writer.h5["loops"] = h5py.SoftLink(f"/{p}loops")

@@ -52,8 +52,8 @@ def predictor(u, f, N, k, g, mu):
     README ("The Masing-manifold check"): the period starts at the global
     maximum of u; a reversal is pushed where the motion changes direction; an
     inner loop closes (both its reversals popped) when u passes the reversal
-    before the current one, the two outer reversals staying; the predictions
-    are clipped to +-mu N_k.
+    before the current one, the two outer reversals staying; the manifold
+    prediction is clipped to +-mu N_k, the classical Masing one is not.
     """
     n = len(u)
     i0 = max(range(n), key=lambda i: u[i])
@@ -86,7 +86,6 @@ def predictor(u, f, N, k, g, mu):
         mas = f[r] + 2 * sg * backbone(x, Nbar)
         exc = max(exc, abs(man) - lim[j])
         man = min(max(man, -lim[j]), lim[j])
-        mas = min(max(mas, -lim[j]), lim[j])
         dman = max(dman, abs(f[j] - man))
         dmas = max(dmas, abs(f[j] - mas))
     top = max(lim)
