@@ -117,4 +117,13 @@ def test_coupled_normal_load_departs_from_the_manifold(tmp_path):
     assert np.all(att.separating <= att.count) and np.all(att.clipped <= att.count)
     assert att.separating.sum() == int((sets.separating & m).sum())
     assert np.all(np.isfinite(sets.manifold_excess))
+    # the README's tables come out of the same numbers
+    from jointsim.post import study_tables
+    with h5py.File(out, "r") as h5:
+        rows = study_tables.results_rows(h5)
+        ctrl = study_tables.control_table(h5)
+    assert len(rows) == sets.u.shape[0] and rows[0].startswith("| coupled N |")
+    total = next(r for r in ctrl if r.startswith("| total |"))
+    n_on = int((sets.on_manifold & m).sum())
+    assert total.split("|")[2].strip().split()[0] == (str(n_on) if n_on else "-")
     assert "Third column" in text
