@@ -455,11 +455,11 @@ def control_text(sets: LoopSets, control: ControlSets) -> list[str]:
     lines = ["  Third column: the loops' (u, N) replayed through the manifold reversal law "
              "(control for seed condition 5); loaded elements:",
              f"    {sets.parameter_name:>15} {'physical on':>12} {'control on':>11} "
-             f"{'unclipped in mu N':>18} {'control dev (closed)':>21}"]
+             f"{'ctrl unclipped in mu N':>23} {'control dev (closed)':>21}"]
     phys, _, _ = manifold_fractions(sets)
     for i in range(sets.u.shape[0]):
         lines.append(f"    {sets.parameter[i]:>15.4g} {phys[i]:>12.2f} {on[i]:>11.2f} "
-                     f"{adm[i]:>18.2f} {dev[i]:>21.2g}")
+                     f"{adm[i]:>23.2f} {dev[i]:>21.2g}")
     att = attribution(sets, control)
     lines.append(f"  Attribution of the physical loops ({att.total} element-amplitude pairs; "
                  "rows: the seed's conditions, columns: cause; in brackets: separating, "
