@@ -1,4 +1,10 @@
-"""Numba kernel of the Masing memory rule (reversal stack) over loop samples."""
+"""Numba kernel of the Masing memory rule (reversal stack) over loop samples.
+
+Only the governing reversal of every sample is found here; the predictions
+built on it (the manifold construction clipped to ``+-mu N``, seed Eq. 7, and
+the unclipped classical Masing curve) are vectorised over the samples in
+:func:`jointsim.masing.check_loops`.
+"""
 from __future__ import annotations
 
 import numpy as np

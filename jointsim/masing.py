@@ -7,14 +7,29 @@ For each element and steady period, with samples ``(u_k, f_k, N_k)``:
   rule (an inner loop that closes is popped), see
   :func:`jointsim._masing_kernels.references`;
 * with ``(u_r, f_r, N_r)`` the governing reversal and
-  ``s = sign(u_k - u_r)``, the predictions are
+  ``s = sign(u_k - u_r)``, the constructions are
 
-  - manifold: ``f_man = f_r N_k / N_r + 2 s f_bb(|u_k - u_r| / 2; N_k)``
+  - manifold: ``F_man = f_r N_k / N_r + 2 s f_bb(|u_k - u_r| / 2; N_k)``
     (the first term is 0 when ``N_r <= 0``, and ``N_k < 0`` counts as 0:
     separated);
-  - classical Masing: ``f_mas = f_r + 2 s f_bb(|u_k - u_r| / 2; Nbar)``,
+  - classical Masing: ``F_mas = f_r + 2 s f_bb(|u_k - u_r| / 2; Nbar)``,
     ``Nbar`` the period mean of ``N``;
 
+* the manifold prediction is its construction clipped to the friction
+  limit of the sample, ``f_man = clip(F_man, -mu N_k, mu N_k)`` (laws that
+  can slip): the seed's Eq. 7 with its second case, ``mu N(t) sign(u -
+  u_0)`` once the first case would leave ``+-mu N(t)``.  A reversal taken
+  while separated (``N_r <= 0``, the reloading branch asks for up to
+  ``2 mu N``) or in microslip with N differing between the outer reversals
+  makes the unclipped construction leave the limit; how far is kept as a
+  diagnostic, ``manifold_excess = max_k (|F_man| - mu N_k)_+ / max_k mu N_k``;
+* the classical Masing prediction is not clipped: ``f_mas = F_mas``.  It is
+  the constant-N prediction (what QSMA assumes), which knows nothing of
+  N(t); at constant N the clip would be a no-op for it and for the manifold
+  alike (from a stack of reversals a Jenkins or Iwan Masing curve saturates
+  at ``+-mu N`` by itself, tested), so the two predictions still coincide
+  there.  ``masing_excess`` (defined like ``manifold_excess``) says how far
+  it leaves ``+-mu N(t)`` under varying N;
 * each deviation is ``max_k |f_k - f_pred| / max_k (mu N_k)``;
 * the seed's conditions are checked along the loop, with ``s`` the distance
   travelled from the last reversal and ``kt`` the element's stuck stiffness:
@@ -56,9 +71,14 @@ class MasingReport:
     Attributes
     ----------
     f_manifold, f_masing : ndarray, shape (n_e, n)
-        Predicted forces [N], in the original sample order.
+        Predicted forces [N] (the manifold's clipped to ``+-mu N``), in the
+        original sample order.
     dev_manifold, dev_masing : ndarray, shape (n_e,)
         Normalised deviations [-].
+    manifold_excess, masing_excess : ndarray, shape (n_e,)
+        How far the unclipped manifold construction (the classical Masing
+        prediction) leaves ``+-mu N``,
+        ``max_k (|F_k| - mu N_k)_+ / max_k mu N_k`` [-] (0 inside the limit).
     on_manifold, on_masing : ndarray of bool, shape (n_e,)
         ``dev <= tol``.
     eq4_ok, eq6_ok : ndarray of bool, shape (n_e,)
@@ -84,6 +104,8 @@ class MasingReport:
     eq6_margin: np.ndarray
     n_reversals: np.ndarray
     tol: float
+    manifold_excess: np.ndarray | None = None
+    masing_excess: np.ndarray | None = None
 
 
 def check_loops(u, f, N, law, tol: float = 0.01) -> MasingReport:
@@ -130,13 +152,22 @@ def check_loops(u, f, N, law, tol: float = 0.01) -> MasingReport:
     with np.errstate(divide="ignore", invalid="ignore"):
         # a negative sample of N means separation: no load, no reference force
         scale = np.where(N_ref > 0.0, np.maximum(Nr, 0.0) / N_ref, 0.0)
-    f_man = f_ref * scale + 2.0 * s * law.backbone(half, Nr)
+    raw_man = f_ref * scale + 2.0 * s * law.backbone(half, Nr)
     Nbar = Nr.mean(axis=1, keepdims=True)
-    f_mas = f_ref + 2.0 * s * law.backbone(half, np.broadcast_to(Nbar, Nr.shape))
+    raw_mas = f_ref + 2.0 * s * law.backbone(half, np.broadcast_to(Nbar, Nr.shape))
 
     slip = law.slip_force(Nr)
     norm = slip.max(axis=1)
     norm_safe = np.where(norm > 0.0, norm, 1.0)
+    if law.can_slip:
+        # seed Eq. 7, second case: the branch is held at the friction limit
+        f_man = np.clip(raw_man, -slip, slip)
+        f_mas = raw_mas  # the constant-N prediction: no knowledge of N(t)
+        exc_man = np.maximum(np.abs(raw_man) - slip, 0.0).max(axis=1) / norm_safe
+        exc_mas = np.maximum(np.abs(raw_mas) - slip, 0.0).max(axis=1) / norm_safe
+    else:
+        f_man, f_mas = raw_man, raw_mas
+        exc_man = exc_mas = np.zeros(ne)
     dev_man = np.abs(fr - f_man).max(axis=1) / norm_safe
     dev_mas = np.abs(fr - f_mas).max(axis=1) / norm_safe
 
@@ -153,7 +184,8 @@ def check_loops(u, f, N, law, tol: float = 0.01) -> MasingReport:
         on_manifold=dev_man <= tol, on_masing=dev_mas <= tol,
         eq4_ok=eq4_margin >= 0.0, eq6_ok=eq6_margin >= 0.0,
         eq4_margin=eq4_margin, eq6_margin=eq6_margin,
-        n_reversals=n_rev.astype(np.int64), tol=float(tol))
+        n_reversals=n_rev.astype(np.int64), tol=float(tol),
+        manifold_excess=exc_man, masing_excess=exc_mas)
 
 
 def _conditions(u, f, slip, kt):
@@ -185,13 +217,12 @@ def _conditions(u, f, slip, kt):
 
 
 #: Codes of :attr:`ControlReport.cause` (the attribution of a physical departure).
-CAUSE_ON, CAUSE_CONDITION5, CAUSE_EQ46, CAUSE_INADMISSIBLE, CAUSE_UNLOADED = 0, 1, 2, 3, 4
+CAUSE_ON, CAUSE_CONDITION5, CAUSE_EQ46, CAUSE_CONTROL_OFF, CAUSE_UNLOADED = 0, 1, 2, 3, 4
 #: Their names, in code order (stored with the HDF5 dataset).
-CAUSE_NAMES = ("on manifold", "condition 5", "Eq. 4/Eq. 6", "manifold outside mu N",
-               "unloaded")
+CAUSE_NAMES = ("on manifold", "condition 5", "Eq. 4/Eq. 6", "control off", "unloaded")
 
-#: Deviation of the control loop from its manifold beyond the manifold's excess
-#: over ``mu N`` that is a bug, not round-off (normalised by max ``mu N``).
+#: Deviation of the control loop from its (clipped) manifold beyond its
+#: non-periodicity that is a bug, not round-off (normalised by max ``mu N``).
 CONTROL_ROUNDOFF = 1e-9
 
 
@@ -212,9 +243,10 @@ class ControlReport:
         The Masing check of the control loops (``report.dev_manifold`` is the
         control's deviation).
     excess : ndarray, shape (n_e,)
-        The manifold's largest excess over ``mu N``, normalised by max ``mu N``
-        (0 where the manifold lies inside the friction limit; there the control
-        is on it to round-off, checked).
+        How far the control loop's unclipped manifold construction leaves
+        ``+-mu N`` (:attr:`MasingReport.manifold_excess` of the control), 0
+        where it lies inside the limit.  Where it is > 0 the manifold follows
+        the limit there (seed Eq. 7, second case), and so does the control.
     periodicity : ndarray, shape (n_e,)
         Change of the control force between the last two replayed periods,
         normalised by max ``mu N``.
@@ -222,12 +254,13 @@ class ControlReport:
         ``max |f_physical replayed - f stored| / max mu N``: how well the
         physical law, replayed, reproduces the stored (AFT) loop.
     cause : ndarray of int8, shape (n_e,)
-        Attribution of the physical loop (:data:`CAUSE_NAMES`): on the manifold;
-        off it with both Eq. 4 and Eq. 6 held while the control is on it
-        (condition 5 alone: the physical reference force does not follow N);
-        off it with Eq. 4 or Eq. 6 violated while the control is on it;
-        the manifold leaves ``+-mu N`` (no law bounded by ``mu N`` is on it);
-        unloaded (N <= 0 over the period).
+        Attribution of the physical loop (:data:`CAUSE_NAMES`), exhaustive:
+        on its manifold; off it with both Eq. 4 and Eq. 6 held while the
+        control is on it (condition 5 alone: the physical reference force
+        does not follow N); off it with Eq. 4 or Eq. 6 violated while the
+        control is on it; off it while the control is off too (the control
+        loop did not close within the replayed periods, so nothing can be
+        attributed); unloaded (N <= 0 over the period).
     """
 
     f: np.ndarray
@@ -256,11 +289,12 @@ def replay_control(u, f, N, law, physical, tol: float = 0.01, max_periods: int =
     march whole periods of the stored samples, in blocks of ``block`` periods,
     until the control force repeats to ``periodic_tol`` (relative to max
     ``mu N``) or ``max_periods`` were marched; the last period is kept.  The
-    control need not become periodic: under a varying N an element that does
-    not slip has no closed loop on its manifold (its scaled reference force
-    drifts by about ``kt (max u - min u) (N_max / N_min - 1)`` a cycle until
-    the manifold reaches ``mu N``), which :attr:`ControlReport.periodicity`
-    reports.
+    control need not close quickly: under a varying N an element that does
+    not slip has no closed loop on its manifold inside ``+-mu N`` (its scaled
+    reference force drifts by about ``kt (max u - min u) (N_max / N_min - 1)``
+    a cycle until the manifold reaches ``mu N``, where the clipped branch
+    slips and closes the loop), which :attr:`ControlReport.periodicity`
+    (non-closure) and :attr:`ControlReport.excess` (the clip) report.
 
     Parameters
     ----------
@@ -284,9 +318,9 @@ def replay_control(u, f, N, law, physical, tol: float = 0.01, max_periods: int =
     Raises
     ------
     RuntimeError
-        When a control loop is off its manifold by more than the manifold's
-        excess over ``mu N`` plus its non-periodicity (plus
-        :data:`CONTROL_ROUNDOFF`): by construction it cannot be.
+        When a control loop is off its (clipped) manifold by more than its
+        non-periodicity (plus :data:`CONTROL_ROUNDOFF`): by construction it
+        cannot be.
     """
     ctrl = control_law(law)
     if ctrl is None:
@@ -311,21 +345,20 @@ def replay_control(u, f, N, law, physical, tol: float = 0.01, max_periods: int =
         if change.max() <= periodic_tol or marched >= max_periods:
             break
     rep = check_loops(u, last, N, ctrl, tol)
-    excess = np.maximum(np.abs(rep.f_manifold) - slip, 0.0).max(axis=1) / norm
+    excess = rep.manifold_excess
     loaded = (N > 0.0).any(axis=1)
-    bad = loaded & (rep.dev_manifold > excess + change + CONTROL_ROUNDOFF)
+    bad = loaded & (rep.dev_manifold > change + CONTROL_ROUNDOFF)
     if np.any(bad):
         e = int(np.flatnonzero(bad)[0])
         raise RuntimeError(f"manifold-law control of element {e} is off its manifold: "
-                           f"dev {rep.dev_manifold[e]:.3e} > excess {excess[e]:.3e} + "
-                           f"non-periodicity {change[e]:.3e}")
+                           f"dev {rep.dev_manifold[e]:.3e} > non-periodicity {change[e]:.3e}")
     cause = np.full(u.shape[0], CAUSE_ON, dtype=np.int8)
     off = ~np.asarray(physical.on_manifold, dtype=bool)
     violated = ~(np.asarray(physical.eq4_ok, dtype=bool) & np.asarray(physical.eq6_ok, dtype=bool))
     control_on = rep.dev_manifold <= tol
     cause[off & violated] = CAUSE_EQ46
     cause[off & ~violated] = CAUSE_CONDITION5
-    cause[off & ~control_on & (excess > tol)] = CAUSE_INADMISSIBLE
+    cause[off & ~control_on] = CAUSE_CONTROL_OFF
     cause[~loaded] = CAUSE_UNLOADED
     return ControlReport(f=last, report=rep, excess=excess, periodicity=change,
                          replay_error=np.abs(fp - f).max(axis=1) / norm, cause=cause,

@@ -5,7 +5,9 @@ Masing checks (``/<prefix>/masing``), :func:`write_control` replays every
 loop's kinematics ``(u(t), N(t))`` through the ``manifold`` reversal law and
 the physical law (:func:`jointsim.masing.replay_control`) and writes
 ``/<prefix>/control``: the control for seed condition 5, and the attribution
-of each physical departure to condition 5 or to Eq. 4/Eq. 6.
+of each physical loop (on its manifold; off it: condition 5, Eq. 4/Eq. 6, or
+the control off too).  The manifold is the seed's Eq. 7 with its friction
+limit (the Masing construction clipped to ``+-mu N``).
 """
 from __future__ import annotations
 
@@ -64,12 +66,13 @@ def write_control(writer, prefix: str, law, tol: float, units: str) -> bool:
         writer.write(f"{g}/f", np.stack([r.f for r in rows]), Fu,
                      "manifold-law force over the replayed steady period")
         writer.write(f"{g}/dev_manifold", np.stack([r.report.dev_manifold for r in rows]), one,
-                     "max |f_control - f_manifold| / max(mu N) (round-off where admissible)")
+                     "max |f_control - f_manifold| / max(mu N), manifold clipped to +-mu N "
+                     "(seed Eq. 7; round-off where the control loop closes)")
         writer.write(f"{g}/on_manifold", np.stack([r.report.on_manifold for r in rows]), one,
                      "control dev_manifold <= tol")
         writer.write(f"{g}/excess", np.stack([r.excess for r in rows]), one,
-                     "max(|f_manifold| - mu N, 0) / max(mu N): where > 0 no law bounded by "
-                     "mu N is on the manifold")
+                     "max(|unclipped manifold construction| - mu N, 0) / max(mu N) of the "
+                     "control loop: where > 0 the manifold follows +-mu N somewhere")
         writer.write(f"{g}/periodicity", np.stack([r.periodicity for r in rows]), one,
                      "control force change between the last two replayed periods / max(mu N)")
         writer.write(f"{g}/replay_error", np.stack([r.replay_error for r in rows]), one,
@@ -78,7 +81,7 @@ def write_control(writer, prefix: str, law, tol: float, units: str) -> bool:
                      "attribution of the physical loop: " + "; ".join(
                          f"{k} = {name}" for k, name in enumerate(CAUSE_NAMES)),
                      names=list(CAUSE_NAMES))
-    dev = np.stack([r.report.dev_manifold - r.excess for r in rows])
+    dev = np.stack([r.report.dev_manifold - r.periodicity for r in rows])
     log.info("%s control: %d loop sets replayed through the manifold law; control "
-             "dev_manifold - excess <= %.2e", prefix, len(rows), float(dev.max()))
+             "dev_manifold - non-periodicity <= %.2e", prefix, len(rows), float(dev.max()))
     return True

@@ -712,9 +712,12 @@ def write_loops(writer: ResultWriter, point: int, u, f, N, report, units: str,
     prefix : str
         The analysis group (``prescribed``, ``hbm``, ``epmc``, ``transient``).
     """
+    p = prefix.strip("/") + "/" if prefix.strip("/") else ""
+    # a file resumed from before the excess existed keeps its rows aligned without it
+    with_excess = (f"{p}masing/dev_manifold" not in writer.h5
+                   or f"{p}masing/manifold_excess" in writer.h5)
     with writer.commit():  # the loops and checks of a point: all or nothing
         d, F = unit("displacement", units), unit("force", units)
-        p = prefix.strip("/") + "/" if prefix.strip("/") else ""
         writer.append(f"{p}loops/point", np.int64(point), "1", "solution point of each loop set")
         writer.append(f"{p}loops/u", u, d, "tangential displacement over one steady period")
         writer.append(f"{p}loops/f", f, F, "tangential force over one steady period")
@@ -733,8 +736,15 @@ def write_loops(writer: ResultWriter, point: int, u, f, N, report, units: str,
         writer.append(f"{p}masing/eq4_margin", report.eq4_margin, one, "held: min(1 + d(mu N)/ds / kt); violated: -integrated violation / (kt ptp(u))")
         writer.append(f"{p}masing/eq6_margin", report.eq6_margin, one, "held: min(1 - d(mu N)/ds / kt); violated: -integrated violation / (kt ptp(u))")
         writer.append(f"{p}masing/n_reversals", report.n_reversals, one, "reversals of u per period")
-        writer.append(f"{p}masing/f_manifold", report.f_manifold, F, "manifold prediction")
+        writer.append(f"{p}masing/f_manifold", report.f_manifold, F,
+                      "manifold prediction, clipped to +-mu N")
         writer.append(f"{p}masing/f_masing", report.f_masing, F, "classical Masing prediction")
+        if report.manifold_excess is not None and with_excess:
+            writer.append(f"{p}masing/manifold_excess", report.manifold_excess, one,
+                          "max (|unclipped manifold construction| - mu N)_+ / max(mu N); "
+                          "f_manifold is clipped to +-mu N (seed Eq. 7, second case)")
+            writer.append(f"{p}masing/masing_excess", report.masing_excess, one,
+                          "the same for the (unclipped) classical Masing prediction")
         writer.h5[f"{p}masing"].attrs["tol"] = report.tol
         if p and "loops" not in writer.h5:
             writer.h5["loops"] = h5py.SoftLink(f"/{p}loops")

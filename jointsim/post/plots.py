@@ -19,7 +19,8 @@ def manifold_surface(law, e: int, u_r: float, f_r: float, N_r: float, direction:
     """The Masing-manifold branch leaving reversal ``(u_r, f_r, N_r)``.
 
     ``f(u, N) = f_r N / N_r + 2 s f_bb(|u - u_r| / 2; N)`` with ``s`` the
-    branch direction, on a grid of ``u`` and ``N``.
+    branch direction, clipped to ``+-mu N`` for laws that can slip (the
+    manifold of :func:`jointsim.masing.check_loops`), on a grid of ``u`` and ``N``.
 
     Parameters
     ----------
@@ -42,7 +43,11 @@ def manifold_surface(law, e: int, u_r: float, f_r: float, N_r: float, direction:
     half = 0.5 * np.abs(U - u_r)
     bb = one.backbone(half.reshape(1, -1), Nn.reshape(1, -1)).reshape(U.shape)
     ref = f_r * Nn / N_r if N_r > 0 else 0.0 * Nn
-    return U, Nn, ref + 2.0 * direction * bb
+    F = ref + 2.0 * direction * bb
+    if law.can_slip:  # seed Eq. 7, second case: the branch follows +-mu N (issue 14)
+        lim = one.slip_force(Nn.reshape(1, -1)).reshape(U.shape)
+        F = np.clip(F, -lim, lim)
+    return U, Nn, F
 
 
 def _loop_axes(ax3, ax2, u, f, N, fman, fmas, law, e, units, title=""):

@@ -19,8 +19,14 @@ one place.
 * :func:`control_sets`, :func:`control_fractions`, :func:`attribution` -- the
   third column: the loops' kinematics replayed through the ``manifold``
   reversal law (the control for seed condition 5, ``/<group>/control``), and
-  each physical departure attributed to condition 5, to Eq. 4/Eq. 6, or to a
-  manifold that leaves ``+-mu N``.
+  each physical loop attributed (exhaustively) to: on its manifold, off it
+  with both conditions held (condition 5), off it with Eq. 4 or Eq. 6
+  violated, or off it with the control off too; with the separating pairs
+  and the pairs whose manifold is clipped at ``+-mu N`` counted in each cell.
+
+The manifold is the seed's Eq. 7 with its friction limit: the Masing
+construction clipped to ``+-mu N(t)`` (:mod:`jointsim.masing`); how far the
+unclipped construction leaves the limit is ``/<group>/masing/manifold_excess``.
 
 An element is *loaded* in a loop set when its normal load is positive at some
 sample; elements that stay open carry no force and are left out of fractions
@@ -112,6 +118,11 @@ class LoopSets:
     on_manifold, on_masing, eq4_ok, eq6_ok : ndarray of bool, shape (n_sets, n_e)
     loaded : ndarray of bool, shape (n_sets, n_e)
         The element's normal load is positive at some sample.
+    separating : ndarray of bool, shape (n_sets, n_e)
+        Loaded, and the normal load is <= 0 at some sample (the element opens).
+    manifold_excess : ndarray, shape (n_sets, n_e)
+        How far the unclipped manifold construction leaves ``+-mu N``
+        (normalised by max ``mu N``); NaN for files written before the clip.
     """
 
     group: str
@@ -128,6 +139,13 @@ class LoopSets:
     eq4_ok: np.ndarray
     eq6_ok: np.ndarray
     loaded: np.ndarray
+    separating: np.ndarray | None = None
+    manifold_excess: np.ndarray | None = None
+
+    @property
+    def clipped(self) -> np.ndarray:
+        """The manifold is held at ``+-mu N`` somewhere (excess > 1e-12), shape (n_sets, n_e)."""
+        return self.manifold_excess > 1e-12
 
 
 def loop_groups(h5: h5py.File) -> list[str]:
@@ -156,7 +174,10 @@ def loop_points(h5: h5py.File, prefix: str = "epmc") -> LoopSets:
                     dev_manifold=M["dev_manifold"][()], dev_masing=M["dev_masing"][()],
                     on_manifold=M["on_manifold"][()], on_masing=M["on_masing"][()],
                     eq4_ok=M["eq4_ok"][()], eq6_ok=M["eq6_ok"][()],
-                    loaded=(N > 0.0).any(axis=2))
+                    loaded=(N > 0.0).any(axis=2),
+                    separating=(N > 0.0).any(axis=2) & (N <= 0.0).any(axis=2),
+                    manifold_excess=(M["manifold_excess"][()] if "manifold_excess" in M
+                                     else np.full(N.shape[:2], np.nan)))
 
 
 def manifold_fractions(sets: LoopSets):
@@ -286,7 +307,9 @@ class ControlSets:
     Attributes
     ----------
     dev_manifold, excess, periodicity, replay_error : ndarray, shape (n_sets, n_e)
-        See :class:`jointsim.masing.ControlReport` (normalised by max ``mu N``).
+        See :class:`jointsim.masing.ControlReport` (normalised by max ``mu N``);
+        ``dev_manifold`` is against the clipped manifold, ``excess`` how far
+        the unclipped construction leaves ``+-mu N``.
     on_manifold : ndarray of bool, shape (n_sets, n_e)
     cause : ndarray of int, shape (n_sets, n_e)
         Codes of :data:`jointsim.masing.CAUSE_NAMES`.
@@ -303,7 +326,8 @@ class ControlSets:
 
     @property
     def admissible(self) -> np.ndarray:
-        """The manifold lies inside ``+-mu N`` (excess <= tol), shape (n_sets, n_e)."""
+        """The control's unclipped manifold construction lies inside ``+-mu N``
+        (excess <= tol), shape (n_sets, n_e)."""
         return self.excess <= self.tol
 
 
@@ -320,9 +344,9 @@ def control_sets(h5: h5py.File, prefix: str = "epmc") -> ControlSets | None:
 
 
 def control_fractions(sets: LoopSets, control: ControlSets):
-    """Per loop set, shares of the loaded elements: control on its manifold, manifold
-    inside ``mu N``; and the control's largest deviation where its manifold is inside
-    ``mu N`` and its loop closes (round-off by construction).
+    """Per loop set, shares of the loaded elements: control on its (clipped) manifold,
+    control's unclipped manifold construction inside ``mu N``; and the control's
+    largest deviation where its loop closes (round-off by construction).
 
     Returns
     -------
@@ -334,30 +358,95 @@ def control_fractions(sets: LoopSets, control: ControlSets):
     n = np.maximum(m.sum(axis=1), 1)
     on = (control.on_manifold & m).sum(axis=1) / n
     adm = (control.admissible & m).sum(axis=1) / n
-    clean = m & (control.excess <= 1e-12) & (control.periodicity <= 1e-12)
-    dev = np.where(clean, control.dev_manifold, 0.0).max(axis=1)
+    closed = m & (control.periodicity <= 1e-12)
+    dev = np.where(closed, control.dev_manifold, 0.0).max(axis=1)
     return on, adm, dev
 
 
-def attribution(sets: LoopSets, control: ControlSets) -> dict:
-    """Counts of (element, loop set) pairs of loaded elements by cause.
+#: Rows of :class:`Attribution`: the seed's conditions on the physical loop.
+ATTRIBUTION_ROWS = ("Eq. 4 or 6 violated", "both conditions hold")
+
+
+@dataclass(frozen=True)
+class Attribution:
+    """Exhaustive attribution of the (element, loop set) pairs of loaded elements.
+
+    Attributes
+    ----------
+    columns : tuple of str
+        Causes (:data:`jointsim.masing.CAUSE_NAMES` without ``unloaded``).
+    count, separating, clipped : ndarray of int, shape (2, n_columns)
+        Pairs per (row of :data:`ATTRIBUTION_ROWS`, cause); of those, the
+        ones whose element separates during the period; and the ones whose
+        physical manifold is held at ``+-mu N`` somewhere (its unclipped
+        construction leaves the limit, ``manifold_excess > 1e-12``; -1 when
+        the file has no excess).
+    """
+
+    columns: tuple
+    count: np.ndarray
+    separating: np.ndarray
+    clipped: np.ndarray
+
+    @property
+    def total(self) -> int:
+        return int(self.count.sum())
+
+    def cell(self, i: int, j: int) -> str:
+        """``n (s sep, c clip)``, or ``-`` for an empty cell."""
+        n = int(self.count[i, j])
+        if n == 0:
+            return "-"
+        clip = "" if self.clipped[i, j] < 0 else f", {int(self.clipped[i, j])} clip"
+        return f"{n} ({int(self.separating[i, j])} sep{clip})"
+
+    def table(self, width: int = 20) -> list[str]:
+        """Text rows: conditions against causes, with a total row."""
+        lines = [f"{'':22}" + "".join(f" {c:>{width}}" for c in self.columns)]
+        tot = Attribution(self.columns, self.count.sum(axis=0, keepdims=True),
+                          self.separating.sum(axis=0, keepdims=True),
+                          np.where((self.clipped < 0).any(axis=0, keepdims=True), -1,
+                                   self.clipped.sum(axis=0, keepdims=True)))
+        for label, obj, i in [(ATTRIBUTION_ROWS[0], self, 0), (ATTRIBUTION_ROWS[1], self, 1),
+                              ("total", tot, 0)]:
+            lines.append(f"{label:22}" + "".join(
+                f" {obj.cell(i, j):>{width}}" for j in range(len(self.columns))))
+        return lines
+
+
+def attribution(sets: LoopSets, control: ControlSets) -> Attribution:
+    """Attribute every (element, loop set) pair of loaded elements.
+
+    A pair is *on manifold* when the physical loop is on its (clipped)
+    manifold; otherwise it is *condition 5* when Eq. 4 and Eq. 6 hold and the
+    control is on its manifold (the physical reference force does not follow
+    N, seed Section 3.1), *Eq. 4/Eq. 6* when a condition is violated and the
+    control is on its manifold, and *control off* when the control itself did
+    not close on its manifold (nothing attributed).  The four columns are
+    exhaustive; every cell also counts its separating pairs and the pairs
+    whose manifold is held at ``+-mu N``.
 
     Returns
     -------
-    dict
-        ``{cause name: count}`` over :data:`jointsim.masing.CAUSE_NAMES`
-        except ``unloaded``; a pair is attributed to *condition 5* when the
-        physical loop is off its manifold, Eq. 4 and Eq. 6 hold and the
-        manifold lies inside ``mu N`` (the control is on it); to *Eq. 4/Eq. 6*
-        when a condition is violated (the control is on it); to *manifold
-        outside mu N* when the manifold itself leaves the friction limit, so
-        that no law bounded by ``mu N`` is on it.
+    Attribution
     """
     from ..masing import CAUSE_NAMES, CAUSE_UNLOADED
 
     m = sets.loaded
-    return {name: int(((control.cause == k) & m).sum())
-            for k, name in enumerate(CAUSE_NAMES) if k != CAUSE_UNLOADED}
+    violated = ~(sets.eq4_ok & sets.eq6_ok)
+    codes = [k for k in range(len(CAUSE_NAMES)) if k != CAUSE_UNLOADED]
+    sep = sets.separating if sets.separating is not None else np.zeros_like(m)
+    have_exc = sets.manifold_excess is not None and np.isfinite(sets.manifold_excess[m]).all()
+    clip = sets.clipped if have_exc else np.zeros_like(m)
+    count = np.zeros((2, len(codes)), dtype=np.int64)
+    nsep, nclip = count.copy(), count.copy()
+    for i, rows in enumerate((violated, ~violated)):
+        for j, k in enumerate(codes):
+            cell = m & rows & (control.cause == k)
+            count[i, j] = cell.sum()
+            nsep[i, j] = (cell & sep).sum()
+            nclip[i, j] = (cell & clip).sum() if have_exc else -1
+    return Attribution(tuple(CAUSE_NAMES[k] for k in codes), count, nsep, nclip)
 
 
 def control_text(sets: LoopSets, control: ControlSets) -> list[str]:
@@ -366,26 +455,16 @@ def control_text(sets: LoopSets, control: ControlSets) -> list[str]:
     lines = ["  Third column: the loops' (u, N) replayed through the manifold reversal law "
              "(control for seed condition 5); loaded elements:",
              f"    {sets.parameter_name:>15} {'physical on':>12} {'control on':>11} "
-             f"{'manifold in mu N':>17} {'control dev (closed, in mu N)':>30}"]
+             f"{'ctrl unclipped in mu N':>23} {'control dev (closed)':>21}"]
     phys, _, _ = manifold_fractions(sets)
     for i in range(sets.u.shape[0]):
         lines.append(f"    {sets.parameter[i]:>15.4g} {phys[i]:>12.2f} {on[i]:>11.2f} "
-                     f"{adm[i]:>17.2f} {dev[i]:>30.2g}")
-    from ..masing import CAUSE_NAMES, CAUSE_UNLOADED
-
-    counts = attribution(sets, control)
-    total = sum(counts.values())
-    lines.append(f"  Attribution of the physical loops ({total} element-amplitude pairs; "
-                 "rows: the seed's conditions, columns: cause):")
-    names = [n for k, n in enumerate(CAUSE_NAMES) if k != CAUSE_UNLOADED]
-    lines.append(f"    {'':22}" + "".join(f" {n:>22}" for n in names))
-    violated = ~(sets.eq4_ok & sets.eq6_ok)
-    for label, rows in (("Eq. 4 or 6 violated", violated), ("both conditions hold", ~violated),
-                        ("total", np.ones_like(violated))):
-        m = sets.loaded & rows
-        lines.append(f"    {label:22}" + "".join(
-            f" {int(((control.cause == k) & m).sum()):>22d}"
-            for k, n in enumerate(CAUSE_NAMES) if k != CAUSE_UNLOADED))
+                     f"{adm[i]:>23.2f} {dev[i]:>21.2g}")
+    att = attribution(sets, control)
+    lines.append(f"  Attribution of the physical loops ({att.total} element-amplitude pairs; "
+                 "rows: the seed's conditions, columns: cause; in brackets: separating, "
+                 "manifold clipped at +-mu N):")
+    lines.extend("    " + s for s in att.table())
     return lines
 
 

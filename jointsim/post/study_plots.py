@@ -116,6 +116,11 @@ def plot_masing_study(h5: h5py.File, outdir: Path) -> list[Path]:
         con, _, _ = study.control_fractions(sets, control)
         ax.semilogx(sets.parameter, con, "^-", color="C2",
                     label="manifold law on its manifold (control, count)")
+    if sets.manifold_excess is not None and np.isfinite(sets.manifold_excess).all():
+        # where the unclipped construction leaves +-mu N the manifold follows the limit
+        n_l = np.maximum(sets.loaded.sum(axis=1), 1)
+        ax.semilogx(sets.parameter, (sets.clipped & sets.loaded).sum(axis=1) / n_l, "v:",
+                    color="0.4", label="manifold held at +-mu N somewhere (count)")
     ax.set_ylim(-0.05, 1.05)
     ax.set_xlabel(sets.parameter_name)
     ax.set_ylabel(f"share of loaded elements (tol {tol:g})")

@@ -127,3 +127,37 @@ def test_a_half_committed_point_is_dropped_from_the_whole_group(tmp_path, stale)
         assert int(h5["hbm"].attrs[COMMITTED]) == 2
     with ResultWriter(path, scene, resume=True) as w:
         assert w.rows("hbm/omega") == w.rows("hbm/X") == 2
+
+
+def test_loops_resumed_from_a_file_without_the_excess_stay_aligned(tmp_path):
+    """Issue 14 added /masing/manifold_excess; a file written before it, resumed, gets
+    no excess rows (which would misalign the points) and keeps every committed point."""
+    import dataclasses
+
+    from jointsim.contact.select import tangential_law
+    from jointsim.io.hdf5 import open_result, write_loops
+    from jointsim.masing import check_loops
+    from jointsim.scene import Joint
+
+    scene = load_scene(SEED / "const.toml")
+    law = tangential_law("jenkins", "anchor", Joint(mu=0.1, kt=1.0), [1.0])
+    t = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    u, N = np.sin(t)[None], (5 + np.sin(t))[None]
+    f = law.march(np.tile(u, 2), np.tile(N, 2), law.rest_state([5.0]))[0][:, -64:]
+    rep = check_loops(u, f, N, law)
+    old = dataclasses.replace(rep, manifold_excess=None, masing_excess=None)
+    path = tmp_path / "r.h5"
+    with ResultWriter(path, scene) as w:
+        write_loops(w, 0, u, f, N, old, "SI", "prescribed")
+        w.finish("interrupted", "stopped")
+    with ResultWriter(path, scene, resume=True) as w:
+        write_loops(w, 1, u, f, N, rep, "SI", "prescribed")
+    with open_result(path) as h5:
+        assert h5["prescribed/masing/dev_manifold"].shape[0] == 2
+        assert "manifold_excess" not in h5["prescribed/masing"]
+    # a new file has it, one row per point
+    with ResultWriter(tmp_path / "n.h5", scene) as w:
+        write_loops(w, 0, u, f, N, rep, "SI", "prescribed")
+        write_loops(w, 1, u, f, N, rep, "SI", "prescribed")
+    with open_result(tmp_path / "n.h5") as h5:
+        assert h5["prescribed/masing/manifold_excess"].shape == (2, 1)
