@@ -27,6 +27,7 @@ from typing import ClassVar
 import numpy as np
 
 from . import _aft_kernels as AK
+from . import _aft_manifold as AM
 from . import _kernels as K
 
 
@@ -496,13 +497,14 @@ class ManifoldBank(SliderBank):
     State per element: ``MF_SHARED`` entries and a stack of ``MF_DEPTH`` open
     reversals (see :func:`jointsim.contact._kernels.march_bank`).  On
     overflow the oldest open reversal is forgotten.  Like Eq. 7 the law is not
-    path-continuous (a micro-reversal re-scales the reference force), and it
-    has no AFT kernel: harmonic balance with it is refused.
+    path-continuous (a micro-reversal re-scales the reference force).  Its AFT
+    kernel (:func:`jointsim.contact._aft_manifold.manifold_aft`) marches the
+    same memory rule and force with exact derivatives through the stack, so
+    harmonic balance and EPMC accept it.
     """
 
     name: ClassVar[str] = "bank_manifold"
     bank_code: ClassVar[int] = K.BANK_MANIFOLD
-    has_aft: ClassVar[bool] = False
     path_continuous: ClassVar[bool] = False
 
     def state_size(self) -> int:
@@ -522,9 +524,8 @@ class ManifoldBank(SliderBank):
 
     def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled,
             parallel=True):
-        raise NotImplementedError(
-            "the manifold reversal law has no AFT kernel with exact history derivatives; "
-            "use it with time marching or prescribed motion")
+        return AM.manifold_aft(u, N, dNdg, self.k, self.g, basis.P, basis.Gam, min_periods,
+                               max_periods, tol, coupled, parallel)
 
 
 @dataclass(frozen=True)
