@@ -65,9 +65,12 @@ def test_manifold_law_is_on_the_manifold_wherever_it_is_admissible(name):
     assert scaled_off >= 3     # Eq. 7 is off on paths where the manifold law is on
 
 
-def test_harmonic_balance_with_the_manifold_law_is_refused():
-    from jointsim.scene import SceneError, load_scene
-    with pytest.raises(SceneError, match="joint.reversal"):
-        load_scene("models/hbm/chain2_friction_fold.toml", overrides=["joint.reversal=manifold"])
-    # prescribed motion with it runs: the seed Fig. 3 scenes
+def test_harmonic_balance_accepts_the_manifold_law():
+    """The law has an AFT kernel (tests/contact/test_manifold_aft.py): HBM and EPMC
+    scenes with it load; prescribed motion with it runs too (the seed Fig. 3 scenes)."""
+    from jointsim.contact.select import select_kernels
+    from jointsim.scene import load_scene
+    scene = load_scene("models/hbm/chain2_friction_fold.toml",
+                       overrides=["joint.reversal=manifold"])
+    assert select_kernels(scene).tangential == "bank_manifold"
     assert load_scene("models/seed_fig3/sep.toml", overrides=["joint.reversal=manifold"])

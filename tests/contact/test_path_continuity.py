@@ -104,19 +104,22 @@ def test_advice_only_for_scaled_laws_with_varying_normal_load():
 
 
 @pytest.mark.slow
-def test_scaled_fold_continuation_stops_with_the_jump_and_the_advice(tmp_path):
-    """models/hbm/chain2_friction_fold.toml with Eq. 7: the FRC stops at omega = 2.137,
-    and the message names the residual jump and the remedy."""
+@pytest.mark.parametrize("reversal", ["scaled", "manifold"])
+def test_scaled_fold_continuation_stops_with_the_jump_and_the_advice(tmp_path, reversal):
+    """models/hbm/chain2_friction_fold.toml with Eq. 7 or the manifold law: the FRC
+    stops at omega = 2.137 (after 121 points, kept in the file), and the message
+    names the residual jump and the remedy."""
     import h5py
 
     from jointsim.run import run_scene
     from jointsim.scene import load_scene
 
-    scene = load_scene("models/hbm/chain2_friction_fold.toml", ['joint.reversal="scaled"'])
+    scene = load_scene("models/hbm/chain2_friction_fold.toml", [f'joint.reversal="{reversal}"'])
     with pytest.raises(RuntimeError) as err:
         run_scene(scene, tmp_path / "x.h5")
     msg = str(err.value)
     assert "not path-continuous" in msg and "joint.reversal = 'anchor'" in msg
-    assert "the residual jumps by" in msg
+    assert "the residual jumps by" in msg and f"bank_{reversal}" in msg
     with h5py.File(tmp_path / "x.h5") as h5:
         assert h5["hbm/omega"][-1] == pytest.approx(2.137, abs=2e-3)
+        assert h5["hbm/omega"].size >= 100
