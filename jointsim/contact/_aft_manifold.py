@@ -116,6 +116,9 @@ def _manifold_one(e, u, N, dNdg, k, g, P, Gam, min_periods, max_periods, tol, co
             Afr[kk] = 0.0
         for q in range(nstate):
             st0[q] = st[0, q]
+        # the Jacobian of a period that cannot be the last is not needed (the
+        # derivatives of the stack entries are, in every period)
+        acc = p + 1 >= min_periods
         for t in range(nt):
             ut = u[e, t]
             Nt = N[e, t]
@@ -126,7 +129,7 @@ def _manifold_one(e, u, N, dNdg, k, g, P, Gam, min_periods, max_periods, tol, co
                 # the previous sample becomes a stack entry: flush the weights
                 # of the governing entry, then the total derivative of f there
                 gov = top0 - 1
-                if gov >= 0:
+                if gov >= 0 and acc:
                     _flush(Juu, Jug, e, Gam, Aur, ANr, Afr, rows[gov], coupled)
                 dnp = dNdg[e, tprev]
                 for j in range(nc):
@@ -143,12 +146,12 @@ def _manifold_one(e, u, N, dNdg, k, g, P, Gam, min_periods, max_periods, tol, co
                 row[2 * nc] = tprev
                 row[2 * nc + 1] = dnp
             popped = manifold_memory_rows(st, 0, ut, rows, row)
-            if popped > 0 and not rev:
+            if popped > 0 and not rev and acc:
                 # an inner loop closed: the old governing entry (intact above
                 # the new top) has had its last sample
                 _flush(Juu, Jug, e, Gam, Aur, ANr, Afr, rows[top0 - 1], coupled)
             fe, pu, pN, pur, pNr, pfr = manifold_force(st, 0, ut, Nt, ke, ge)
-            if pur != 0.0 or pNr != 0.0 or pfr != 0.0:
+            if acc and (pur != 0.0 or pNr != 0.0 or pfr != 0.0):
                 for kk in range(nc):
                     pk = P[kk, t]
                     Aur[kk] += pk * pur
@@ -162,7 +165,7 @@ def _manifold_one(e, u, N, dNdg, k, g, P, Gam, min_periods, max_periods, tol, co
             au[e, t] = pu
             ag[e, t] = pN * dn
         top = int(st[0, MF_TOP])
-        if top > 0:
+        if top > 0 and acc:
             _flush(Juu, Jug, e, Gam, Aur, ANr, Afr, rows[top - 1], coupled)
         # periodicity of the state, each entry against the scale of its unit
         if top != int(st0[MF_TOP]) or st[0, MF_DIR] != st0[MF_DIR]:
