@@ -298,7 +298,16 @@ def manifold_direction(s, e, ut):
     return d, (s[e, MF_DIR] != 0.0 and d != s[e, MF_DIR])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
+def manifold_closes(s, e, ut, d):
+    """True when motion in direction ``d`` at ``ut`` closes an inner loop of
+    element ``e`` (reaches the reversal below the governing one): the test of
+    :func:`manifold_memory_rows` without a reversal at the previous sample."""
+    top = int(s[e, MF_TOP])
+    return d != 0.0 and top >= 2 and _mf_pass(ut, d, s[e, MF_SHARED + 3 * (top - 2)])
+
+
+@njit(cache=True, inline="always")
 def manifold_memory_rows(s, e, ut, rows, row):
     """Update the reversal stack of element ``e`` for the sample ``ut`` (in place).
 
@@ -359,7 +368,7 @@ def manifold_memory_rows(s, e, ut, rows, row):
     return popped
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def manifold_force(s, e, ut, Nt, k, g):
     """Force of element ``e`` of the manifold law at ``(ut, Nt)`` given its memory.
 
