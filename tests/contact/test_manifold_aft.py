@@ -153,3 +153,21 @@ def test_constant_n_frc_with_the_manifold_law_is_the_anchor_frc(tmp_path):
     np.testing.assert_array_equal(a["branch"], m["branch"])
     for k in ("omega", "X", "peaks"):
         np.testing.assert_allclose(m[k], a[k], rtol=0, atol=1e-10 * np.abs(a[k]).max())
+
+
+@pytest.mark.slow
+def test_constant_n_epmc_with_the_manifold_law_is_the_anchor_epmc(tmp_path):
+    """models/hbm/sdof_jenkins_epmc.toml: the EPMC backbone of both laws to 1e-10."""
+    import h5py
+
+    from jointsim.run import run_scene
+    from jointsim.scene import load_scene
+
+    data = {}
+    for rev in ("anchor", "manifold"):
+        scene = load_scene("models/hbm/sdof_jenkins_epmc.toml", [f'joint.reversal="{rev}"'])
+        run_scene(scene, tmp_path / f"{rev}.h5")
+        with h5py.File(tmp_path / f"{rev}.h5") as h5:
+            data[rev] = {k: h5["epmc/" + k][()] for k in ("omega", "amplitude", "damping_ratio")}
+    for k, a in data["anchor"].items():
+        np.testing.assert_allclose(data["manifold"][k], a, rtol=0, atol=1e-10 * np.abs(a).max())
