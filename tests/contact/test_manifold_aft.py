@@ -111,6 +111,46 @@ def test_aft_jacobian_against_central_differences(name):
 
 
 @pytest.mark.parametrize("name", ["jenkins", "iwan4"])
+def test_deeply_nested_loops_overflow_the_stack_with_exact_derivatives(name):
+    """u = e(t) cos(40 t + p) with an envelope that shrinks then grows: about 40
+    nested open reversals, more than the stack holds (MF_DEPTH), so the oldest are
+    forgotten (companion rows shifted), then the loops close one by one.  (The
+    envelope and phases are asymmetric: a path with u(t) = u(2 pi - t) closes its
+    loops exactly at a sample, where the force jumps under varying N.)"""
+    from jointsim.contact._kernels import MF_DEPTH, MF_TOP
+    kf, ne, nt = 40, 3, 512
+    basis = HarmonicBasis(range(kf + 2), nt)
+    t = 2 * np.pi * np.arange(nt) / nt
+    u = np.array([(0.55 + 0.45 * np.cos(t + 0.3 * np.sin(t))) * np.cos(kf * t + ph)
+                  for ph in (0.17, 0.3, 1.1)])
+    U = np.linalg.lstsq(basis.Gam, u.T, rcond=None)[0]
+    u = (basis.Gam @ U).T
+    G = np.zeros((basis.n_coeff, ne))
+    G[1:4] = np.random.default_rng(2).normal(size=(3, ne)) * 0.2
+    law = law_of(name, ne=ne)
+    aft = AFT(coupled_set(law), basis, max_periods=100, periodic_tol=1e-13)
+    res = aft.evaluate(U, G)
+    s, depth = law.rest_state(res.N[:, 0]), 0
+    for _ in range(int(res.periods.max())):
+        for i in range(0, nt, 4):
+            f, _, _, s = law.march(u[:, i:i + 4], res.N[:, i:i + 4], s)
+            depth = max(depth, s[:, MF_TOP].max())
+    assert depth == MF_DEPTH and np.any(res.N <= 0)
+    np.testing.assert_allclose(res.f[:, -4:], f, rtol=0, atol=1e-13)
+    h = 1e-7
+    for X, J in ((U, res.Juu), (G, res.Jug)):
+        scale = np.abs(J).max()
+        for j in range(0, basis.n_coeff, 3):   # every third harmonic coefficient
+            dX = np.zeros_like(X)
+            dX[j] = h
+            args = lambda sign: (U + sign * dX, G) if X is U else (U, G + sign * dX)  # noqa: E731
+            fd = (aft.evaluate(*args(1), jacobian=False).Ft
+                  - aft.evaluate(*args(-1), jacobian=False).Ft) / (2 * h)
+            np.testing.assert_allclose(J[:, :, j], fd, rtol=0, atol=1e-6 * scale,
+                                       err_msg=f"column {j}")
+
+
+@pytest.mark.parametrize("name", ["jenkins", "iwan4"])
 def test_at_constant_normal_load_the_manifold_aft_is_the_anchor_aft(name):
     ne = 12
     basis = HarmonicBasis(H, 128)
