@@ -388,7 +388,8 @@ def continuation_advice(law: TangentialLaw, coupled: bool) -> str:
         return ""
     return (f"the tangential law {law.name!r} is not path-continuous under a varying normal "
             "load (its reference force f_r N/N_r jumps between 0 and +-mu N when a reversal "
-            "crosses a separation instant, and a micro-reversal re-scales it), so the "
+            "crosses a separation instant, a micro-reversal re-scales it, and with the "
+            "manifold law the branch an inner loop closes onto scales by another N_r), so the "
             "residual can jump and continuation cannot pass such a point; use "
             "joint.reversal = 'anchor' for continuation and replay the loops with the scaled "
             "or manifold law in prescribed motion (README: Reversal laws and the manifold)")
@@ -497,7 +498,9 @@ class ManifoldBank(SliderBank):
     State per element: ``MF_SHARED`` entries and a stack of ``MF_DEPTH`` open
     reversals (see :func:`jointsim.contact._kernels.march_bank`).  On
     overflow the oldest open reversal is forgotten.  Like Eq. 7 the law is not
-    path-continuous (a micro-reversal re-scales the reference force).  Its AFT
+    path-continuous (a micro-reversal re-scales the reference force, and where an
+    inner loop closes under varying N the older branch's ``f_r N / N_r`` differs
+    from the inner branch's: the force jumps).  Its AFT
     kernel (:func:`jointsim.contact._aft_manifold.manifold_aft`) marches the
     same memory rule and force with exact derivatives through the stack, so
     harmonic balance and EPMC accept it.
