@@ -9,6 +9,15 @@ the same run, and prints microseconds per element and their ratio.
 
 Run from the repository root: ``python -m benchmarks.aft_throughput [--threads N]``.  Numba's
 compilation is done (and timed separately) before the measurement.
+
+``--laws`` (issue 14) instead times the AFT kernels of the reversal laws side by
+side in one run on the same coefficients -- ``anchor`` (physical), ``scaled``
+(seed Eq. 7) and ``manifold`` (Eq. 7 with Masing's memory rule, a stack of open
+reversals), for the Jenkins and the Iwan element (``joint.law = iwan4`` with
+``--sliders`` sliders) -- and prints microseconds per element and the ratio to
+the anchor law.  The paths have 5 harmonics of similar size, so every element
+has several reversals (inner loops) per period, and the gap coefficients make
+the normal load vary and separate.
 """
 import argparse
 import time
@@ -31,6 +40,56 @@ def contact_set(ne):
                       UnilateralPenalty(np.ones(ne)), np.zeros((ne, 2)))
 
 
+def law_set(ne, reversal, n_sliders):
+    """A coupled contact set of ``ne`` elements with the tangential law of
+    ``joint.law = jenkins`` (``n_sliders = 1``) or ``iwan4`` and ``reversal``."""
+    from jointsim.contact.select import tangential_law
+    from jointsim.scene import Joint
+    name = "jenkins" if n_sliders == 1 else "iwan4"
+    joint = Joint(law=name, reversal=reversal, mu=0.3, kt=1.0, chi=-0.5, beta=0.2,
+                  n_sliders=n_sliders if n_sliders > 1 else None, iwan_spacing="uniform")
+    law = tangential_law(name, reversal, joint, np.ones(ne))
+    eye = sp.identity(ne, format="csr")
+    return ContactSet(eye, eye, np.full(ne, -0.5), np.ones(ne), np.ones(ne), law,
+                      UnilateralPenalty(np.ones(ne)), np.zeros((ne, 2)))
+
+
+def compare_laws(b, rng, repeat, n_sliders):
+    """Time the AFT of the three reversal laws side by side (see the module docstring)."""
+    laws = ("anchor", "scaled", "manifold")
+    for ns in (1, n_sliders):
+        label = "jenkins" if ns == 1 else f"iwan4 ({ns} sliders)"
+        for rev in laws:   # compile / load the cache outside the timing
+            for ne in (3, 70):
+                AFT(law_set(ne, rev, ns), b).evaluate(np.zeros((b.n_coeff, ne)) + 0.1,
+                                                       np.zeros((b.n_coeff, ne)) + 0.1)
+        print(f"\n{label}: us per element (ratio to anchor), H = {max(b.harmonics)}, "
+              f"Nt = {b.n_samples}")
+        print(f"{'elements':>9} " + " ".join(f"{r:>18}" for r in laws)
+              + f" {'periods (a/s/m)':>16} {'reversals':>10}")
+        for ne in (10, 100, 1000):
+            U = rng.normal(size=(b.n_coeff, ne)) * 0.5
+            U[0] = 0.0
+            G = rng.normal(size=(b.n_coeff, ne)) * 0.15
+            times, periods = {}, {}
+            # interleave the laws so that load changes hit all of them alike
+            afts = {rev: AFT(law_set(ne, rev, ns), b) for rev in laws}
+            for rev in laws:
+                times[rev] = []
+            for _ in range(3):
+                for rev in laws:
+                    times[rev].append(best_of(lambda: afts[rev].evaluate(U, G), repeat))
+            for rev in laws:
+                times[rev] = min(times[rev])
+                periods[rev] = int(afts[rev].evaluate(U, G).periods.max())
+            u = (b.Gam @ U).T
+            du = np.sign(np.diff(np.concatenate([u, u[:, :1]], axis=1), axis=1))
+            nrev = np.mean(np.sum(du != np.roll(du, 1, axis=1), axis=1))
+            cells = " ".join(f"{1e6 * times[r] / ne:>9.2f} ({times[r] / times['anchor']:>5.2f}x)"
+                             for r in laws)
+            print(f"{ne:>9} {cells} {'/'.join(str(periods[r]) for r in laws):>16} {nrev:>10.1f}")
+
+
 def best_of(fn, repeat, min_time=0.2):
     """Median time of single calls, over at least ``repeat`` calls and ``min_time``."""
     times, t_start = [], time.perf_counter()
@@ -45,12 +104,18 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--threads", type=int, default=None, help="numba threads (default: all)")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--laws", action="store_true",
+                    help="compare the reversal laws anchor / scaled / manifold instead")
+    ap.add_argument("--sliders", type=int, default=40, help="Iwan sliders for --laws")
     args = ap.parse_args()
     import numba
     if args.threads:
         numba.set_num_threads(args.threads)
     b = HarmonicBasis(range(8), 128)
     rng = np.random.default_rng(0)
+    if args.laws:
+        compare_laws(b, rng, args.repeat, args.sliders)
+        return
     t0 = time.perf_counter()
     aft = AFT(contact_set(70), b)
     aft.evaluate(rng.normal(size=(b.n_coeff, 70)), rng.normal(size=(b.n_coeff, 70)))

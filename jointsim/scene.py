@@ -343,7 +343,8 @@ class Joint:
                          doc="'anchor': physical elastic dry friction; 'scaled': reversal "
                              "force scaled by N(t)/N_r (seed Eq. 7, condition 5); "
                              "'manifold': Eq. 7's scaling with Masing's memory rule (on the "
-                             "Masing manifold where it lies within mu N; no HBM/EPMC)")
+                             "Masing manifold where it lies within mu N; all analyses, HBM/EPMC "
+                             "through its AFT kernel)")
     mu: float = spec(0.1, doc="friction coefficient", ge=0)
     kt: float = spec(1.0, doc="tangential stiffness per unit area; lumped and prescribed "
                               "models: area defaults to 1, so kt is a plain spring [N/m, "

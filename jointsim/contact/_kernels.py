@@ -270,14 +270,45 @@ def _mf_pass(u, d, ur):
 
 
 @njit(cache=True)
-def _mf_drop_bottom(s, e, top):
+def _mf_drop_bottom(s, e, top, rows):
+    """Forget the oldest open reversal (and its companion row in ``rows``)."""
+    m = rows.shape[1]
     for j in range(top - 1):
         for q in range(3):
             s[e, MF_SHARED + 3 * j + q] = s[e, MF_SHARED + 3 * (j + 1) + q]
+        for q in range(m):
+            rows[j, q] = rows[j + 1, q]
 
 
-@njit(cache=True)
-def manifold_memory(s, e, ut):
+@njit(cache=True, inline="always")
+def manifold_direction(s, e, ut):
+    """Direction of motion at sample ``ut`` of element ``e`` (no state change).
+
+    Returns
+    -------
+    d : float
+        -1, 1, or 0 when ``u`` did not move.
+    reversed : bool
+        The previous sample was a reversal (it will be pushed).
+    """
+    du = ut - s[e, MF_U_PREV]
+    if du == 0.0:
+        return 0.0, False
+    d = 1.0 if du > 0.0 else -1.0
+    return d, (s[e, MF_DIR] != 0.0 and d != s[e, MF_DIR])
+
+
+@njit(cache=True, inline="always")
+def manifold_closes(s, e, ut, d):
+    """True when motion in direction ``d`` at ``ut`` closes an inner loop of
+    element ``e`` (reaches the reversal below the governing one): the test of
+    :func:`manifold_memory_rows` without a reversal at the previous sample."""
+    top = int(s[e, MF_TOP])
+    return d != 0.0 and top >= 2 and _mf_pass(ut, d, s[e, MF_SHARED + 3 * (top - 2)])
+
+
+@njit(cache=True, inline="always")
+def manifold_memory_rows(s, e, ut, rows, row):
     """Update the reversal stack of element ``e`` for the sample ``ut`` (in place).
 
     A reversal at the previous sample is pushed with the force there; then,
@@ -286,35 +317,58 @@ def manifold_memory(s, e, ut):
     With only two reversals left, the older is dropped when reached (the
     steady outer loop keeps its latest extremes, as the Masing check of
     :mod:`jointsim.masing` does).
+
+    Parameters
+    ----------
+    s : ndarray, shape (n_e, MF_SHARED + 3 MF_DEPTH)
+        Manifold-law state (see :func:`march_bank`); row ``e`` is updated.
+    e : int
+    ut : float
+        Slip at the sample [m].
+    rows : ndarray, shape (MF_DEPTH, m)
+        Companion data of the stack entries (the AFT kernel keeps their
+        derivatives there), moved along with the stack; ``m`` may be 0.
+    row : ndarray, shape (m,)
+        Companion data of the entry pushed at this sample, if any.
+
+    Returns
+    -------
+    int
+        Number of entries popped by closed inner loops (0, 2, 4, ...; the
+        governing reversal changed when > 0).
     """
-    du = ut - s[e, MF_U_PREV]
-    if du == 0.0:
-        return
-    d = 1.0 if du > 0.0 else -1.0
+    d, rev = manifold_direction(s, e, ut)
+    if d == 0.0:
+        return 0
     top = int(s[e, MF_TOP])
-    if s[e, MF_DIR] != 0.0 and d != s[e, MF_DIR]:
+    if rev:
         if top == MF_DEPTH:
-            _mf_drop_bottom(s, e, top)
+            _mf_drop_bottom(s, e, top, rows)
             top -= 1
         b = MF_SHARED + 3 * top
         s[e, b] = s[e, MF_U_PREV]
         s[e, b + 1] = s[e, MF_N_PREV]
         s[e, b + 2] = s[e, MF_F_PREV]
+        for q in range(rows.shape[1]):
+            rows[top, q] = row[q]
         top += 1
     s[e, MF_DIR] = d
+    popped = 0
     while top >= 2:
         ur = s[e, MF_SHARED + 3 * (top - 2)]
         if not _mf_pass(ut, d, ur):
             break
         if top >= 3:
             top -= 2
+            popped += 2
         else:
-            _mf_drop_bottom(s, e, top)
+            _mf_drop_bottom(s, e, top, rows)
             top = 1
     s[e, MF_TOP] = float(top)
+    return popped
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def manifold_force(s, e, ut, Nt, k, g):
     """Force of element ``e`` of the manifold law at ``(ut, Nt)`` given its memory.
 
@@ -327,9 +381,13 @@ def manifold_force(s, e, ut, Nt, k, g):
     -------
     f, dfdu, dfdN : float
         Force [N] and its partial derivatives with the memory held fixed.
+    dfdur, dfdNr, dfdfr : float
+        Partial derivatives with respect to the governing reversal
+        ``(u_r, N_r, f_r)`` (0 before the first reversal, where the force
+        depends only on the fixed rest position ``u_0``).
     """
     if Nt <= 0.0:
-        return 0.0, 0.0, 0.0
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     ns = k.shape[1]
     top = int(s[e, MF_TOP])
     if top == 0:
@@ -338,6 +396,8 @@ def manifold_force(s, e, ut, Nt, k, g):
         c = 1.0
         f0 = 0.0
         dN0 = 0.0
+        dNr = 0.0
+        dfr = 0.0
     else:
         b = MF_SHARED + 3 * (top - 1)
         delta = ut - s[e, b]
@@ -345,11 +405,15 @@ def manifold_force(s, e, ut, Nt, k, g):
         c = 2.0
         Nr = s[e, b + 1]
         if Nr > 0.0:
-            f0 = s[e, b + 2] * (Nt / Nr)
+            dfr = Nt / Nr
+            f0 = s[e, b + 2] * dfr
             dN0 = s[e, b + 2] / Nr
+            dNr = -f0 / Nr
         else:
             f0 = 0.0
             dN0 = 0.0
+            dNr = 0.0
+            dfr = 0.0
     sg = 1.0 if delta > 0.0 else (-1.0 if delta < 0.0 else 0.0)
     bb = 0.0
     kst = 0.0
@@ -368,18 +432,20 @@ def manifold_force(s, e, ut, Nt, k, g):
     f = f0 + c * sg * bb
     lim = gsum * Nt
     if f > lim:
-        return lim, 0.0, gsum
+        return lim, 0.0, gsum, 0.0, 0.0, 0.0
     if f < -lim:
-        return -lim, 0.0, -gsum
-    return f, kst, dN0 + c * sg * gsl
+        return -lim, 0.0, -gsum, 0.0, 0.0, 0.0
+    dur = -kst if top > 0 else 0.0
+    return f, kst, dN0 + c * sg * gsl, dur, dNr, dfr
 
 
 @njit(cache=True, inline="always")
-def manifold_point(e, ut, Nt, k, g, s):
+def manifold_point(e, ut, Nt, k, g, s, rows):
     """One sample of element ``e`` of the manifold law: the reversal stack in
-    row ``e`` of ``s`` is updated; returns ``(f, dfdu, dfdN)``."""
-    manifold_memory(s, e, ut)
-    fe, de, dn = manifold_force(s, e, ut, Nt, k, g)
+    row ``e`` of ``s`` is updated (``rows``: empty companion rows, shape
+    ``(MF_DEPTH, 0)``); returns ``(f, dfdu, dfdN)``."""
+    manifold_memory_rows(s, e, ut, rows, rows[0])
+    fe, de, dn, _a, _b, _c = manifold_force(s, e, ut, Nt, k, g)
     s[e, MF_U_PREV] = ut
     s[e, MF_N_PREV] = Nt
     s[e, MF_F_PREV] = fe
@@ -390,13 +456,14 @@ def manifold_point(e, ut, Nt, k, g, s):
 @njit(cache=True)
 def _bank_element(code, e, u, N, k, g, s, f, dfdu, dfdN):
     """March element ``e`` of the law ``code`` over all samples (state row ``e`` of ``s``)."""
+    rows = np.zeros((MF_DEPTH, 0))
     for t in range(u.shape[1]):
         if code == BANK_ANCHOR:
             fe, de, dn = anchor_bank_point(u[e, t], N[e, t], s[e], s[e], k[e], g[e])
         elif code == BANK_SCALED:
             fe, de, dn = scaled_bank_point(e, u[e, t], N[e, t], k, g, s)
         else:
-            fe, de, dn = manifold_point(e, u[e, t], N[e, t], k, g, s)
+            fe, de, dn = manifold_point(e, u[e, t], N[e, t], k, g, s, rows)
         f[e, t] = fe
         dfdu[e, t] = de
         dfdN[e, t] = dn

@@ -27,6 +27,7 @@ from typing import ClassVar
 import numpy as np
 
 from . import _aft_kernels as AK
+from . import _aft_manifold as AM
 from . import _kernels as K
 
 
@@ -387,7 +388,8 @@ def continuation_advice(law: TangentialLaw, coupled: bool) -> str:
         return ""
     return (f"the tangential law {law.name!r} is not path-continuous under a varying normal "
             "load (its reference force f_r N/N_r jumps between 0 and +-mu N when a reversal "
-            "crosses a separation instant, and a micro-reversal re-scales it), so the "
+            "crosses a separation instant, a micro-reversal re-scales it, and with the "
+            "manifold law the branch an inner loop closes onto scales by another N_r), so the "
             "residual can jump and continuation cannot pass such a point; use "
             "joint.reversal = 'anchor' for continuation and replay the loops with the scaled "
             "or manifold law in prescribed motion (README: Reversal laws and the manifold)")
@@ -496,13 +498,16 @@ class ManifoldBank(SliderBank):
     State per element: ``MF_SHARED`` entries and a stack of ``MF_DEPTH`` open
     reversals (see :func:`jointsim.contact._kernels.march_bank`).  On
     overflow the oldest open reversal is forgotten.  Like Eq. 7 the law is not
-    path-continuous (a micro-reversal re-scales the reference force), and it
-    has no AFT kernel: harmonic balance with it is refused.
+    path-continuous (a micro-reversal re-scales the reference force, and where an
+    inner loop closes under varying N the older branch's ``f_r N / N_r`` differs
+    from the inner branch's: the force jumps).  Its AFT
+    kernel (:func:`jointsim.contact._aft_manifold.manifold_aft`) marches the
+    same memory rule and force with exact derivatives through the stack, so
+    harmonic balance and EPMC accept it.
     """
 
     name: ClassVar[str] = "bank_manifold"
     bank_code: ClassVar[int] = K.BANK_MANIFOLD
-    has_aft: ClassVar[bool] = False
     path_continuous: ClassVar[bool] = False
 
     def state_size(self) -> int:
@@ -522,9 +527,8 @@ class ManifoldBank(SliderBank):
 
     def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled,
             parallel=True):
-        raise NotImplementedError(
-            "the manifold reversal law has no AFT kernel with exact history derivatives; "
-            "use it with time marching or prescribed motion")
+        return AM.manifold_aft(u, N, dNdg, self.k, self.g, basis.P, basis.Gam, min_periods,
+                               max_periods, tol, coupled, parallel)
 
 
 @dataclass(frozen=True)

@@ -124,7 +124,8 @@ def select_kernels(scene) -> KernelChoice:
                     raise SceneError(file, "joint.reversal",
                                      f"{j.reversal!r} has no harmonic-balance (AFT) kernel "
                                      f"with an exact Jacobian, so analysis.{name} cannot use "
-                                     "it; use 'anchor' or 'scaled', or a transient analysis")
+                                     "it; use a reversal law with an AFT kernel ('anchor', "
+                                     "'scaled', 'manifold') or a transient analysis")
     normal_class = NORMAL_TABLE[(fx.normal, fx.separation)]
     if kind == "prescribed":
         if normal_class.coupled:

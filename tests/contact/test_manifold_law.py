@@ -152,9 +152,12 @@ def test_clip_is_a_no_op_at_constant_normal_load(name):
         assert r.dev_manifold[0] < 1e-12 and r.dev_masing[0] < 1e-12
 
 
-def test_harmonic_balance_with_the_manifold_law_is_refused():
-    from jointsim.scene import SceneError, load_scene
-    with pytest.raises(SceneError, match="joint.reversal"):
-        load_scene("models/hbm/chain2_friction_fold.toml", overrides=["joint.reversal=manifold"])
-    # prescribed motion with it runs: the seed Fig. 3 scenes
+def test_harmonic_balance_accepts_the_manifold_law():
+    """The law has an AFT kernel (tests/contact/test_manifold_aft.py): HBM and EPMC
+    scenes with it load; prescribed motion with it runs too (the seed Fig. 3 scenes)."""
+    from jointsim.contact.select import select_kernels
+    from jointsim.scene import load_scene
+    scene = load_scene("models/hbm/chain2_friction_fold.toml",
+                       overrides=["joint.reversal=manifold"])
+    assert select_kernels(scene).tangential == "bank_manifold"
     assert load_scene("models/seed_fig3/sep.toml", overrides=["joint.reversal=manifold"])

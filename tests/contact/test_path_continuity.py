@@ -104,19 +104,74 @@ def test_advice_only_for_scaled_laws_with_varying_normal_load():
 
 
 @pytest.mark.slow
-def test_scaled_fold_continuation_stops_with_the_jump_and_the_advice(tmp_path):
-    """models/hbm/chain2_friction_fold.toml with Eq. 7: the FRC stops at omega = 2.137,
-    and the message names the residual jump and the remedy."""
+@pytest.mark.parametrize("reversal", ["scaled", "manifold"])
+def test_scaled_fold_continuation_stops_with_the_jump_and_the_advice(tmp_path, reversal):
+    """models/hbm/chain2_friction_fold.toml with Eq. 7 or the manifold law: the FRC
+    stops at omega = 2.137 (after 121 points, kept in the file), and the message
+    names the residual jump and the remedy."""
     import h5py
 
     from jointsim.run import run_scene
     from jointsim.scene import load_scene
 
-    scene = load_scene("models/hbm/chain2_friction_fold.toml", ['joint.reversal="scaled"'])
+    scene = load_scene("models/hbm/chain2_friction_fold.toml", [f'joint.reversal="{reversal}"'])
     with pytest.raises(RuntimeError) as err:
         run_scene(scene, tmp_path / "x.h5")
     msg = str(err.value)
     assert "not path-continuous" in msg and "joint.reversal = 'anchor'" in msg
-    assert "the residual jumps by" in msg
+    assert "the residual jumps by" in msg and f"bank_{reversal}" in msg
     with h5py.File(tmp_path / "x.h5") as h5:
         assert h5["hbm/omega"][-1] == pytest.approx(2.137, abs=2e-3)
+        assert h5["hbm/omega"].size >= 100
+
+
+def closure_jumps(lw, u, N):
+    """Largest difference, over the inner-loop closures of the second period, between
+    the force of the closing (inner) branch and of the branch it returns to, both at
+    the reversal reached, relative to mu N."""
+    from jointsim.contact import _kernels as K
+    s = lw.rest_state([N[0]])
+    half = u.size // 2
+    s = lw.march(u[None, :half], N[None, :half], s)[3]
+    worst, closures = 0.0, 0
+    for i in range(half, u.size):
+        top0 = int(s[0, K.MF_TOP])
+        before = s.copy()
+        s = lw.march(u[None, i:i + 1], N[None, i:i + 1], s)[3]
+        if s[0, K.MF_TOP] <= top0 - 2:
+            uB = before[0, K.MF_SHARED + 3 * (top0 - 2)]
+            f_in = K.manifold_force(before, 0, uB, N[i], lw.k, lw.g)[0]
+            f_out = K.manifold_force(s, 0, uB, N[i], lw.k, lw.g)[0]
+            worst = max(worst, abs(f_in - f_out) / (lw.mu[0] * N[i]))
+            closures += 1
+    return worst, closures
+
+
+def test_manifold_law_jumps_where_an_inner_loop_closes_under_varying_normal_load():
+    """Mechanism (iii): nested loops u = e(t) cos(12 t); at constant N the inner branch
+    meets the older one where it closes (Masing), under varying N it does not (the two
+    branches scale their reference forces by different N/N_r), so the force jumps."""
+    t = 2 * np.pi * np.arange(8000) / 4000
+    u = (0.55 + 0.45 * np.cos(t + 0.3 * np.sin(t))) * np.cos(12 * t + 0.17)
+    lw = law("manifold")
+    const, n_c = closure_jumps(lw, u, np.full_like(t, 2.0))
+    vary, n_v = closure_jumps(lw, u, 2.0 + 0.5 * np.cos(3 * t + 1.0))
+    assert n_c == n_v == 11
+    assert const < 1e-12
+    assert vary > 0.1
+
+
+@pytest.mark.parametrize("name", ["jenkins", "iwan4"])
+def test_closure_jumps_on_the_random_paths(name):
+    """The 30 random paths of test_manifold_law.py (N = 5 + N1 cos(h t + p)): how many
+    have a jump > 1e-3 mu N where an inner loop closes (README: Continuation with the
+    scaled laws, mechanism (iii))."""
+    from .test_manifold_law import NT, random_paths
+    joint = Joint(law=name, reversal="manifold", mu=0.1, kt=1.0, chi=-0.5, beta=0.2,
+                  n_sliders=40)
+    lw = tangential_law(name, "manifold", joint, [1.0])
+    worst = np.array([closure_jumps(lw, u[-2 * NT:], N[-2 * NT:])[0]
+                      for u, N, _sep in random_paths()])
+    print(name, "paths with a closure jump > 1e-3 mu N:", int(np.sum(worst > 1e-3)),
+          "largest", worst.max())
+    assert np.sum(worst > 1e-3) >= 10 and worst.max() > 0.3
