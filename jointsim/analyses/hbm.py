@@ -348,14 +348,16 @@ class _Output:
         return (f"{message}; one secant step past the last point the residual changes "
                 f"{ratio:.3g} times faster than the Jacobian at the point predicts: it is "
                 f"nearly discontinuous there, and neither Newton nor a smaller step passes.  At "
-                f"each clap of this separating contact the slip force mu N switches the "
-                f"element from free (N = 0) to stuck within a change of N of kt |u - w| / mu, "
-                f"so with joint.mu = {joint.mu:g} the element sticks within about one time "
-                f"sample of closing and its anchor jumps when the first closed sample of the "
-                f"AFT grid changes (the mu -> infinity limit of a clapping contact: physics of "
-                f"the model, not a numerical defect); lower joint.mu so that the element slips "
-                f"over several samples after each closure, or compute this response by time "
-                f"marching")
+                f"each clap of this separating contact (its closing instant is interpolated "
+                f"between samples) the slip force mu N drops below the stuck force kt |u - w| "
+                f"only within a change of N of kt |u - w| / mu before the contact opens, so "
+                f"with joint.mu = {joint.mu:g} the element stays stuck until about one time "
+                f"sample before opening and the force at the last closed sample of the AFT "
+                f"grid drops to 0 when the opening instant crosses it (the mu -> infinity "
+                f"limit of a clapping contact, whose stuck force jumps to 0 at separation: "
+                f"physics of the model, which a sampled AFT resolves only to one sample); "
+                f"lower joint.mu so that the element slips over several samples before each "
+                f"opening, or compute this response by time marching")
 
     def finish_branch(self, ib, fs, success, message) -> str | None:
         """Status, peak and peak loops of a finished branch; the failure, if any."""
