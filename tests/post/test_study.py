@@ -99,10 +99,14 @@ def test_coupled_normal_load_departs_from_the_manifold(tmp_path):
     assert conf.total == int(n.sum())
     assert "EPMC against QSMA" in text and "precision" in text
     # the third column (issue 14): the replayed physical law reproduces the stored (AFT)
-    # loops; the manifold-law control is on its manifold up to its manifold's excess over
+    # loops (where the contact does not re-close in the period: the AFT takes the anchor
+    # at the closing instant interpolated from the gap, which (u, N) samples do not
+    # carry); the manifold-law control is on its manifold up to its manifold's excess over
     # mu N and its non-closure, at round-off where both vanish
     m = sets.loaded
-    assert control.replay_error[m].max() < 1e-9
+    recloses = m & (sets.N <= 0.0).any(axis=2)
+    assert (m & ~recloses).any()
+    assert control.replay_error[m & ~recloses].max() < 1e-9
     assert np.all((control.dev_manifold <= control.excess + control.periodicity + 1e-9)[m])
     clean = m & (control.excess < 1e-12) & (control.periodicity < 1e-12)
     assert clean.any() and control.dev_manifold[clean].max() < 1e-12
