@@ -10,7 +10,7 @@ import numpy as np
 
 
 def anchor_aft_numpy(U, G, gap0, kn, k, g, N0, basis, coupled, unilateral=True,
-                     min_periods=2, max_periods=50, tol=1e-10, closing="interpolated"):
+                     min_periods=2, max_periods=50, tol=1e-10, closing="sample"):
     """Forces and Jacobian blocks of anchored slider banks.
 
     Parameters

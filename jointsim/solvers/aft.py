@@ -73,17 +73,18 @@ class AFT:
     closing : str
         Where the sliders of a contact that closes between two samples take
         their anchor (laws with ``uses_gap``, coupled normal load):
-        ``"interpolated"`` (default) at the closing instant, where the linear
+        ``"interpolated"`` at the closing instant, where the linear
         interpolation of the gap between the samples is zero, so the forces are
         continuous in the coefficients when a closing instant crosses a sample;
         ``"sample"`` at the last open sample (the force then steps by about
-        ``kt |du/dt| dt`` when the first closed sample changes; kept for
-        comparison, README "Hard cases").
+        ``kt |du/dt| dt`` when the first closed sample changes).  None: the
+        contact set's ``closing`` (scene key ``joint.closing``, default
+        ``"sample"``; README "Hard cases").
     """
 
     def __init__(self, contacts, basis: HarmonicBasis, min_periods: int = 2,
                  max_periods: int = 50, periodic_tol: float = 1e-10, parallel: bool = True,
-                 closing: str = "interpolated"):
+                 closing: str | None = None):
         self.contacts = contacts
         self.basis = basis
         self.law = contacts.law
@@ -93,6 +94,7 @@ class AFT:
         self.periodic_tol = float(periodic_tol)
         self.n_e = contacts.n_elements
         self.parallel = bool(parallel)
+        closing = getattr(contacts, "closing", "sample") if closing is None else closing
         if closing not in CLOSINGS:
             raise ValueError(f"closing must be one of {CLOSINGS}, got {closing!r}")
         self.closing = closing

@@ -78,7 +78,7 @@ def test_aft_jacobian_with_closing_instants_matches_central_differences(mu):
     rng = np.random.default_rng(7)
     U = rng.normal(size=(b.n_coeff, ne)) * 0.5
     G = rng.normal(size=(b.n_coeff, ne)) * 0.4
-    aft = AFT(cs, b)
+    aft = AFT(cs, b, closing="interpolated")
     r = aft.evaluate(U, G)
     closes = (r.N > 0) & (np.roll(r.N, 1, axis=1) <= 0)
     assert closes.any()
@@ -96,3 +96,32 @@ def test_aft_jacobian_with_closing_instants_matches_central_differences(mu):
                 fd = (aft.evaluate(*args_p, jacobian=False).Ft[e]
                       - aft.evaluate(*args_m, jacobian=False).Ft[e]) / (2 * eps)
                 assert np.abs(J[e, :, j] - fd).max() <= 1e-6 * max(1.0, np.abs(fd).max())
+
+
+@pytest.mark.parametrize("closing", ["interpolated", "sample"])
+def test_aft_equals_the_numpy_reference_with_both_closings(closing):
+    """The kernel against the dense forward-mode NumPy reference (an independent
+    implementation of both anchor rules), mu = 1e3 so that elements stick at closing;
+    ``AFT(closing=None)`` takes the contact set's ``closing``."""
+    import dataclasses
+
+    from .._aft_reference import anchor_aft_numpy
+    ne = 5
+    b = HarmonicBasis((0, 1, 2, 3, 5), 96)
+    k, g = np.ones((ne, 1)), np.full((ne, 1), 1e3)
+    eye = sp.identity(ne, format="csr")
+    cs = ContactSet(eye, eye, np.full(ne, -0.3), np.ones(ne), np.ones(ne),
+                    AnchoredBank(k, g, np.full(ne, 1e3)), UnilateralPenalty(np.ones(ne)),
+                    np.zeros((ne, 2)))
+    cs = dataclasses.replace(cs, closing=closing)
+    rng = np.random.default_rng(5)
+    U = rng.normal(size=(b.n_coeff, ne)) * 0.5
+    G = rng.normal(size=(b.n_coeff, ne)) * 0.3
+    aft = AFT(cs, b)
+    assert aft.closing == closing
+    r = aft.evaluate(U, G)
+    Ft, Nc, Juu, Jug, JNN = anchor_aft_numpy(U, G, cs.gap0, cs.kn, k, g, cs.N0, b, True,
+                                             closing=closing)
+    assert np.allclose(r.Ft, Ft, rtol=0, atol=1e-12)
+    assert np.allclose(r.Juu, Juu, rtol=0, atol=1e-12)
+    assert np.allclose(r.Jug, Jug, rtol=0, atol=1e-12)

@@ -115,6 +115,7 @@ def test_coupled_fe_joint_march_agrees_with_converged_hbm_at_refined_settings():
     doubling on average, through the contact events inside a step) and the built-in
     cross-check says agree within 1e-3."""
     sc = load_scene(COUPLED, ["model.mesh='../meshes/lap_joint_coarse.msh'",
+                              "joint.closing='interpolated'",
                               f"analysis.transient.omega={OMEGA_COUPLED}",
                               "analysis.transient.force_scale=2.0",
                               "analysis.transient.start='linear'",
