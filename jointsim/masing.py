@@ -222,8 +222,8 @@ class ControlReport:
         ``max |f_physical replayed - f stored| / max mu N``: how well the
         physical law, replayed, reproduces the stored (AFT) loop.  Round-off,
         except for an element that re-closes in the period and sticks at
-        closing: the AFT takes its anchor at the closing instant interpolated
-        from the gap (:func:`jointsim.contact._aft_kernels.closing_anchor`),
+        closing under ``joint.closing = "interpolated"``: the AFT then takes its
+        anchor at the closing instant interpolated from the gap (:func:`jointsim.contact._aft_kernels.closing_anchor`),
         which the stored ``(u, N)`` samples do not carry, and the replay at the
         last open sample.
     cause : ndarray of int8, shape (n_e,)

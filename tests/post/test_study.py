@@ -99,9 +99,9 @@ def test_coupled_normal_load_departs_from_the_manifold(tmp_path):
     assert conf.total == int(n.sum())
     assert "EPMC against QSMA" in text and "precision" in text
     # the third column (issue 14): the replayed physical law reproduces the stored (AFT)
-    # loops (where the contact does not re-close in the period: the AFT takes the anchor
-    # at the closing instant interpolated from the gap, which (u, N) samples do not
-    # carry); the manifold-law control is on its manifold up to its manifold's excess over
+    # loops (where the contact does not re-close in the period: with joint.closing =
+    # 'interpolated' the AFT takes the anchor at the closing instant interpolated from
+    # the gap, which (u, N) samples do not carry); the manifold-law control is on its manifold up to its manifold's excess over
     # mu N and its non-closure, at round-off where both vanish
     m = sets.loaded
     recloses = m & (sets.N <= 0.0).any(axis=2)
