@@ -252,7 +252,12 @@ class ControlReport:
         normalised by max ``mu N``.
     replay_error : ndarray, shape (n_e,)
         ``max |f_physical replayed - f stored| / max mu N``: how well the
-        physical law, replayed, reproduces the stored (AFT) loop.
+        physical law, replayed, reproduces the stored (AFT) loop.  Round-off,
+        except for an element that re-closes in the period and sticks at
+        closing under ``joint.closing = "interpolated"``: the AFT then takes its
+        anchor at the closing instant interpolated from the gap (:func:`jointsim.contact._aft_kernels.closing_anchor`),
+        which the stored ``(u, N)`` samples do not carry, and the replay at the
+        last open sample.
     cause : ndarray of int8, shape (n_e,)
         Attribution of the physical loop (:data:`CAUSE_NAMES`), exhaustive:
         on its manifold; off it with both Eq. 4 and Eq. 6 held while the

@@ -345,6 +345,13 @@ class Joint:
                              "'manifold': Eq. 7's scaling with Masing's memory rule (on the "
                              "Masing manifold where it lies within mu N; all analyses, HBM/EPMC "
                              "through its AFT kernel)")
+    closing: str = spec("sample", choices=("sample", "interpolated"),
+                        doc="harmonic balance (AFT) with the anchored law and a separating "
+                            "contact: where a slider takes its anchor when the contact closes "
+                            "between two samples; 'sample': at the last open sample; "
+                            "'interpolated': at the closing instant (linear in the gap), so "
+                            "the residual is continuous when a closing instant crosses a "
+                            "sample (README: Hard cases, closing instants)")
     mu: float = spec(0.1, doc="friction coefficient", ge=0)
     kt: float = spec(1.0, doc="tangential stiffness per unit area; lumped and prescribed "
                               "models: area defaults to 1, so kt is a plain spring [N/m, "

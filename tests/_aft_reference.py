@@ -10,7 +10,7 @@ import numpy as np
 
 
 def anchor_aft_numpy(U, G, gap0, kn, k, g, N0, basis, coupled, unilateral=True,
-                     min_periods=2, max_periods=50, tol=1e-10):
+                     min_periods=2, max_periods=50, tol=1e-10, closing="sample"):
     """Forces and Jacobian blocks of anchored slider banks.
 
     Parameters
@@ -21,6 +21,10 @@ def anchor_aft_numpy(U, G, gap0, kn, k, g, N0, basis, coupled, unilateral=True,
     k, g : ndarray, shape (n_e, n_s)
     basis : jointsim.harmonics.HarmonicBasis
     coupled : bool
+    closing : str
+        "interpolated": a slider separated at the sample before a closed one
+        takes its anchor at the closing instant, where the linear interpolation
+        of the gap between the two samples is 0; "sample": at the open sample.
 
     Returns
     -------
@@ -52,6 +56,20 @@ def anchor_aft_numpy(U, G, gap0, kn, k, g, N0, basis, coupled, unilateral=True,
         for t in range(nt):
             ut = u[:, t:t + 1]
             Nt = N[:, t:t + 1]
+            if coupled and closing == "interpolated":
+                tp = (t - 1) % nt
+                cl = (N[:, t] > 0.0) & (N[:, tp] <= 0.0) & (gs[:, tp] > gs[:, t])
+                if cl.any():
+                    g0, g1 = gs[cl, tp], gs[cl, t]
+                    th = g0 / (g0 - g1)
+                    dth = (g1[:, None] * dgv[tp][None, :] - g0[:, None] * dgv[t][None, :]) \
+                        * (-1.0 / (g0 - g1) ** 2)[:, None]
+                    ud = u[cl, t] - u[cl, tp]
+                    wc = u[cl, tp] + th * ud
+                    dwc = (1 - th)[:, None] * du[tp][None, :] + th[:, None] * du[t][None, :] \
+                        + ud[:, None] * dth
+                    w[cl] = wc[:, None]
+                    dw[cl] = dwc[:, None, :]
             dN = dNdg[:, t, None, None] * dgv[t][None, None, :]   # (ne, 1, 2nc)
             fs = g * Nt
             ft = k * (ut - w)

@@ -345,17 +345,30 @@ class _Output:
         ratio = steepness(fun, jac, y[-1], 2.0 * y[-1] - y[-2])
         if ratio < STEEP_RATIO:
             return message
-        return (f"{message}; one secant step past the last point the residual changes "
+        head = (f"{message}; one secant step past the last point the residual changes "
                 f"{ratio:.3g} times faster than the Jacobian at the point predicts: it is "
-                f"nearly discontinuous there, and neither Newton nor a smaller step passes.  At "
-                f"each clap of this separating contact the slip force mu N switches the "
-                f"element from free (N = 0) to stuck within a change of N of kt |u - w| / mu, "
-                f"so with joint.mu = {joint.mu:g} the element sticks within about one time "
-                f"sample of closing and its anchor jumps when the first closed sample of the "
-                f"AFT grid changes (the mu -> infinity limit of a clapping contact: physics of "
-                f"the model, not a numerical defect); lower joint.mu so that the element slips "
-                f"over several samples after each closure, or compute this response by time "
-                f"marching")
+                f"nearly discontinuous there, and neither Newton nor a smaller step passes.  ")
+        if system.aft.closing == "sample":
+            return (head + f"At each clap of this separating contact the slip force mu N "
+                    f"switches the element from free (N = 0) to stuck within a change of N of "
+                    f"kt |u - w| / mu, so with joint.mu = {joint.mu:g} the element sticks "
+                    f"within about one time sample of closing and its anchor jumps when the "
+                    f"first closed sample of the AFT grid changes (the mu -> infinity limit "
+                    f"of a clapping contact: physics of the model, not a numerical defect); "
+                    f"set joint.closing = 'interpolated' (the anchor at the closing instant "
+                    f"between samples), lower joint.mu so that the element slips over "
+                    f"several samples after each closure, or compute this response by time "
+                    f"marching")
+        return (head + f"At each clap of this separating contact (its closing instant is "
+                f"interpolated between samples) the slip force mu N drops below the stuck "
+                f"force kt |u - w| only within a change of N of kt |u - w| / mu before the "
+                f"contact opens, so with joint.mu = {joint.mu:g} the element stays stuck "
+                f"until about one time sample before opening and the force at the last "
+                f"closed sample of the AFT grid drops to 0 when the opening instant crosses "
+                f"it (the mu -> infinity limit of a clapping contact, whose stuck force jumps "
+                f"to 0 at separation: physics of the model, which a sampled AFT resolves "
+                f"only to one sample); lower joint.mu so that the element slips over several "
+                f"samples before each opening, or compute this response by time marching")
 
     def finish_branch(self, ib, fs, success, message) -> str | None:
         """Status, peak and peak loops of a finished branch; the failure, if any."""

@@ -53,8 +53,10 @@ from ._kernels import (SC_DIR, SC_N_PREV, SC_N_R, SC_SHARED, SC_U_PREV, SC_U_R,
 
 
 @njit(cache=True, inline="always")
-def _flush_run(Juu, Jug, e, CP, Gam, t0, t1, coef, s, a, b, coupled):
-    """Add ``coef * (CP[:, t1] - CP[:, t0]) (x) (a Gam[s], b Gam[s])``."""
+def _flush_run(Juu, Jug, e, CP, Gam, t0, t1, coef, s, a, b, coupled, s2=-1, a2=0.0, b2=0.0):
+    """Add ``coef * (CP[:, t1] - CP[:, t0]) (x) (a Gam[s] + a2 Gam[s2], b Gam[s] + b2 Gam[s2])``
+    (the second row only when ``s2 >= 0``: an anchor taken at a closing instant
+    between the samples ``s`` and ``s2``)."""
     if s < 0 or t1 <= t0:
         return
     nc = Gam.shape[1]
@@ -68,11 +70,38 @@ def _flush_run(Juu, Jug, e, CP, Gam, t0, t1, coef, s, a, b, coupled):
             Juu[e, kk, j] += pa * Gam[s, j]
             if coupled:
                 Jug[e, kk, j] += pb * Gam[s, j]
+        if s2 >= 0:
+            pa = pk * a2
+            pb = pk * b2
+            for j in range(nc):
+                Juu[e, kk, j] += pa * Gam[s2, j]
+                if coupled:
+                    Jug[e, kk, j] += pb * Gam[s2, j]
+
+
+@njit(cache=True, inline="always")
+def closing_anchor(u0, u1, g0, g1):
+    """Anchor at the closing instant between two samples, and its partials.
+
+    The gap falls from ``g0 >= 0`` (open) to ``g1 < 0`` (closed); linear
+    interpolation puts the closing at the fraction ``th = g0 / (g0 - g1)`` of the
+    interval, where the slip is ``wc = u0 + th (u1 - u0)``: the anchor a
+    separated slider takes when the contact closes.
+
+    Returns
+    -------
+    wc, dwdu0, dwdu1, dwdg0, dwdg1 : float
+        Anchor [m] and its partial derivatives by the slips [-] and gaps [-].
+    """
+    d = g0 - g1
+    th = g0 / d
+    du = u1 - u0
+    return u0 + th * du, 1.0 - th, th, -du * g1 / (d * d), du * g0 / (d * d)
 
 
 @njit(cache=True)
 def _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
-                f, au, ag, Juu, Jug, periods, change):
+                gap, interpolate, f, au, ag, Juu, Jug, periods, change):
     """One element of :func:`anchor_aft` (outputs written in place)."""
     nt = u.shape[1]
     ns = k.shape[1]
@@ -81,6 +110,9 @@ def _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, cou
     s = np.full(ns, -1, dtype=np.int64)
     a = np.zeros(ns)
     b = np.zeros(ns)
+    s2 = np.full(ns, -1, dtype=np.int64)
+    a2 = np.zeros(ns)
+    b2 = np.zeros(ns)
     start = np.zeros(ns, dtype=np.int64)
     umax = 0.0
     for t in range(nt):
@@ -98,16 +130,35 @@ def _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, cou
             fe = 0.0
             de = 0.0
             dg = 0.0
+            tp = t - 1 if t > 0 else nt - 1
+            if interpolate and Nt > 0.0 and N[e, tp] <= 0.0 and gap[e, tp] > gap[e, t]:
+                # the contact closed between the samples tp and t: every slider
+                # (separated at tp, w = u there) takes its anchor at the closing
+                # instant, and a stick run starts at t itself
+                wc, dwu0, dwu1, dwg0, dwg1 = closing_anchor(u[e, tp], ut, gap[e, tp],
+                                                            gap[e, t])
+                for i in range(ns):
+                    _flush_run(Juu, Jug, e, CP, Gam, start[i], t, -k[e, i], s[i], a[i],
+                               b[i], coupled, s2[i], a2[i], b2[i])
+                    w[i] = wc
+                    s[i] = tp
+                    a[i] = dwu0
+                    b[i] = dwg0
+                    s2[i] = t
+                    a2[i] = dwu1
+                    b2[i] = dwg1
+                    start[i] = t
             for i in range(ns):
                 fi, dfi, dni, _dfw, w1, dw1du, dw1dN, dw1dw = slider_anchor_step(
                     ut, Nt, w[i], k[e, i], g[e, i])
                 if dw1dw == 0.0:
                     # slipped or separated: the anchor follows the inputs at t
                     _flush_run(Juu, Jug, e, CP, Gam, start[i], t, -k[e, i], s[i],
-                               a[i], b[i], coupled)
+                               a[i], b[i], coupled, s2[i], a2[i], b2[i])
                     s[i] = t
                     a[i] = dw1du
                     b[i] = dw1dN * dn
+                    s2[i] = -1
                     start[i] = t + 1
                 w[i] = w1
                 fe += fi
@@ -120,7 +171,7 @@ def _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, cou
         ch = 0.0
         for i in range(ns):
             _flush_run(Juu, Jug, e, CP, Gam, start[i], nt, -k[e, i], s[i], a[i], b[i],
-                       coupled)
+                       coupled, s2[i], a2[i], b2[i])
             ch = max(ch, abs(w[i] - wstart[i]))
             wmax = max(wmax, abs(w[i]))
         scale = umax + wmax
@@ -138,22 +189,22 @@ def _alloc(ne, nt, nc):
 
 @njit(cache=True)
 def _anchor_serial(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
-                   f, au, ag, Juu, Jug, periods, change):
+                   gap, interpolate, f, au, ag, Juu, Jug, periods, change):
     for e in range(u.shape[0]):
         _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
-                    f, au, ag, Juu, Jug, periods, change)
+                    gap, interpolate, f, au, ag, Juu, Jug, periods, change)
 
 
 @njit(cache=True, parallel=True)
 def _anchor_parallel(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
-                     f, au, ag, Juu, Jug, periods, change):
+                     gap, interpolate, f, au, ag, Juu, Jug, periods, change):
     for e in prange(u.shape[0]):
         _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
-                    f, au, ag, Juu, Jug, periods, change)
+                    gap, interpolate, f, au, ag, Juu, Jug, periods, change)
 
 
 def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
-               parallel=True):
+               parallel=True, gap=None):
     """Periodic march of banks of anchored sliders with history derivatives.
 
     Parameters
@@ -176,6 +227,13 @@ def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled
     parallel : bool
         Allow numba threads (from ``PARALLEL_MIN`` elements); False marches on
         the calling thread (e.g. in a worker process).
+    gap : ndarray, shape (n_e, n_t), optional
+        Normal gap [m] at the samples (``N > 0`` where ``gap < 0``).  Given, a
+        slider that was separated at the sample before a closed one takes its
+        anchor at the closing instant between them (:func:`closing_anchor`, linear
+        in the gap) instead of at the last open sample, so the force is
+        continuous in the inputs when a closing instant crosses a sample.
+        None: the anchor of the last open sample (``u`` there).
 
     Returns
     -------
@@ -191,9 +249,11 @@ def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled
     """
     ne, nt = u.shape
     out = _alloc(ne, nt, Gam.shape[1])
+    interpolate = gap is not None
+    gap = (np.ascontiguousarray(gap, dtype=float) if interpolate else np.zeros((ne, nt)))
     run = _anchor_parallel if parallel and ne >= PARALLEL_MIN else _anchor_serial
     run(u, N, dNdg, k, g, CP, Gam, int(min_periods), int(max_periods), float(tol),
-        bool(coupled), *out)
+        bool(coupled), gap, interpolate, *out)
     return out
 
 

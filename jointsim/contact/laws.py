@@ -207,6 +207,10 @@ class TangentialLaw:
         False when the force is not a continuous function of the path under
         a varying normal load (the scaled reversal laws): continuation may
         then meet a residual that jumps, see :func:`continuation_advice`.
+    uses_gap : bool
+        True when ``aft`` takes the gap samples (keyword ``gap``) to place the
+        anchor of a contact that closes between two samples at its closing
+        instant (:class:`jointsim.solvers.aft.AFT`, ``closing``).
     """
 
     name: ClassVar[str] = ""
@@ -215,6 +219,7 @@ class TangentialLaw:
     fused_code: ClassVar[int | None] = None
     has_aft: ClassVar[bool] = True
     path_continuous: ClassVar[bool] = True
+    uses_gap: ClassVar[bool] = False
 
     k: np.ndarray
     g: np.ndarray
@@ -434,9 +439,12 @@ class AnchoredBank(SliderBank):
         s[:] = np.asarray(u0, dtype=float)[:, None]
         return s
 
-    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled, parallel=True):
+    uses_gap: ClassVar[bool] = True
+
+    def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled, parallel=True,
+            gap=None):
         return AK.anchor_aft(u, N, dNdg, self.k, self.g, basis.CP, basis.Gam, min_periods,
-                             max_periods, tol, coupled, parallel)
+                             max_periods, tol, coupled, parallel, gap=gap)
 
 
 @dataclass(frozen=True)

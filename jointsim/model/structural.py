@@ -67,6 +67,9 @@ class ContactSet:
     law: TangentialLaw
     normal: NormalLaw
     position: np.ndarray
+    #: ``joint.closing``: where the AFT places a re-closing slider's anchor
+    #: (:class:`jointsim.solvers.aft.AFT`).
+    closing: str = "sample"
 
     @property
     def n_elements(self) -> int:
@@ -218,7 +221,8 @@ def make_contact_set(scene, Tt, Tn, gap0, N0, area, position) -> ContactSet:
                       gap0=np.asarray(gap0, dtype=float), N0=np.asarray(N0, dtype=float),
                       area=area, law=kernels.tangential_law(scene.joint, area),
                       normal=kernels.normal_law(scene.joint, area),
-                      position=np.asarray(position, dtype=float))
+                      position=np.asarray(position, dtype=float),
+                      closing=scene.joint.closing)
 
 
 def fixed_normal_stiffness(contacts: ContactSet) -> np.ndarray:

@@ -21,6 +21,10 @@ from ..harmonics import HarmonicBasis
 log = logging.getLogger(__name__)
 
 
+#: Values of ``AFT(closing=...)``.
+CLOSINGS = ("interpolated", "sample")
+
+
 @dataclass
 class AFTResult:
     """Element forces and their derivatives for one set of coefficients.
@@ -66,10 +70,21 @@ class AFT:
     parallel : bool
         Let the kernels run on numba threads (on enough elements); False keeps
         them on the calling thread (worker processes, which are the parallelism).
+    closing : str
+        Where the sliders of a contact that closes between two samples take
+        their anchor (laws with ``uses_gap``, coupled normal load):
+        ``"interpolated"`` at the closing instant, where the linear
+        interpolation of the gap between the samples is zero, so the forces are
+        continuous in the coefficients when a closing instant crosses a sample;
+        ``"sample"`` at the last open sample (the force then steps by about
+        ``kt |du/dt| dt`` when the first closed sample changes).  None: the
+        contact set's ``closing`` (scene key ``joint.closing``, default
+        ``"sample"``; README "Hard cases").
     """
 
     def __init__(self, contacts, basis: HarmonicBasis, min_periods: int = 2,
-                 max_periods: int = 50, periodic_tol: float = 1e-10, parallel: bool = True):
+                 max_periods: int = 50, periodic_tol: float = 1e-10, parallel: bool = True,
+                 closing: str | None = None):
         self.contacts = contacts
         self.basis = basis
         self.law = contacts.law
@@ -79,6 +94,10 @@ class AFT:
         self.periodic_tol = float(periodic_tol)
         self.n_e = contacts.n_elements
         self.parallel = bool(parallel)
+        closing = getattr(contacts, "closing", "sample") if closing is None else closing
+        if closing not in CLOSINGS:
+            raise ValueError(f"closing must be one of {CLOSINGS}, got {closing!r}")
+        self.closing = closing
 
     def evaluate(self, U, G=None, jacobian: bool = True) -> AFTResult:
         """Forces of all elements from slip (and gap-change) coefficients.
@@ -103,9 +122,11 @@ class AFT:
         else:
             N = np.ascontiguousarray(np.broadcast_to(c.N0[:, None], (ne, nt)), dtype=float)
             dNdg = np.zeros((ne, nt))
+        extra = ({"gap": g} if self.coupled and self.closing == "interpolated"
+                 and self.law.uses_gap else {})
         f, au, ag, Juu, Jug, periods, change = self.law.aft(
             u, N, dNdg, b, self.min_periods, self.max_periods, self.periodic_tol, self.coupled,
-            self.parallel)
+            self.parallel, **extra)
         Ft = f @ b.P.T
         Nc = N @ b.P.T
         JNN = None

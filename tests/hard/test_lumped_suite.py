@@ -87,16 +87,48 @@ def test_fold_scene_with_huge_friction_names_the_near_discontinuity(tmp_path):
     """At mu = 1e6 the clapping element sticks within a sample of closing: the residual is
     nearly discontinuous one step past omega = 1.12 (its Jacobian agrees with finite
     differences at the point, 1.5e-11 at eps = 1e-7, but a step of 1e-5 changes R by
-    7e-3).  The branch stops with a message naming that cause and keeps its points."""
+    7e-3).  The branch stops with a message naming that cause, and joint.closing, and
+    keeps its points."""
     out = tmp_path / "x.h5"
     with pytest.raises(RuntimeError) as err:
         run_scene(load_scene(FOLD, ["joint.mu=1e6"]), out)
     msg = str(err.value)
     assert "corrector failed" in msg and "nearly discontinuous" in msg
     assert "joint.mu = 1e+06" in msg and "lower joint.mu" in msg and "clap" in msg
+    assert "joint.closing = 'interpolated'" in msg
     with h5py.File(out) as h:
         assert h["hbm"].attrs["branch0_status"] == "gave up"
         assert len(h["hbm/omega"]) > 50 and h["hbm/omega"][-1] > 1.1
+    assert_all_finite(out)
+
+
+@pytest.mark.slow
+def test_fold_scene_with_huge_friction_and_interpolated_closing(tmp_path):
+    """joint.closing = 'interpolated' removes the step at each closing (the branch goes
+    on from 74 to more than 100 points); it stops at the opening, where the stuck force
+    really jumps to 0 as mu -> infinity, and the message says so."""
+    out = tmp_path / "x.h5"
+    with pytest.raises(RuntimeError) as err:
+        run_scene(load_scene(FOLD, ["joint.mu=1e6", "joint.closing='interpolated'"]), out)
+    msg = str(err.value)
+    assert "nearly discontinuous" in msg and "opening" in msg and "lower joint.mu" in msg
+    with h5py.File(out) as h:
+        assert h["hbm"].attrs["branch0_status"] == "gave up"
+        assert len(h["hbm/omega"]) > 100
+    assert_all_finite(out)
+
+
+@pytest.mark.slow
+def test_fold_scene_with_mu_1_completes_with_interpolated_closing(tmp_path):
+    """mu = 1: the element sticks at its closing instants; with the anchor at the last
+    open sample the branch stops at omega = 1.457 on a step of the residual, with
+    joint.closing = 'interpolated' it completes (156 points) and folds."""
+    out = tmp_path / "x.h5"
+    run_scene(load_scene(FOLD, ["joint.mu=1", "joint.closing='interpolated'"]), out)
+    with h5py.File(out) as h:
+        assert h["hbm"].attrs["branch0_status"] == "complete"
+        assert h["hbm/omega"][-1] == pytest.approx(2.5)
+        assert np.any(np.diff(h["hbm/omega"][()]) < 0)       # the fold
     assert_all_finite(out)
 
 
