@@ -343,8 +343,8 @@ class Joint:
                          doc="'anchor': physical elastic dry friction; 'scaled': reversal "
                              "force scaled by N(t)/N_r (seed Eq. 7, condition 5); "
                              "'manifold': Eq. 7's scaling with Masing's memory rule (on the "
-                             "Masing manifold where it lies within mu N; all analyses, HBM/EPMC "
-                             "through its AFT kernel)")
+                             "Masing manifold, seed Eq. 7 with its friction limit, to round-off; "
+                             "all analyses, HBM/EPMC through its AFT kernel)")
     closing: str = spec("sample", choices=("sample", "interpolated"),
                         doc="harmonic balance (AFT) with the anchored law and a separating "
                             "contact: where a slider takes its anchor when the contact closes "
@@ -580,6 +580,15 @@ def _check_cross(scene: Scene, ctx: Context) -> None:
             raise ctx.error(f"excitation.loads[{i}].dof", "is required for this model kind")
         if isinstance(m, FEModel) and not load.point:
             raise ctx.error(f"excitation.loads[{i}].point", "is required for an FE model")
+    j = scene.joint
+    if j.closing == "interpolated" and (
+            j.reversal != "anchor" or j.law == "stuck" or not scene.effects.friction
+            or scene.effects.normal != "coupled" or not scene.effects.separation):
+        raise ctx.error("joint.closing",
+                        "'interpolated' applies to the anchored slider laws (joint.law "
+                        "'jenkins' or 'iwan4', joint.reversal = 'anchor') with friction and "
+                        "a coupled, separating contact (effects.normal = 'coupled', "
+                        "effects.separation = true); this scene has none of those contacts")
     a = scene.analysis
     for name in ("hbm", "epmc"):
         sec = getattr(a, name)
