@@ -37,7 +37,9 @@ tolerances refer to the scaled quantities.
 * Orientation: the new tangent is oriented like the secant of the last step,
   or, after a step shorter than a quarter of the one before that lands
   straight behind the last point, like the chord over the last two steps (a tiny step from a poor tangent must not turn the
-  branch round).
+  branch round); a new tangent nearly perpendicular to that reference
+  (``AMBIGUOUS_COS``) is oriented like the previous tangent instead, when that
+  one is clearly on one side (the sign of so small a product is a coin flip).
 * No retracing: a corrected point that lies back on the last
   ``RETRACE_POINTS`` points of the branch (closer to one of their segments
   than half its distance from the current point) is rejected; at a sharp
