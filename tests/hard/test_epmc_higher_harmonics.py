@@ -93,3 +93,26 @@ def test_coupled_lap_joint_epmc_at_higher_harmonics_completes(tmp_path, H):
         assert lam[-1] == pytest.approx(scene.analysis.epmc.log10_amplitude_end)
         for k in ("omega", "damping_ratio", "X"):
             assert np.all(np.isfinite(g[k][()]))
+
+
+def test_epmc_at_amplitudes_on_the_krylov_path(tmp_path):
+    """``analysis.epmc.amplitudes`` with the structured (Krylov) Jacobian, which
+    ``linear_solver = "auto"`` picks from 1200 unknowns on (the coupled lap joint at
+    H = 0..15 has 1550): it used to index that Jacobian like an array and fail
+    after the branch.  Oracle: the same solve on the dense path."""
+    from jointsim.scene import load_scene
+    from .._scenes import MODELS
+
+    amps = [0.3, 1.2, 3.0]
+    got = {}
+    for solver in ("direct", "krylov"):
+        sc = load_scene(MODELS / "hbm" / "sdof_jenkins_epmc.toml",
+                        ["analysis.epmc.harmonics=[0, 1, 2, 3]", "analysis.epmc.n_samples=64",
+                         f"analysis.epmc.amplitudes={amps}",
+                         f"analysis.epmc.linear_solver='{solver}'"])
+        with h5py.File(run_scene(sc, tmp_path / f"{solver}.h5"), "r") as h5:
+            g = h5["epmc/at_amplitudes"]
+            assert g["converged"][()].all()
+            got[solver] = (g["omega"][()], g["damping_ratio"][()])
+    np.testing.assert_allclose(got["krylov"][0], got["direct"][0], rtol=1e-9)
+    np.testing.assert_allclose(got["krylov"][1], got["direct"][1], rtol=1e-6, atol=1e-12)
