@@ -37,7 +37,9 @@ tolerances refer to the scaled quantities.
 * Orientation: the new tangent is oriented like the secant of the last step,
   or, after a step shorter than a quarter of the one before that lands
   straight behind the last point, like the chord over the last two steps (a tiny step from a poor tangent must not turn the
-  branch round).
+  branch round); a new tangent nearly perpendicular to that reference
+  (``AMBIGUOUS_COS``) is oriented like the previous tangent instead, when that
+  one is clearly on one side (the sign of so small a product is a coin flip).
 * No retracing: a corrected point that lies back on the last
   ``RETRACE_POINTS`` points of the branch (closer to one of their segments
   than half its distance from the current point) is rejected; at a sharp
@@ -85,6 +87,10 @@ RETRACE_POINTS = 500
 #: whose cosine is below ``-BEHIND_COS`` (about 155 degrees or more) "landed
 #: behind" the last point; the tangent is then oriented by the chord.
 BEHIND_COS = 0.9
+#: Orientation: a new tangent within ``acos(AMBIGUOUS_COS)`` (about 78 degrees or
+#: more) of perpendicular to its orientation reference is ambiguously oriented by it;
+#: it is then oriented like the previous tangent when that is the clearer reference.
+AMBIGUOUS_COS = 0.2
 #: ``adapt_scale``: rescale ``z`` when ``max|z - z0|`` exceeds this many ``z`` scales.
 SCALE_GROWTH = 2.0
 #: ``adapt_scale``: a run of points whose ``max|z - z0|`` never decreases, growing
@@ -435,6 +441,30 @@ class Continuation:
             ref, n = yc - yk, max(np.linalg.norm(yc - yk), 1e-300)
         return ref / n
 
+    def _new_tangent(self, J, yk, yc, t):
+        """Unit tangent at the corrected point ``yc`` (scaled), oriented.
+
+        Like :meth:`_orientation`'s reference; but when the tangent is nearly
+        perpendicular to that reference (``|cos| < AMBIGUOUS_COS``: the branch
+        turns by about 90 degrees within the step, or the tangent is poorly
+        determined, as next to an internal resonance where the Jacobian is
+        nearly singular), the sign of so small a product is a coin flip, and a
+        wrong one sends the branch back the way it came.  The tangent is then
+        oriented like the previous tangent ``t`` if it is clearly not
+        perpendicular to that (the smaller of the two turns).  A turn at a
+        non-smooth fold keeps the secant.
+        """
+        ref = self._orientation(yk, yc)
+        t_new = tangent(J, ref)
+        c_ref, c_prev = float(t_new @ ref), float(t_new @ t)
+        if (not self._turned and abs(c_ref) < AMBIGUOUS_COS
+                and abs(c_prev) >= AMBIGUOUS_COS and c_prev < 0.0):
+            log.debug("%s: tangent at lam = %.8g nearly perpendicular to the secant "
+                      "(cos %.3f); oriented like the previous tangent (cos %.3f)", self.desc,
+                      yc[-1] * self.scale[-1], c_ref, c_prev)
+            t_new = -t_new
+        return t_new
+
     def _monitor_change(self, yk, yc) -> float:
         """Largest change of the monitored quantities from ``yk`` to ``yc`` (scaled
         points; 0 without a monitor)."""
@@ -589,7 +619,7 @@ class Continuation:
                                             f"step_min = {step_min:g} at lam = "
                                             f"{yk[-1] * scale[-1]:.8g} after "
                                             f"{len(self.points)} points")
-        t_new = tangent(J, self._orientation(yk, yc))
+        t_new = self._new_tangent(J, yk, yc, t)
         lam_new = yc[-1]
         if (lam_new - self._lam_end_h) * direction >= 0:
             return self._close_at_end(yk, t, yc, R, extra, it, h, t_new)
