@@ -469,12 +469,45 @@ def run_converge(scene_path, rtol: float = 1e-2, dials: list[str] | None = None,
     return result
 
 
+def _failed_before(scene_path, variant) -> dict | None:
+    """The status of a variant whose result file is a failed run of the same scene.
+
+    Runs are deterministic, so a failed setting is reported again from its
+    file (its message and what it reached) instead of being rerun; delete the
+    file to retry it.  None when the file is absent, of another scene, or not
+    failed.
+    """
+    from .io.hdf5 import read_attrs
+    f = Path(variant.output)
+    if not f.exists():
+        return None
+    try:
+        a = read_attrs(f)
+    except (OSError, ValueError):
+        return None
+    if a.get("status") != "failed" or a.get("scene") != load_scene(
+            scene_path, list(variant.overrides)).text:
+        return None
+    return {"index": variant.index, "status": "failed",
+            "message": f"kept from an earlier run: {a.get('message', '')}"}
+
+
+def _run_keeping_failed(scene_path, variants, outdir, client, run_variants) -> list[dict]:
+    """:func:`jointsim.sweep.run_variants` for the variants not failed before
+    (:func:`_failed_before`); the statuses of all, in the order of ``variants``."""
+    before = [_failed_before(scene_path, v) for v in variants]
+    todo = [v for v, b in zip(variants, before) if b is None]
+    res = iter(run_variants(scene_path, todo, outdir, client=client,
+                            index_name="converge_runs.h5", desc="converge")[1]
+               if todo else [])
+    return [b if b is not None else next(res) for b in before]
+
+
 def _converge(scene, scene_path, rtol, ladders, variants, by_text, ref_file, outdir, client,
               common, max_rounds) -> ConvergeResult:
     """The runs and the choice of :func:`run_converge`, on an open dask client."""
     from .sweep import Variant, run_variants
-    _, res = run_variants(scene_path, variants, outdir, client=client,
-                          index_name="converge_runs.h5", desc="converge")
+    res = _run_keeping_failed(scene_path, variants, outdir, client, run_variants)
     ref_status = next(r for v, r in zip(variants, res) if v.output == ref_file)
     by_file = {v.output: r for v, r in zip(variants, res)}
     for lad in ladders:
@@ -513,8 +546,11 @@ def _converge(scene, scene_path, rtol, ladders, variants, by_text, ref_file, out
         if f is not None and f in status_of:
             return f, status_of[f]
         f = outdir / name
-        _, r = run_variants(scene_path, [Variant(0, ov, f)], outdir, client=client,
-                            index_name=index_name, desc=desc)
+        v = Variant(0, ov, f)
+        r = [_failed_before(scene_path, v)]
+        if r[0] is None:
+            _, r = run_variants(scene_path, [v], outdir, client=client,
+                                index_name=index_name, desc=desc)
         by_text[load_scene(scene_path, list(ov)).text] = f
         status_of[f] = r[0]
         return f, r[0]

@@ -235,3 +235,23 @@ def test_presets_order_work_and_error(scene_file, tmp_path):
     assert err[0] > err[1] > err[2], err
     assert err[1] < 1e-2 and err[2] < 1e-3, err
     assert set(PRESETS) == {"fast", "balanced", "reference"}
+
+
+def test_a_failed_run_of_the_same_scene_is_kept_not_rerun(scene_file, tmp_path):
+    """Runs are deterministic: converge reports a failed file of the same scene from
+    its attributes (message kept) and reruns a file of another scene."""
+    from jointsim.converge import _failed_before
+    from jointsim.sweep import Variant
+    ov = ("analysis.epmc.max_points=3",)   # the EPMC stops short: the run fails
+    f = tmp_path / "failed.h5"
+    with pytest.raises(RuntimeError, match="max_points"):
+        run_scene(load_scene(scene_file, list(ov)), f)
+    r = _failed_before(str(scene_file), Variant(4, ov, f))
+    assert r["status"] == "failed" and r["index"] == 4 and "max_points = 3" in r["message"]
+    assert _failed_before(str(scene_file), Variant(4, ("analysis.epmc.max_points=4",), f)) \
+        is None
+    assert _failed_before(str(scene_file), Variant(4, ov, tmp_path / "none.h5")) is None
+    # and its quantities are read: what the EPMC reached is finite, the rest NaN
+    q = {x.name: x.value for x in quantities(f, load_scene(scene_file))}
+    assert np.isfinite(q["FRC peak amplitude, force x 1"])
+    assert np.isnan(q["EPMC damping at a = 2"])
