@@ -6,7 +6,10 @@ quantities: the EPMC frequency and damping ratio of the first bending mode at
 the study's loop amplitudes (fixed N: 3e-4, 1e-3, 3e-3; coupled N: 3e-4, 1e-3
 sqrt(kg) m), each one Newton solve at that fixed modal amplitude started from
 the next coarser setting's solution (:class:`FEModeLadder`); error: the
-largest relative error of these frequencies and damping ratios:
+largest relative error of these frequencies and damping ratios; cost: the time
+of one Newton iteration (residual, Jacobian, linear solve) at the solutions,
+summed over the amplitudes (a solve's own time would mostly say how good its
+start was, and every continuation step costs a few such iterations):
 
 * harmonics H, fixed N (Nt = 512; reference H = 31);
 * AFT samples Nt, fixed N (H = 7; reference Nt = 4096);
@@ -32,10 +35,9 @@ monotone either.
 
     python benchmarks/accuracy_cost.py [--quick] [--figure docs/img/accuracy_cost.png]
 
-Times are wall-clock medians of repeated warm calls (numba compilation is
-excluded by a warm-up call; rows slower than 2 s are timed once; the FE rows
-are one timed Newton solve per amplitude, warm after the first setting) on
-whatever the machine is doing: compare rows of one run, not runs on different
+Times are the shortest of five warm calls (numba compilation is excluded by a
+warm-up call; rows slower than 2 s are timed once) on whatever the machine is
+doing: compare rows of one run, not runs on different
 days.  Each panel states whether its error falls and its cost rises with
 accuracy.
 """
@@ -43,7 +45,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import statistics
 import time
 from pathlib import Path
 
@@ -63,9 +64,11 @@ FIXED = ROOT / "models" / "lap_joint_fixed_n.toml"
 COUPLED = ROOT / "models" / "lap_joint.toml"
 
 
-def timed(fn, repeat: int = 3):
-    """Median wall time of ``fn()`` after one warm-up call, and its last result
-    (a warm-up slower than 2 s is followed by one timed call)."""
+def timed(fn, repeat: int = 5):
+    """Shortest wall time of ``fn()`` over ``repeat`` calls after one warm-up call, and
+    its last result (a warm-up slower than 2 s is followed by one timed call).  The
+    shortest, not the median: on a shared machine the other processes only ever add
+    time, so the minimum is the closest to the work itself."""
     t0 = time.perf_counter()
     out = fn()
     if time.perf_counter() - t0 > 2.0:
@@ -75,7 +78,7 @@ def timed(fn, repeat: int = 3):
         t0 = time.perf_counter()
         out = fn()
         times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
+    return min(times), out
 
 
 def hbm_response(model, H: int, nt: int, n_eval: int = 4096):
@@ -216,9 +219,11 @@ class FEModeLadder:
         return ep, scale, rscale
 
     def solve(self, H, nt):
-        """Frequencies [Hz] and damping ratios at :data:`FE_AMPS`, and the solve time [s]
-        (all amplitudes; the system set-up is not timed).  Each solution becomes the
-        start of the next call."""
+        """Frequencies [Hz] and damping ratios at the amplitudes, and the cost [s]: the
+        time of one Newton iteration (residual, Jacobian and linear solve) at each
+        amplitude's solution, summed over the amplitudes; the unit of work of every
+        continuation step (the iterations per step hardly depend on the setting).
+        Each solution becomes the start of the next call."""
         from jointsim.solvers.newton import NewtonOptions, newton
         ep, scale, rscale = self._system(H, nt)
         nz = ep.s.n_z
@@ -232,11 +237,14 @@ class FEModeLadder:
                 R, J, ev = ep.fun(np.append(zs * sz, lt))
                 return R / rscale, J[:, :nz + 2] * sz[None, :] / rscale, ev
 
-            def run(g=g):
-                return newton(fun, g / sz, NewtonOptions(1e-10, 40, check_start=True))
-            dt, res = timed(run, repeat=1)
+            res = newton(fun, g / sz, NewtonOptions(1e-10, 40, check_start=True))
             if not res.success:
                 raise RuntimeError(f"H = {H}, Nt = {nt}, a = {amp:g}: {res.message}")
+
+            def iteration(x=res.x):
+                R, J, _ = fun(x)
+                return np.linalg.solve(J, R)
+            dt, _ = timed(iteration)
             y = res.x * sz
             self.guess[amp] = y
             om, xi = y[nz], y[nz + 1]
