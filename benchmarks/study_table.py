@@ -48,7 +48,7 @@ def rows(path, label: str | None = None) -> list[str]:
     list of str
     """
     out = []
-    with h5py.File(path, "r") as h5:
+    with h5py.File(path, "r", locking=False) as h5:
         name = label or str(h5.attrs.get("scene_name", h5.attrs.get("scene_path", path)))
         sets = loop_points(h5, "epmc")
         amps = sets.parameter
@@ -57,7 +57,8 @@ def rows(path, label: str | None = None) -> list[str]:
         w = fraction_weights(h5, sets.loaded.shape[1]).get("area",
                                                           np.ones(sets.loaded.shape[1]))
         wman, wmas, _ = weighted_fractions(sets, w)
-        failed = "" if h5.attrs.get("status") == "complete" else " (run failed)"
+        st = h5.attrs.get("status")
+        failed = "" if st == "complete" else f" (run {st})"
         for i, a in enumerate(amps):
             k_man = int(np.sum(sets.on_manifold[i] & sets.loaded[i]))
             k_mas = int(np.sum(sets.on_masing[i] & sets.loaded[i]))
@@ -75,7 +76,7 @@ def rows(path, label: str | None = None) -> list[str]:
 
 def settings(path) -> str:
     """The EPMC's harmonics and samples and the QSMA points of a result file."""
-    with h5py.File(path, "r") as h5:
+    with h5py.File(path, "r", locking=False) as h5:
         e = h5["epmc"]
         hs = e["harmonics"][()].tolist() if "harmonics" in e else []
         nt = e.attrs.get("n_samples", "?")
