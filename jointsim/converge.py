@@ -311,6 +311,7 @@ class Ladder:
     reference_values: np.ndarray = field(default_factory=lambda: np.zeros(0))
     error: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # (n_settings, n_q)
     recommended: int = -1
+    reference: int = -1  # index of the reference setting (most refined complete run)
 
     @property
     def worst(self) -> np.ndarray:
@@ -334,6 +335,7 @@ class ConvergeResult:
     reference_wall_time_s: float
     check_ok: bool
     outdir: Path
+    check_message: str = ""
 
 
 def _wall(path: Path) -> float:
@@ -341,13 +343,42 @@ def _wall(path: Path) -> float:
         return float(h5.attrs.get("wall_time_s", np.nan))
 
 
-def _pick(worst: np.ndarray, rtol: float) -> int:
-    """Least refined index whose error and every more refined one's are within rtol."""
+def _wall_or_nan(path: Path) -> float:
+    """Wall time of a result file [s] (also of a failed run); NaN without a file."""
+    try:
+        return _wall(path)
+    except OSError:
+        return np.nan
+
+
+def _pick(worst: np.ndarray, rtol: float, usable: np.ndarray | None = None) -> int:
+    """Least refined index whose error and every more refined one's are within rtol.
+
+    ``usable`` (bool per setting, default all) marks the settings that completed;
+    a failed setting can be neither recommended nor block a coarser one: the
+    chain of "every more refined setting" skips it.  -1 when no setting is usable.
+    """
+    usable = np.ones(len(worst), bool) if usable is None else np.asarray(usable, bool)
+    idx = np.flatnonzero(usable)
+    if idx.size == 0:
+        return -1
     ok = np.isfinite(worst) & (worst <= rtol)
-    k = len(worst) - 1
-    while k > 0 and ok[k - 1]:
-        k -= 1
-    return k
+    j = idx.size - 1
+    while j > 0 and ok[idx[j - 1]]:
+        j -= 1
+    return int(idx[j])
+
+
+def _quantities_or_none(path: Path, scene):
+    """The quantities of a result file, also of a failed run (what it reached; NaN
+    where it stopped short), or None when the file is missing or unreadable."""
+    if not Path(path).exists():
+        return None
+    try:
+        return quantities(path, scene)
+    except (OSError, KeyError, ValueError, IndexError) as exc:
+        log.warning("%s: quantities not readable (%s)", Path(path).name, exc)
+        return None
 
 
 def _fmt(v) -> str:
@@ -438,20 +469,52 @@ def run_converge(scene_path, rtol: float = 1e-2, dials: list[str] | None = None,
     return result
 
 
+def _failed_before(scene_path, variant) -> dict | None:
+    """The status of a variant whose result file is a failed run of the same scene.
+
+    Runs are deterministic, so a failed setting is reported again from its
+    file (its message and what it reached) instead of being rerun; delete the
+    file to retry it.  None when the file is absent, of another scene, or not
+    failed.
+    """
+    from .io.hdf5 import read_attrs
+    f = Path(variant.output)
+    if not f.exists():
+        return None
+    try:
+        a = read_attrs(f)
+    except (OSError, ValueError):
+        return None
+    if a.get("status") != "failed" or a.get("scene") != load_scene(
+            scene_path, list(variant.overrides)).text:
+        return None
+    return {"index": variant.index, "status": "failed",
+            "message": f"kept from an earlier run: {a.get('message', '')}"}
+
+
+def _run_keeping_failed(scene_path, variants, outdir, client, run_variants) -> list[dict]:
+    """:func:`jointsim.sweep.run_variants` for the variants not failed before
+    (:func:`_failed_before`); the statuses of all, in the order of ``variants``."""
+    before = [_failed_before(scene_path, v) for v in variants]
+    todo = [v for v, b in zip(variants, before) if b is None]
+    res = iter(run_variants(scene_path, todo, outdir, client=client,
+                            index_name="converge_runs.h5", desc="converge")[1]
+               if todo else [])
+    return [b if b is not None else next(res) for b in before]
+
+
 def _converge(scene, scene_path, rtol, ladders, variants, by_text, ref_file, outdir, client,
               common, max_rounds) -> ConvergeResult:
     """The runs and the choice of :func:`run_converge`, on an open dask client."""
     from .sweep import Variant, run_variants
-    _, res = run_variants(scene_path, variants, outdir, client=client,
-                          index_name="converge_runs.h5", desc="converge")
+    res = _run_keeping_failed(scene_path, variants, outdir, client, run_variants)
     ref_status = next(r for v, r in zip(variants, res) if v.output == ref_file)
     by_file = {v.output: r for v, r in zip(variants, res)}
     for lad in ladders:
         lad.status = [by_file[f]["status"] for f in lad.files]
         lad.messages = [by_file[f]["message"] for f in lad.files]
         ref_k = max((k for k, s in enumerate(lad.status) if s == "complete"), default=None)
-        lad.wall_time_s = np.array([_wall(f) if s == "complete" else np.nan
-                                    for f, s in zip(lad.files, lad.status)])
+        lad.wall_time_s = np.array([_wall_or_nan(f) for f in lad.files])
         if ref_k is None:
             lad.error = np.full((len(lad.files), 0), np.inf)
             continue
@@ -462,28 +525,58 @@ def _converge(scene, scene_path, rtol, ladders, variants, by_text, ref_file, out
         lad.quantity_names = [q.name for q in ref]
         lad.quantity_units = [q.unit for q in ref]
         lad.reference_values = np.array([q.value for q in ref])
-        lad.error = np.array([errors(quantities(f, scene), ref) if s == "complete"
-                              else np.full(len(ref), np.inf)
-                              for f, s in zip(lad.files, lad.status)])
-        lad.recommended = _pick(lad.worst, rtol)
+        lad.reference = ref_k
+        rows = []
+        for f in lad.files:  # a failed run keeps what it reached (inf where it stopped)
+            q = _quantities_or_none(f, scene)
+            rows.append(errors(q, ref) if q is not None else np.full(len(ref), np.inf))
+        lad.error = np.array(rows)
+        lad.recommended = _pick(lad.worst, rtol,
+                                np.array([s == "complete" for s in lad.status]))
 
     # the combined check: every dial at its pick against every dial at its reference
+    # (its most refined complete setting; when one failed, that combination is run)
     check_err, names, ok, t_check, t_ref = np.zeros(0), [], False, np.nan, np.nan
+    check_msg = ""
+    status_of = {v.output: r for v, r in zip(variants, res)}
+
+    def run_once(ov, name, index_name, desc):
+        """Result file and status of a combination (a ladder's run when it is one)."""
+        f = by_text.get(load_scene(scene_path, list(ov)).text)
+        if f is not None and f in status_of:
+            return f, status_of[f]
+        f = outdir / name
+        v = Variant(0, ov, f)
+        r = [_failed_before(scene_path, v)]
+        if r[0] is None:
+            _, r = run_variants(scene_path, [v], outdir, client=client,
+                                index_name=index_name, desc=desc)
+        by_text[load_scene(scene_path, list(ov)).text] = f
+        status_of[f] = r[0]
+        return f, r[0]
+
+    if all(lad.reference == len(lad.files) - 1 for lad in ladders):
+        ref_st = ref_status
+    else:
+        ref_ov = tuple(common) + tuple(
+            o for lad in ladders
+            for o in lad.dial.overrides(lad.dial.values[max(lad.reference, 0)], scene))
+        ref_file, ref_st = run_once(ref_ov, "combined_reference_complete.h5",
+                                    "converge_reference.h5", "reference")
     rec_ov: tuple[str, ...] = ()
     for rnd in range(max_rounds + 1):
+        if any(lad.recommended < 0 for lad in ladders):
+            check_msg = "a dial has no complete setting"
+            break
         rec_ov = tuple(common) + tuple(
             o for lad in ladders
-            for o in lad.dial.overrides(lad.dial.values[max(lad.recommended, 0)], scene))
-        rec_file = by_text.get(load_scene(scene_path, list(rec_ov)).text)
-        if rec_file is None or not rec_file.exists():
-            rec_file = outdir / f"combined_recommended_{rnd}.h5"
-            _, r = run_variants(scene_path, [Variant(0, rec_ov, rec_file)], outdir,
-                                client=client, index_name="converge_check.h5", desc="check")
-        else:  # already run as part of a ladder
-            r = [{"status": "complete", "message": ""}]
-        if r[0]["status"] != "complete" or ref_status["status"] != "complete":
-            log.warning("combined check did not run: %s %s", r[0]["message"],
-                        ref_status["message"])
+            for o in lad.dial.overrides(lad.dial.values[lad.recommended], scene))
+        rec_file, r = run_once(rec_ov, f"combined_recommended_{rnd}.h5",
+                               "converge_check.h5", "check")
+        if r["status"] != "complete" or ref_st["status"] != "complete":
+            check_msg = ("recommended run failed: " + r["message"] if r["status"] != "complete"
+                         else "combined reference failed: " + ref_st["message"])
+            log.warning("combined check did not run: %s", check_msg)
             break
         refq = quantities(ref_file, scene)
         names = [q.name for q in refq]
@@ -493,53 +586,100 @@ def _converge(scene, scene_path, rtol, ladders, variants, by_text, ref_file, out
         ok = worst <= rtol
         if ok:
             break
-        # refine the dial whose pick is furthest from its reference
-        cand = [lad for lad in ladders if 0 <= lad.recommended < len(lad.files) - 1]
+        # refine the dial whose pick is furthest from its reference, to its next
+        # complete setting
+        cand = [lad for lad in ladders if 0 <= lad.recommended < lad.reference]
         if not cand:
             break
         lad = max(cand, key=lambda L: L.worst[L.recommended])
         log.info("combined setting misses rtol (%.3g > %.3g): refining %s", worst, rtol,
                  lad.dial.name)
-        lad.recommended += 1
+        lad.recommended = next(k for k in range(lad.recommended + 1, len(lad.files))
+                               if lad.status[k] == "complete")
     rec = {lad.dial.name: lad.dial.values[max(lad.recommended, 0)] for lad in ladders}
     return ConvergeResult(str(scene_path), rtol, ladders, rec, rec_ov, check_err, names,
-                          t_check, t_ref, ok, outdir)
+                          t_check, t_ref, ok, outdir, check_msg)
 
 
 # ---------------------------------------------------------------- output
 
+#: quantity kinds of :func:`kind_errors`, by a word of the quantity name
+KINDS = (("frequency", "frequency"), ("damping", "damping"), ("amplitude", "amplitude"),
+         ("share", "share"))
+
+
+def kind_errors(names, err) -> dict[str, float]:
+    """Largest error per kind of quantity (frequency, damping, amplitude, share).
+
+    Parameters
+    ----------
+    names : list of str
+        Quantity names (:func:`quantities`).
+    err : ndarray, shape (len(names),)
+        Their errors (NaN: no reference value; inf: not reached).
+
+    Returns
+    -------
+    dict
+        ``{kind: largest error}``, NaN for a kind without quantities.
+    """
+    out = {}
+    err = np.asarray(err, dtype=float)
+    for kind, word in KINDS:
+        sel = np.array([word in n for n in names], bool)
+        e = err[sel] if sel.size else np.zeros(0)
+        e = e[~np.isnan(e)]
+        out[kind] = float(e.max()) if e.size else np.nan
+    return out
+
+
+def _e(v: float) -> str:
+    return "-" if np.isnan(v) else ("not reached" if np.isinf(v) else f"{v:.2e}")
+
+
 def table_text(r: ConvergeResult) -> str:
-    """The terminal table: per dial and setting, wall time, worst error and quantity."""
+    """The terminal table: per dial and setting, wall time, worst error and quantity,
+    and the largest frequency and damping errors; a failed run is listed with what it
+    reached and its message."""
     lines = [f"convergence of {r.scene_path} (rtol {r.rtol:g}; errors against each "
-             f"ladder's most refined setting)"]
+             f"ladder's most refined complete setting)"]
     for lad in r.ladders:
         d = lad.dial
         lines.append(f"\n  {d.name} ({DIAL_DOC[d.name][1]}; scene: {_fmt(d.scene_value)})")
-        lines.append(f"    {'setting':>10} {'wall [s]':>9} {'max error':>10}  worst quantity")
+        lines.append(f"    {'setting':>10} {'wall [s]':>9} {'max error':>10} {'freq.':>9} "
+                     f"{'damping':>9}  worst quantity")
         for k, v in enumerate(d.values):
-            if lad.status[k] != "complete":
-                lines.append(f"    {_fmt(v):>10} {'':>9} {'failed':>10}  "
-                             f"{lad.messages[k][:60]}")
-                continue
             e = lad.error[k] if lad.error.size else np.zeros(0)
+            fin = e[np.isfinite(e)]
+            ke = kind_errors(lad.quantity_names, e) if e.size else {}
+            t = lad.wall_time_s[k] if k < lad.wall_time_s.size else np.nan
+            head = (f"    {_fmt(v):>10} {t:>9.2f} "
+                    f"{(fin.max() if fin.size else np.nan):>10.2e} "
+                    f"{_e(ke.get('frequency', np.nan)):>9} {_e(ke.get('damping', np.nan)):>9}  ")
+            if lad.status[k] != "complete":
+                n_miss = int(np.isinf(e).sum())
+                lines.append(head + f"FAILED ({n_miss} of {e.size} quantities not reached): "
+                                    f"{lad.messages[k][:70]}")
+                continue
             e0 = np.where(np.isnan(e), -1.0, e)
             j = int(np.argmax(e0)) if e.size else -1
             mark = " <- recommended" if k == lad.recommended else ""
-            ref = " (reference)" if k == len(d.values) - 1 else ""
+            ref = " (reference)" if k == lad.reference else ""
             what = lad.quantity_names[j] if j >= 0 and e0[j] > 0 else ""
-            lines.append(f"    {_fmt(v):>10} {lad.wall_time_s[k]:>9.2f} "
-                         f"{max(e0.max(), 0) if e.size else 0:>10.2e}  {what}{ref}{mark}")
+            lines.append(head + f"{what}{ref}{mark}")
     lines.append("\n  recommendation: " + ", ".join(f"{k} = {_fmt(v)}"
                                                     for k, v in r.recommendation.items()))
     lines.append("    --set " + " --set ".join(r.recommendation_overrides)
                  if r.recommendation_overrides else "    (the scene as it is)")
     if r.check_error.size:
         w = float(np.nanmax(r.check_error))
+        ke = kind_errors(r.check_names, r.check_error)
         lines.append(f"    combined check against every dial at its reference: max error "
-                     f"{w:.2e} ({'within' if r.check_ok else 'NOT within'} rtol), wall "
+                     f"{w:.2e} ({'within' if r.check_ok else 'NOT within'} rtol; frequency "
+                     f"{_e(ke['frequency'])}, damping {_e(ke['damping'])}), wall "
                      f"{r.check_wall_time_s:.2f} s against {r.reference_wall_time_s:.2f} s")
     else:
-        lines.append("    combined check: not run (a run failed)")
+        lines.append(f"    combined check: not run ({r.check_message or 'a run failed'})")
     return "\n".join(lines)
 
 
@@ -576,7 +716,11 @@ def write_h5(r: ConvergeResult, path) -> Path:
                "unit of each quantity")
             ds(g, "reference_value", lad.reference_values, "see quantity_unit",
                "each quantity at the reference setting")
-            ds(g, "status", np.array(lad.status, dtype=s), "1", "run status")
+            ds(g, "status", np.array(lad.status, dtype=s), "1",
+               "run status (a failed run's errors are of what it reached; inf: not reached)")
+            ds(g, "message", np.array([m or "" for m in lad.messages], dtype=s), "1",
+               "run message (why a run failed)")
+            g.attrs["reference"] = lad.reference
             ds(g, "file", np.array([f.name for f in lad.files], dtype=s), "1",
                "result file of each setting (next to this file)")
         g = h5.create_group("converge/recommendation")
@@ -586,6 +730,7 @@ def write_h5(r: ConvergeResult, path) -> Path:
         for k, v in r.recommendation.items():
             g.attrs[k] = v
         g.attrs["check_ok"] = bool(r.check_ok)
+        g.attrs["check_message"] = r.check_message
         ds(g, "check_error", r.check_error, "1", "error of each quantity of the recommended "
                                                  "setting against the combined reference")
         ds(g, "check_quantity", np.array(r.check_names, dtype=s), "1", "quantity names")

@@ -11,9 +11,15 @@ The values were chosen from the ladders of ``jointsim converge`` on the
 committed lap-joint scenes (README, "What accuracy costs"):
 
 * ``fast``: the quickest setting that still gets the qualitative picture
-  (peaks, backbones and shares within a few percent);
-* ``balanced``: within about 1e-2 in every quantity of the study;
-* ``reference``: converged to about 1e-4.
+  (frequencies within 1 %, damping within about 10 %);
+* ``balanced``: within about 1e-2 in every quantity of the study on the
+  fixed-N joint;
+* ``reference``: the ladders' most refined setting.
+
+Measured on both study scenes (README, "Presets"): on the coupled joint the
+damping converges slowly in H (H = 7 is 16 % off H = 23), so ``balanced`` is
+not within 1e-2 there and ``reference`` is not converged to 1e-4 on either
+joint.
 """
 from __future__ import annotations
 

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from jointsim.cli import main
-from jointsim.converge import Dial, _harmonics, _pick, parse_ladders, quantities
+from jointsim.converge import (ConvergeResult, Dial, Ladder, _harmonics, _pick, kind_errors,
+                               parse_ladders, quantities, table_text, write_h5)
 from jointsim.presets import PRESETS, preset_overrides
 from jointsim.run import run_scene
 from jointsim.scene import SceneError, load_scene
@@ -76,6 +77,48 @@ def test_harmonic_pattern_and_pick():
     assert _pick(np.array([1e-3, 2e-2, 1e-3, 0.0]), 1e-2) == 2
     assert _pick(np.array([1e-3, 1e-3, 0.0]), 1e-2) == 0
     assert _pick(np.array([np.inf, 1e-3, 0.0]), 1e-2) == 1
+    # a failed setting is never picked and does not block a coarser one
+    usable = np.array([True, True, False, True])
+    assert _pick(np.array([5e-2, 1e-3, np.inf, 0.0]), 1e-2, usable) == 1
+    assert _pick(np.array([1e-3, 1e-3, 2e-3, 0.0]), 1e-2, [False, True, True, True]) == 1
+    assert _pick(np.array([np.inf, np.inf]), 1e-2, [False, False]) == -1
+
+
+def test_failed_setting_is_reported_with_what_it_reached(tmp_path):
+    """A run that failed (here: its EPMC stopped before its end) keeps the errors of the
+    quantities it reached, inf for the others, and its message, in the table and the
+    file; the dial still recommends a complete setting."""
+    names = ["EPMC frequency at a = 0.001", "EPMC damping at a = 0.001",
+             "EPMC damping at a = 0.003", "FRC peak amplitude, force x 2"]
+    err = np.array([[1e-3, 4e-2, np.inf, 2e-3],     # H = 1 failed: a = 3e-3 not reached
+                    [2e-4, 6e-3, 8e-3, 1e-3],       # H = 3
+                    [0.0, 0.0, 0.0, 0.0]])          # H = 5, the reference
+    lad = Ladder(Dial("harmonics", (1, 3, 5), 7), [tmp_path / f"h{k}.h5" for k in (1, 3, 5)],
+                 ["failed", "complete", "complete"],
+                 ["epmc: stopped at max_points = 200 before lam = -2.45", "", ""],
+                 wall_time_s=np.array([60.0, 80.0, 120.0]), quantity_names=names,
+                 quantity_units=["Hz", "1", "1", "m"], reference_values=np.ones(4),
+                 error=err, reference=2)
+    lad.recommended = _pick(lad.worst, 1e-2, np.array([s == "complete" for s in lad.status]))
+    assert lad.recommended == 1
+    ke = kind_errors(names, err[0])
+    assert (ke["frequency"], ke["damping"], ke["amplitude"]) == (1e-3, np.inf, 2e-3)
+    assert np.isnan(ke["share"])  # no share quantity
+    r = ConvergeResult("s.toml", 1e-2, [lad], {"harmonics": 3}, ("x=1",), err[1], names,
+                       80.0, 120.0, True, tmp_path)
+    text = table_text(r)
+    row = next(line for line in text.splitlines() if line.strip().startswith("1 "))
+    assert "FAILED (1 of 4 quantities not reached)" in row and "max_points = 200" in row
+    assert "4.00e-02" in row  # the largest error of what it reached
+    assert "<- recommended" in next(line for line in text.splitlines()
+                                    if line.strip().startswith("3 "))
+    write_h5(r, tmp_path / "c.h5")
+    with h5py.File(tmp_path / "c.h5", "r") as h5:
+        g = h5["converge/harmonics"]
+        assert g["status"][0].decode() == "failed"
+        assert "max_points" in g["message"][0].decode()
+        assert np.isinf(g["error"][0, 2]) and g["error"][0, 1] == 4e-2
+        assert g.attrs["reference"] == 2 and g.attrs["recommended"] == 1
 
 
 def test_bad_ladders_and_dials_name_the_option(scene_file, tmp_path):
@@ -192,3 +235,23 @@ def test_presets_order_work_and_error(scene_file, tmp_path):
     assert err[0] > err[1] > err[2], err
     assert err[1] < 1e-2 and err[2] < 1e-3, err
     assert set(PRESETS) == {"fast", "balanced", "reference"}
+
+
+def test_a_failed_run_of_the_same_scene_is_kept_not_rerun(scene_file, tmp_path):
+    """Runs are deterministic: converge reports a failed file of the same scene from
+    its attributes (message kept) and reruns a file of another scene."""
+    from jointsim.converge import _failed_before
+    from jointsim.sweep import Variant
+    ov = ("analysis.epmc.max_points=3",)   # the EPMC stops short: the run fails
+    f = tmp_path / "failed.h5"
+    with pytest.raises(RuntimeError, match="max_points"):
+        run_scene(load_scene(scene_file, list(ov)), f)
+    r = _failed_before(str(scene_file), Variant(4, ov, f))
+    assert r["status"] == "failed" and r["index"] == 4 and "max_points = 3" in r["message"]
+    assert _failed_before(str(scene_file), Variant(4, ("analysis.epmc.max_points=4",), f)) \
+        is None
+    assert _failed_before(str(scene_file), Variant(4, ov, tmp_path / "none.h5")) is None
+    # and its quantities are read: what the EPMC reached is finite, the rest NaN
+    q = {x.name: x.value for x in quantities(f, load_scene(scene_file))}
+    assert np.isfinite(q["FRC peak amplitude, force x 1"])
+    assert np.isnan(q["EPMC damping at a = 2"])
