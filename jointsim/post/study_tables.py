@@ -38,10 +38,17 @@ def _scene_label(h5) -> str:
     return "fixed N" if "fixed" in Path(str(h5.attrs.get("scene_path", ""))).stem else "coupled N"
 
 
-def results_rows(h5: h5py.File) -> list[str]:
-    """Rows of the README "Results" table for one scene (EPMC loop amplitudes)."""
+def results_rows(h5: h5py.File, label: str | None = None) -> list[str]:
+    """Rows of the README "Results" table for one scene (EPMC loop amplitudes).
+
+    ``label`` is the scene column (default "fixed N" or "coupled N" from the scene
+    file's name); a run that is not complete is marked with its status.
+    """
     sets = study.loop_points(h5, "epmc")
-    label = _scene_label(h5)
+    label = label or _scene_label(h5)
+    status = h5.attrs.get("status", "complete")
+    if status != "complete":
+        label = f"{label} (run {status})"
     rows = study.backbone_comparison(h5, sets.parameter)
     man, mas, n = study.manifold_fractions(sets)
     w = study.fraction_weights(h5, sets.loaded.shape[1]).get("area")
@@ -154,17 +161,31 @@ def seed_table(folder: Path) -> list[str]:
     return out
 
 
+def settings(h5: h5py.File) -> str:
+    """One line: the EPMC's harmonics and samples, the QSMA points and the run status."""
+    e = h5["epmc"]
+    hs = e["harmonics"][()].tolist() if "harmonics" in e else []
+    span = f"{hs[0]}..{hs[-1]} ({len(hs)})" if hs else "?"
+    q = h5["qsma/amplitude"].shape[0] if "qsma/amplitude" in h5 else "-"
+    return (f"{h5.filename}: EPMC harmonics {span}, Nt = {e.attrs.get('n_samples', '?')}; "
+            f"QSMA points {q}; status {h5.attrs.get('status', '?')}")
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(prog="python -m jointsim.post.study_tables",
                                 description=__doc__.splitlines()[0])
     p.add_argument("files", nargs="*", type=Path, help="lap-joint result files")
     p.add_argument("--seed", type=Path, help="folder of the seed Fig. 3 result files")
+    p.add_argument("--label", action="append", default=[],
+                   help="scene column of each file's rows, in order (default from the scene)")
     args = p.parse_args(argv)
+    labels = args.label + [None] * (len(args.files) - len(args.label))
     logging.basicConfig(level=logging.WARNING)
     blocks = []
-    for f in args.files:
+    for f, label in zip(args.files, labels):
         with h5py.File(f, "r") as h5:
-            blocks.append("\n".join(results_rows(h5)))
+            blocks.append(settings(h5))
+            blocks.append("\n".join(results_rows(h5, label)))
             blocks.append("\n".join(headline(h5)))
             blocks.append("\n".join(confusion_table(h5)))
             blocks.append("\n".join(control_table(h5)))
