@@ -26,14 +26,14 @@ REFRESH_ITERATIONS = 10
 #: is in floating-point operations (:attr:`HarmonicPreconditioner.build_flops`,
 #: :attr:`HarmonicPreconditioner.iteration_flops`); an iteration's flops are
 #: memory-bound products and count ``ITERATION_WEIGHT`` times (measured at 121
-#: contact pairs on one BLAS thread: build 0.25 s for 1.4e9 flops, one iteration
-#: 3.5 ms for 1.3e7).  Only a preconditioner that was (nearly) exact when fresh, at
+#: contact pairs, FRC at force scale 20, one BLAS thread: a build cost 42 GMRES
+#: iterations, 1.4 s against 33 ms at load 17, where the flop model says 107).  Only a preconditioner that was (nearly) exact when fresh, at
 #: most ``REFRESH_ITERATIONS`` iterations, is kept beyond ``REFRESH_ITERATIONS``:
 #: reusing a truncated one (50 iterations fresh in gross slip) was measured 2.2x
 #: more GMRES iterations and slower overall.  ``COST_REUSE = False`` restores the
 #: fixed threshold ``REFRESH_ITERATIONS``.
 COST_REUSE = True
-ITERATION_WEIGHT = 2.0
+ITERATION_WEIGHT = 2.5
 #: Largest threshold of the chord policy (GMRES iterations; below the restart length).
 REFRESH_MAX = 60
 
@@ -85,19 +85,29 @@ class PreconditionerCache:
         self.owner = None
         #: GMRES iterations the current preconditioner needed on its own Jacobian
         self.fresh_iterations = 0
+        #: the current one is kept for its own Jacobian only (weak even when fresh)
+        self.exclusive = False
 
     def get(self, jac, shift=None) -> tuple["HarmonicPreconditioner", bool]:
         """A preconditioner for ``jac`` and whether it was built from ``jac`` itself
         (``shift``: see :class:`HarmonicPreconditioner`; used when one is built)."""
-        if self.current is not None and (self.reuse or self.owner is jac):
-            return self.current, self.owner is jac
+        if self.current is not None and (self.owns(jac) or (self.reuse and not self.exclusive)):
+            return self.current, self.owns(jac)
         return self.refresh(jac, shift), True
+
+    def owns(self, jac) -> bool:
+        """Whether the current preconditioner was built from ``jac``'s pieces (``jac``
+        itself or a column-scaled copy of it)."""
+        o = self.owner
+        return o is not None and (o is jac or (o.blocks is jac.blocks and o.Juu is jac.Juu
+                                               and o.Jug is jac.Jug and o.JNN is jac.JNN))
 
     def refresh(self, jac, shift=None) -> "HarmonicPreconditioner":
         """Build the preconditioner of ``jac`` (with ``shift``) and keep it."""
         self.current = HarmonicPreconditioner(jac, shift)
         self.owner = jac
         self.fresh_iterations = 0
+        self.exclusive = False
         if jac.stats is not None:
             jac.stats.factorizations += 1
         return self.current
@@ -121,9 +131,18 @@ class PreconditionerCache:
                        REFRESH_MAX))
 
     def after_solve(self, iterations: int, fresh: bool) -> None:
+        """Keep or drop the current preconditioner after a solve with it.
+
+        One built from the Jacobian just solved stays for that Jacobian's further
+        solves (bordered, tangent, the indicators' two) even when it needed more
+        than :meth:`threshold` iterations; it is then not offered to other
+        Jacobians.  A reused one that needed more is dropped.
+        """
         if fresh:
             self.fresh_iterations = max(self.fresh_iterations, int(iterations))
-        if iterations > self.threshold():
+            if iterations > self.threshold():
+                self.exclusive = True
+        elif iterations > self.threshold():
             self.current = None
             self.owner = None
 
