@@ -35,9 +35,9 @@ turning points.
 
 The preconditioner is reused across Newton iterations and continuation
 steps through a :class:`~jointsim.solvers.preconditioner.PreconditionerCache` owned by the system (an
-explicit object, not module state): it is rebuilt when a solve needed more
-than ``refresh_iterations`` GMRES iterations, or when GMRES fails with the
-old one within twice that.  Every solve is counted in a :class:`LinearStats`.
+explicit object, not module state) while that pays by its flop cost model
+(:meth:`~jointsim.solvers.preconditioner.PreconditionerCache.threshold`), and
+rebuilt when GMRES fails with the old one within that budget.  Every solve is counted in a :class:`LinearStats`.
 
 :func:`solve`, :func:`append_row`, :func:`drop_last_column` and
 :func:`scale_columns` work on dense arrays and on these objects alike; the
@@ -124,6 +124,12 @@ def gmres(matvec, b, psolve, rtol: float = KRYLOV_RTOL, restart: int = KRYLOV_RE
     iterations : int
     relres : float
         ``|b - A x| / |b|``.
+
+    Notes
+    -----
+    Besides ``rtol`` and ``maxiter`` it stops when a restart cycle reduced the
+    true residual by less than ``1 / STAGNATION`` (the residual floor of an
+    ill-conditioned system); ``relres`` then tells the caller how far it got.
     """
     n = b.size
     bn = float(np.linalg.norm(b))
@@ -394,9 +400,11 @@ def add_element_blocks(J, nr, nc, t_row, n_row, Juu, Jug, JNN):
 def krylov_solve(core: HBMJacobian, matvec, b, make_psolve, shift=None):
     """GMRES for ``A x = b`` with the preconditioner of ``core`` (cached or rebuilt).
 
-    A reused preconditioner gets ``2 threshold`` GMRES iterations
-    (:meth:`PreconditionerCache.threshold`); when they do not suffice the solve
-    is repeated with one built from ``core``.  Raises ``RuntimeError`` when GMRES
+    A reused preconditioner gets :meth:`PreconditionerCache.budget` GMRES
+    iterations; when they do not suffice the solve is repeated with one built
+    from ``core`` (with ``shift``, see
+    :class:`~jointsim.solvers.preconditioner.HarmonicPreconditioner`).  GMRES
+    stops at ``core.rtol`` or when a restart cycle stagnates (:func:`gmres`).  Raises ``RuntimeError`` when GMRES
     does not reach
     ``KRYLOV_RTOL`` and reduces the residual by less than ``1e-6`` (Newton
     treats that as a singular Jacobian).
