@@ -30,9 +30,11 @@ REFRESH_ITERATIONS = 10
 #: iterations, 1.4 s against 33 ms at load 17, where the flop model says 107).  Only a preconditioner that was (nearly) exact when fresh, at
 #: most ``REFRESH_ITERATIONS`` iterations, is kept beyond ``REFRESH_ITERATIONS``:
 #: reusing a truncated one (50 iterations fresh in gross slip) was measured 2.2x
-#: more GMRES iterations and slower overall.  ``COST_REUSE = False`` restores the
-#: fixed threshold ``REFRESH_ITERATIONS``.
-COST_REUSE = True
+#: more GMRES iterations and slower overall.  Off by default: measured side by
+#: side at 121 pairs and load 1, the first 15 EPMC points took 19.1 s with it
+#: against 12.8 s with the fixed threshold ``REFRESH_ITERATIONS`` (1,705 vs 547
+#: GMRES iterations, 3 vs 16 builds); the FRC at force scale 2 lost too.
+COST_REUSE = False
 ITERATION_WEIGHT = 2.5
 #: Largest threshold of the chord policy (GMRES iterations; below the restart length).
 REFRESH_MAX = 60
