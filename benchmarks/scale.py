@@ -12,7 +12,7 @@ through ``jointsim.run.run_scene`` in a fresh process per case (so the peak
 resident memory is that case's), once with ``linear_solver = "krylov"`` and,
 while the dense path's estimated time stays below ``--dense-limit`` seconds,
 once with ``"direct"``.  Printed per case: unknowns, Newton iterations, GMRES
-iterations, time per point (analysis time / points) of both paths, their
+iterations, preconditioner builds, time per point (analysis time / points) of both paths, their
 ratio, the largest relative difference of ``X`` between the two paths over
 the points they placed at the same frequency (FRC) or amplitude (EPMC), with
 how many those are, and peak memory; then the fitted exponent ``p`` of
@@ -88,6 +88,7 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str) -> dict:
                     points=int(g.attrs["n_points"]),
                     newton=int(f[f"{analysis}/iterations"][()].sum()),
                     krylov=int(f[f"{analysis}/krylov_iterations"][()].sum()),
+                    builds=int(f[f"{analysis}/preconditioners"][()].sum()),
                     X=f[f"{analysis}/X"][()].tolist(),
                     # the continuation parameter of each point (frequency or amplitude)
                     lam=f[f"{analysis}/{'omega' if analysis == 'hbm' else 'amplitude'}"][()]
@@ -130,7 +131,7 @@ def main(argv=None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for analysis in a.analyses:
             print(f"\n{analysis.upper()}: {a.points} points per branch")
-            print(f"{'n_e':>5} {'n_z':>6} {'pts':>4} {'Newton':>6} {'GMRES':>6} "
+            print(f"{'n_e':>5} {'n_z':>6} {'pts':>4} {'Newton':>6} {'GMRES':>6} {'builds':>6} "
                   f"{'krylov s/pt':>11} {'dense s/pt':>10} {'ratio':>6} {'max dX':>8} "
                   f"{'MB krylov':>9} {'MB dense':>8}", flush=True)
             sizes, tpp = [], []
@@ -159,7 +160,7 @@ def main(argv=None) -> None:
                 sizes.append(n)
                 tpp.append(kt)
                 print(f"{n:>5} {k['n_z']:>6} {k['points']:>4} {k['newton']:>6} "
-                      f"{k['krylov']:>6} {kt:>11.3f} {dt:>10.3f} {dt / kt:>6.2f} {dx:>8.1e} "
+                      f"{k['krylov']:>6} {k['builds']:>6} {kt:>11.3f} {dt:>10.3f} {dt / kt:>6.2f} {dx:>8.1e} "
                       f"{k['rss_mb']:>9.0f} {d['rss_mb'] if d else np.nan:>8.0f}{same}", flush=True)
             sel = [i for i, n in enumerate(sizes) if n >= 57]
             if len(sel) >= 2:

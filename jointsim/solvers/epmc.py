@@ -173,7 +173,9 @@ class EPMCSystem:
         D = np.array([[d["omega"].real, d["xi"].real, 0.0],
                       [d["omega"].imag, d["xi"].imag, 0.0]])
         if structured:
-            return R, BorderedJacobian(ev.J, C, rows, D), ev
+            # the amplitude and phase rows deflate the mode from the preconditioner
+            i1 = list(s.basis.harmonics).index(1)
+            return R, BorderedJacobian(ev.J, C, rows, D, deflate=(i1, ell)), ev
         J[:nz, nz:] = C
         J[nz:, :nz] = rows
         J[nz:, nz:] = D

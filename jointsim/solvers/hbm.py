@@ -27,7 +27,7 @@ import numpy as np
 from ..harmonics import HarmonicBasis, harmonic_amplitude
 from .aft import AFT, AFTResult
 from .condensation import ReducedLinear, dense_array
-from .jacobian import (KRYLOV_MIN_UNKNOWNS, LINEAR_SOLVERS, HBMJacobian, LinearStats,
+from .jacobian import (KRYLOV_MIN_UNKNOWNS, KRYLOV_RTOL, LINEAR_SOLVERS, HBMJacobian, LinearStats,
                        add_element_blocks, solve)
 from .preconditioner import PreconditionerCache
 from .newton import NewtonOptions, newton
@@ -123,6 +123,8 @@ class HBMSystem:
         self.krylov = linear_solver == "krylov"
         self.stats = LinearStats()
         self.preconditioner = PreconditionerCache()
+        #: GMRES tolerance of the Krylov path's solves (relative residual)
+        self.krylov_rtol = KRYLOV_RTOL
         log.info("HBM system: %d DOFs condensed onto %d contact coordinates x %d "
                  "coefficients = %d unknowns (%s condensation, %s linear solver)",
                  model.n_dof, nr, self.n_c, self.n_z, self.lin.kind, self.linear_solver)
@@ -261,7 +263,7 @@ class HBMSystem:
                             aft.Jug if (aft is not None and self.friction and self.coupled)
                             else None,
                             aft.JNN if (aft is not None and self.coupled) else None,
-                            stats=self.stats, cache=self.preconditioner)
+                            stats=self.stats, cache=self.preconditioner, rtol=self.krylov_rtol)
         return Evaluation(R=R.ravel(), J=J, dR={p: v.ravel() for p, v in dR.items()}, aft=aft)
 
     def _add_element_blocks(self, J, aft):

@@ -66,6 +66,8 @@ log = logging.getLogger(__name__)
 
 #: factor from the change N_t -> sample_factor N_t to the error of N_t
 ALIAS_RICHARDSON = 1.0
+#: GMRES tolerance (relative residual) of the extended solves on the Krylov path.
+INDICATOR_RTOL = 1e-6
 
 
 @dataclass
@@ -128,10 +130,11 @@ class ErrorEstimator:
                              linear_solver="krylov" if system.krylov else "direct") \
             if system.n_z else None
         if self.ext is not None:
-            # each point is a new Jacobian far from the last one: a preconditioner kept
-            # from the last point fails its GMRES budget (20 iterations) and is rebuilt
-            # anyway, so build each point's own (its two solves share it)
-            self.ext.preconditioner.reuse = False
+            # an estimate needs a few digits, not 1e-11: GMRES stops at INDICATOR_RTOL
+            # (changes the indicators by about that, relative); the preconditioner is
+            # kept from point to point while that is cheaper than building a new one
+            # (the cost model of PreconditionerCache)
+            self.ext.krylov_rtol = INDICATOR_RTOL
         self._kept = system.basis.hk > 0
 
     # -- helpers ----------------------------------------------------------------

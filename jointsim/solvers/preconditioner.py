@@ -18,10 +18,27 @@ import scipy.linalg as sla
 
 log = logging.getLogger(__name__)
 
-#: GMRES iterations above which a reused preconditioner is rebuilt (with the low-rank
-#: correction a fresh one is exact: one iteration; a build costs about as much as
-#: ten iterations at 120 elements).
+#: GMRES iterations above which a reused preconditioner is always allowed to be
+#: rebuilt (the least threshold of :meth:`PreconditionerCache.threshold`).
 REFRESH_ITERATIONS = 10
+#: Chord policy: a reused preconditioner is kept while the GMRES iterations it costs
+#: beyond those it needed when fresh are cheaper than a new build.  The cost model
+#: is in floating-point operations (:attr:`HarmonicPreconditioner.build_flops`,
+#: :attr:`HarmonicPreconditioner.iteration_flops`); an iteration's flops are
+#: memory-bound products and count ``ITERATION_WEIGHT`` times (measured at 121
+#: contact pairs, FRC at force scale 20, one BLAS thread: a build cost 42 GMRES
+#: iterations, 1.4 s against 33 ms at load 17, where the flop model says 107).  Only a preconditioner that was (nearly) exact when fresh, at
+#: most ``REFRESH_ITERATIONS`` iterations, is kept beyond ``REFRESH_ITERATIONS``:
+#: reusing a truncated one (50 iterations fresh in gross slip) was measured 2.2x
+#: more GMRES iterations and slower overall.  Off by default: measured side by
+#: side at 121 pairs and load 1, the first 15 EPMC points took 19.1 s with it
+#: against 12.8 s with the fixed threshold ``REFRESH_ITERATIONS`` (1,705 vs 547
+#: GMRES iterations, 3 vs 16 builds); the FRC at force scale 2 lost too.
+COST_REUSE = False
+ITERATION_WEIGHT = 2.5
+#: Largest threshold of the chord policy (GMRES iterations; below the restart length).
+REFRESH_MAX = 60
+
 #: Add the element-block stage to the harmonic preconditioner (when its low-rank
 #: correction is truncated or off).
 TWO_STAGE = True
@@ -34,48 +51,100 @@ LOWRANK = True
 LOWRANK_MAX_FRACTION = 0.35
 LOWRANK_MAX = 3000
 LOWRANK_MIN = 600
+#: Elements whose harmonic coupling ``|L_e|`` is below this fraction of the largest
+#: tangent entry are left out of the low-rank stage (in the stuck range the AFT's
+#: round-off, about 1e-12, used to fill it: 1,260 coordinates at 121 pairs).
+LOWRANK_NEGLIGIBLE = 1e-9
 
 
 class PreconditionerCache:
-    """The harmonic preconditioner in use, shared by successive Jacobians.
+    """The harmonic preconditioner in use, shared by successive Jacobians (chord reuse).
+
+    A preconditioner built from one Jacobian is reused for the next ones (Newton
+    iterations, continuation steps, the tangent and the error indicators of a
+    point) as long as it pays: it is dropped when a solve needs more GMRES
+    iterations than :meth:`threshold`, i.e. when the iterations it costs beyond
+    those it needed on its own Jacobian would have paid for a new build
+    (``COST_REUSE``; at least ``REFRESH_ITERATIONS``, at most ``REFRESH_MAX``).
 
     Parameters
     ----------
     refresh_iterations : int
-        A solve that needed more GMRES iterations than this drops the cached
-        preconditioner (the next solve builds a new one from its Jacobian).  (Keeping
-        a truncated one that needed many iterations when fresh was measured worse:
-        it is then kept where a new one would be exact.)
+        Least threshold (GMRES iterations).
     reuse : bool
         False: build a new preconditioner for every Jacobian.
+    cost_reuse : bool, optional
+        Use the cost model (default ``COST_REUSE``); False: the fixed threshold
+        ``refresh_iterations``.
     """
 
-    def __init__(self, refresh_iterations: int = REFRESH_ITERATIONS, reuse: bool = True):
+    def __init__(self, refresh_iterations: int = REFRESH_ITERATIONS, reuse: bool = True,
+                 cost_reuse: bool | None = None):
         self.refresh_iterations = int(refresh_iterations)
         self.reuse = bool(reuse)
+        self.cost_reuse = COST_REUSE if cost_reuse is None else bool(cost_reuse)
         self.current = None
         self.owner = None
+        #: GMRES iterations the current preconditioner needed on its own Jacobian
+        self.fresh_iterations = 0
+        #: the current one is kept for its own Jacobian only (weak even when fresh)
+        self.exclusive = False
 
-    def get(self, jac) -> tuple["HarmonicPreconditioner", bool]:
-        """A preconditioner for ``jac`` and whether it was built from ``jac`` itself."""
-        if self.current is not None and (self.reuse or self.owner is jac):
-            return self.current, self.owner is jac
-        return self.refresh(jac), True
+    def get(self, jac, shift=None) -> tuple["HarmonicPreconditioner", bool]:
+        """A preconditioner for ``jac`` and whether it was built from ``jac`` itself
+        (``shift``: see :class:`HarmonicPreconditioner`; used when one is built)."""
+        if self.current is not None and (self.owns(jac) or (self.reuse and not self.exclusive)):
+            return self.current, self.owns(jac)
+        return self.refresh(jac, shift), True
 
-    def refresh(self, jac) -> "HarmonicPreconditioner":
-        """Build the preconditioner of ``jac`` and keep it."""
-        self.current = HarmonicPreconditioner(jac)
+    def owns(self, jac) -> bool:
+        """Whether the current preconditioner was built from ``jac``'s pieces (``jac``
+        itself or a column-scaled copy of it)."""
+        o = self.owner
+        return o is not None and (o is jac or (o.blocks is jac.blocks and o.Juu is jac.Juu
+                                               and o.Jug is jac.Jug and o.JNN is jac.JNN))
+
+    def refresh(self, jac, shift=None) -> "HarmonicPreconditioner":
+        """Build the preconditioner of ``jac`` (with ``shift``) and keep it."""
+        self.current = HarmonicPreconditioner(jac, shift)
         self.owner = jac
+        self.fresh_iterations = 0
+        self.exclusive = False
         if jac.stats is not None:
             jac.stats.factorizations += 1
         return self.current
 
+    def budget(self) -> int:
+        """GMRES iterations a reused preconditioner gets before it is rebuilt."""
+        return self.threshold() if self.cost_reuse else 2 * self.threshold()
+
     def threshold(self) -> int:
-        """GMRES iterations above which the preconditioner is dropped."""
-        return self.refresh_iterations
+        """GMRES iterations above which the preconditioner is dropped.
+
+        With the cost model: the iterations it needed when fresh plus the number of
+        iterations a build costs (``build_flops / iteration_flops``).
+        """
+        if not self.cost_reuse or self.current is None \
+                or self.fresh_iterations > self.refresh_iterations:
+            return self.refresh_iterations
+        P = self.current
+        extra = P.build_flops / max(ITERATION_WEIGHT * P.iteration_flops, 1.0)
+        return int(min(max(self.fresh_iterations + extra, self.refresh_iterations),
+                       REFRESH_MAX))
 
     def after_solve(self, iterations: int, fresh: bool) -> None:
-        if iterations > self.threshold():
+        """Keep or drop the current preconditioner after a solve with it.
+
+        One built from the Jacobian just solved stays for that Jacobian's further
+        solves (bordered, tangent, the indicators' two) even when it needed more
+        than :meth:`threshold` iterations; it is then not offered to other
+        Jacobians.  A reused one that needed more is dropped.
+        """
+        if fresh:
+            self.fresh_iterations = max(self.fresh_iterations, int(iterations))
+            if iterations > self.threshold():
+                self.exclusive = True
+        elif iterations > self.threshold():
             self.current = None
             self.owner = None
 
@@ -96,10 +165,19 @@ class HarmonicPreconditioner:
     ----------
     jac : jointsim.solvers.jacobian.HBMJacobian
         The Jacobian it is built from (its unscaled pieces).
+    shift : tuple (i, u, ell), optional
+        Precondition ``J + C2 R2`` instead of ``J``: a complex rank-one term
+        ``sigma u ell^T`` (``u``, ``ell`` complex (n_r,)) added to the block of the
+        ``i``-th harmonic, ``sigma`` scaling it to the block's largest diagonal entry.
+        In real coordinates it is ``C2 R2`` with ``R2`` the rows ``Re``, ``Im`` of
+        ``ell^T (X_c - i X_s)`` and ``C2`` (n_z, 2), kept as ``self.C2``.  The
+        bordered EPMC solve uses it where ``J`` itself is singular (the linear range:
+        the mode is its null vector), see :class:`~jointsim.solvers.jacobian.BorderedJacobian`.
     """
 
-    def __init__(self, jac):
+    def __init__(self, jac, shift=None):
         self.jac = jac
+        self.C2 = None
         blocks = []
         t, n = jac.t_row, jac.n_row
         for i, h in enumerate(jac.basis.harmonics):
@@ -111,6 +189,8 @@ class HarmonicPreconditioner:
                 P[t, n] += _project(jac.Jug, ic, is_, h)
             if jac.JNN is not None:
                 P[n, n] -= _project(jac.JNN, ic, is_, h)
+            if shift is not None and shift[0] == i:
+                P = P + self._rank_one(P, i, shift[1], shift[2])
             blocks.append(P)
         # explicit inverses, stacked (n_h, n_r, n_r): one batched product per
         # application, and the (R, R) rows and columns the low-rank stage needs
@@ -122,12 +202,63 @@ class HarmonicPreconditioner:
         self.Pinv[jac._h0] = self.Pinv[jac._h0].real
         self.lowrank = None
         self.truncated = True
+        # coordinates of one element's block (its slip and gap rows, all coefficients)
+        self.Tdim = jac.n_c * ((1 if jac.Juu is not None else 0)
+                               + (1 if jac.JNN is not None else 0) or 1)
         if LOWRANK:
             self._lowrank()
         if TWO_STAGE and self.truncated:
             self._element_blocks()
         else:
             self.Binv = None
+        self._count_flops()
+
+    def _count_flops(self):
+        """The cost model of the chord policy (:class:`PreconditionerCache`).
+
+        ``build_flops``: the ``H + 1`` complex inverses (``8 n_r^3`` each), the
+        low-rank LU (``2/3 m^3``) and its ``G L`` product (``2 m^2 d``), the element
+        blocks (``2 n_e d^3``).  ``iteration_flops``: one GMRES iteration, i.e. one
+        application (two harmonic solves with the low-rank stage, ``8 n_r^2`` per
+        harmonic each, its triangular solves ``2 m^2``; the element-block stage adds a
+        product with ``J``), one product with ``J`` and the orthogonalisation
+        (``4 n_z`` times an average Krylov dimension of 20).
+        """
+        jac = self.jac
+        nh, nr, nz = len(jac.basis.harmonics), jac.n_r, jac.n_z
+        ne = len(jac.t_row)
+        d = self.Tdim
+        matvec = 8.0 * nh * nr ** 2 + 6.0 * ne * jac.n_c ** 2
+        build = 8.0 * nh * nr ** 3
+        apply = 8.0 * nh * nr ** 2
+        if self.lowrank is not None:
+            m = float(self.lowrank[3][0].shape[0])
+            build += 2.0 / 3.0 * m ** 3 + 2.0 * m * m * d
+            apply = 2.0 * apply + 2.0 * m * m + 2.0 * self.lowrank[2].shape[0] * d * d
+        if self.Binv is not None:
+            build += 2.0 * ne * d ** 3
+            apply += matvec + 2.0 * ne * d * d
+        self.build_flops = build
+        self.iteration_flops = apply + matvec + 4.0 * nz * 20
+
+    def _rank_one(self, P, i, u, ell):
+        """``sigma u ell^T`` for the ``i``-th harmonic block ``P``; sets ``self.C2``."""
+        jac = self.jac
+        u = np.asarray(u, dtype=complex)
+        ell = np.asarray(ell, dtype=complex)
+        un, ln = float(np.linalg.norm(u)), float(np.linalg.norm(ell))
+        scale = float(np.abs(np.diag(P)).max(initial=0.0))
+        if un == 0.0 or ln == 0.0 or scale == 0.0:
+            return np.zeros_like(P)
+        su = (scale / (un * ln)) * u
+        nr = jac.n_r
+        C2 = np.zeros((jac.n_c, nr, 2))
+        for k, y in enumerate((su, 1j * su)):      # embed(y): cos rows Re y, sin rows -Im y
+            C2[jac._ic[i], :, k] = y.real
+            if not jac._h0[i]:
+                C2[jac._is[i], :, k] = -y.imag
+        self.C2 = C2.reshape(jac.n_z, 2)
+        return np.outer(su, ell)
 
     def _element_tangent(self):
         """Each element's own contact tangent (slip and gap rows over all coefficients,
@@ -191,8 +322,9 @@ class HarmonicPreconditioner:
                     Lk[:, a * nc + is_, b * nc + is_] -= p.real
         norm = np.sqrt(np.einsum("eij,eij->e", Lk, Lk))
         ref = max(float(np.abs(Tk).max(initial=0.0)), 1e-300)
-        # 1e-13 of the largest tangent entry: below, the correction is round-off
-        sel = np.flatnonzero(norm > 1e-13 * ref)
+        # below LOWRANK_NEGLIGIBLE of the largest tangent entry the correction is
+        # round-off of the AFT (or changes GMRES by an iteration at most)
+        sel = np.flatnonzero(norm > LOWRANK_NEGLIGIBLE * ref)
         cap = int(min(max(LOWRANK_MAX_FRACTION * jac.n_z, LOWRANK_MIN), LOWRANK_MAX)) \
             // (nb * nc)
         self.truncated = sel.size > cap

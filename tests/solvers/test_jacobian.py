@@ -166,3 +166,55 @@ def test_krylov_path_equals_direct_path_on_the_coarse_lap_joint():
     for Xd, Xk in zip(bd + pd, bk + pk):
         assert np.abs(Xd - Xk).max() <= 1e-8 * np.abs(Xd).max()
     assert itd == itk and max(itd) > 2          # nonlinear points, same Newton path
+
+
+def test_krylov_epmc_in_the_linear_range_of_the_coarse_lap_joint(tmp_path, monkeypatch):
+    """EPMC from the stuck (linear) range, where ``dR/dz`` is singular (the mode is its
+    null vector): the bordered solve with the deflated preconditioner converges in a
+    few GMRES iterations per solve and gives the dense path's points to 1e-8 in X."""
+    import jointsim.solvers.jacobian as jm
+    per_solve, bordered = [], []
+    orig, orig_solve = jm.gmres, BorderedJacobian.solve
+
+    def counting(*args, **kw):
+        out = orig(*args, **kw)
+        per_solve.append(out[1])
+        return out
+
+    def keep(self, b):
+        bordered.append((self, b))
+        return orig_solve(self, b)
+    monkeypatch.setattr(jm, "gmres", counting)
+    monkeypatch.setattr(BorderedJacobian, "solve", keep)
+    X = {}
+    for solver in ("direct", "krylov"):
+        sc = lap_scene(ROOT / "models" / "lap_joint.toml", ("modes", "epmc"),
+                       ["analysis.epmc.max_points=5", "analysis.epmc.loop_amplitudes=[]",
+                        "analysis.epmc.error_indicators=false",
+                        f"analysis.epmc.linear_solver='{solver}'"])
+        try:
+            run_scene(sc, tmp_path / f"{solver}.h5")
+        except RuntimeError:
+            pass                                  # max_points: the points are kept
+        with h5py.File(tmp_path / f"{solver}.h5", "r") as f:
+            assert f["epmc"].attrs["linear_solver"] == solver
+            X[solver] = f["epmc/X"][()]
+    assert X["direct"].shape == X["krylov"].shape and len(X["krylov"]) >= 5
+    scale = np.abs(X["direct"]).max()
+    assert np.abs(X["direct"] - X["krylov"]).max() <= 1e-8 * scale
+    # without the deflation the first solves took the 400-iteration limit (121 pairs)
+    assert per_solve and max(per_solve) <= 40
+    # the mechanism, on the first bordered system: J's harmonic-1 block is singular to
+    # round-off, the shifted one is well conditioned, and the solve is the dense one
+    A, b = bordered[0]
+    i1, ell = A.deflate
+    J = A.J
+    c = A.C[:, 0].reshape(J.n_c, J.n_r)
+    u = c[J._ic[i1]] - 1j * c[J._is[i1]]
+    plain = HarmonicPreconditioner(J)
+    shifted = HarmonicPreconditioner(J, (i1, u, ell))
+    assert np.linalg.cond(plain.Pinv[i1]) > 1e12
+    assert np.linalg.cond(shifted.Pinv[i1]) < 1e8
+    x = orig_solve(A, b)
+    xd = np.linalg.solve(A.to_dense(), b)
+    assert np.abs(x - xd).max() <= 1e-6 * np.abs(xd).max()
