@@ -74,9 +74,17 @@ def plot_masing_study(h5: h5py.File, outdir: Path) -> list[Path]:
     x_label = "interface position x [mm]" if "contacts/position" in h5 else "element"
     xs = 1e3 * x if "contacts/position" in h5 else x
     order = np.argsort(xs)
-    out = []
+    tol = float(h5[f"{prefix}/masing" if prefix else "masing"].attrs.get("tol", 0.01))
+    out = [_deviation_map(plt, sets, xs, order, x_label, tol, outdir),
+           _fraction_plot(plt, h5, prefix, sets, tol, outdir)]
+    loops = _element_loops(plt, h5, prefix, sets, x, xs, units, outdir)
+    return out + ([loops] if loops is not None else [])
 
-    # deviation against position, one curve per loop set
+
+def _deviation_map(plt, sets, xs, order, x_label, tol, outdir) -> Path:
+    """Deviation of each loaded element from its manifold and from classical Masing
+    against its position, one curve per loop set."""
+    n_sets = sets.dev_manifold.shape[0]
     fig, axes = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
     cmap = plt.get_cmap("viridis")
     for i in range(n_sets):
@@ -85,7 +93,6 @@ def plot_masing_study(h5: h5py.File, outdir: Path) -> list[Path]:
         for ax, dev in zip(axes, (sets.dev_manifold, sets.dev_masing)):
             d = np.where(sets.loaded[i], dev[i], np.nan)[order]
             ax.semilogy(xs[order], np.maximum(d, 1e-17), "o-", ms=3, lw=1, color=c, label=lab)
-    tol = float(h5[f"{prefix}/masing" if prefix else "masing"].attrs.get("tol", 0.01))
     for ax, name in zip(axes, ("dev_manifold", "dev_masing (classical, mean N)")):
         ax.axhline(tol, color="k", ls="--", lw=0.8, label=f"tol = {tol:g}")
         ax.set_ylabel(name)
@@ -98,9 +105,14 @@ def plot_masing_study(h5: h5py.File, outdir: Path) -> list[Path]:
     p = outdir / "deviation_map.png"
     fig.savefig(p, dpi=130)
     plt.close(fig)
-    out.append(p)
+    return p
 
-    # fraction on the manifold against amplitude
+
+
+def _fraction_plot(plt, h5, prefix, sets, tol, outdir) -> Path:
+    """Shares of loaded elements on their manifold and on classical Masing against
+    amplitude (count and weighted), with the control and the clipped share."""
+    ne = sets.dev_manifold.shape[1]
     man, mas, n = study.manifold_fractions(sets)
     fig, ax = plt.subplots(figsize=(7, 4))
     ax.semilogx(sets.parameter, man, "o-", color="C0", label="on its Masing manifold (count)")
@@ -130,9 +142,14 @@ def plot_masing_study(h5: h5py.File, outdir: Path) -> list[Path]:
     p = outdir / "manifold_fraction.png"
     fig.savefig(p, dpi=130)
     plt.close(fig)
-    out.append(p)
+    return p
 
-    # loops of chosen elements at the largest amplitude, in 3D on their manifolds
+
+
+def _element_loops(plt, h5, prefix, sets, x, xs, units, outdir) -> Path | None:
+    """Loops of three chosen elements at the largest amplitude, in 3D on their
+    manifolds (the heaviest, the worst and the outermost); None without a loaded one."""
+    n_sets, ne = sets.dev_manifold.shape
     from .plots import _loop_axes
     law = law_from_file(h5, n_elements=ne)
     i = n_sets - 1
@@ -159,8 +176,8 @@ def plot_masing_study(h5: h5py.File, outdir: Path) -> list[Path]:
         p = outdir / "element_loops.png"
         fig.savefig(p, dpi=110)
         plt.close(fig)
-        out.append(p)
-    return out
+        return p
+    return None
 
 
 def study_section(h5) -> str:

@@ -127,3 +127,9 @@ def test_coupled_normal_load_departs_from_the_manifold(tmp_path):
     n_on = int((sets.on_manifold & m).sum())
     assert total.split("|")[2].strip().split()[0] == (str(n_on) if n_on else "-")
     assert "Third column" in text
+    from jointsim.post.study_plots import plot_masing_study
+    with h5py.File(out, "r") as h5:
+        figs = plot_masing_study(h5, tmp_path)
+    assert [p.name for p in figs] == ["deviation_map.png", "manifold_fraction.png",
+                                      "element_loops.png"]
+    assert all(p.stat().st_size > 10_000 for p in figs)
