@@ -171,9 +171,8 @@ def test_at_constant_normal_load_the_manifold_aft_is_the_anchor_aft(name):
     np.testing.assert_allclose(Jm, Ja, rtol=0, atol=1e-10 * np.abs(Ja).max())
 
 
-@pytest.mark.slow
-def test_constant_n_frc_with_the_manifold_law_is_the_anchor_frc(tmp_path):
-    """models/hbm/chain2_jenkins.toml, three force levels: the same FRC to 1e-10."""
+def _anchor_and_manifold_runs(scene_file, tmp_path, read) -> dict:
+    """``read(h5)`` of the scene's result file with each reversal law, by law."""
     import h5py
 
     from jointsim.run import run_scene
@@ -181,14 +180,25 @@ def test_constant_n_frc_with_the_manifold_law_is_the_anchor_frc(tmp_path):
 
     data = {}
     for rev in ("anchor", "manifold"):
-        scene = load_scene("models/hbm/chain2_jenkins.toml", [f'joint.reversal="{rev}"'])
-        run_scene(scene, tmp_path / f"{rev}.h5")
-        with h5py.File(tmp_path / f"{rev}.h5") as h5:
-            br = h5["hbm/branch"][()]
-            # rows of the branches interleave when they run in parallel
-            order = np.lexsort((np.arange(br.size), br))
-            data[rev] = {k: h5["hbm/" + k][()][order] for k in ("branch", "omega", "X")}
-            data[rev]["peaks"] = h5["hbm/peak_amplitude"][()]
+        out = run_scene(load_scene(scene_file, [f'joint.reversal="{rev}"']),
+                        tmp_path / f"{rev}.h5")
+        with h5py.File(out) as h5:
+            data[rev] = read(h5)
+    return data
+
+
+@pytest.mark.slow
+def test_constant_n_frc_with_the_manifold_law_is_the_anchor_frc(tmp_path):
+    """models/hbm/chain2_jenkins.toml, three force levels: the same FRC to 1e-10."""
+    def read(h5):
+        br = h5["hbm/branch"][()]
+        # rows of the branches interleave when they run in parallel
+        order = np.lexsort((np.arange(br.size), br))
+        d = {k: h5["hbm/" + k][()][order] for k in ("branch", "omega", "X")}
+        d["peaks"] = h5["hbm/peak_amplitude"][()]
+        return d
+
+    data = _anchor_and_manifold_runs("models/hbm/chain2_jenkins.toml", tmp_path, read)
     a, m = data["anchor"], data["manifold"]
     np.testing.assert_array_equal(a["branch"], m["branch"])
     for k in ("omega", "X", "peaks"):
@@ -198,16 +208,8 @@ def test_constant_n_frc_with_the_manifold_law_is_the_anchor_frc(tmp_path):
 @pytest.mark.slow
 def test_constant_n_epmc_with_the_manifold_law_is_the_anchor_epmc(tmp_path):
     """models/hbm/sdof_jenkins_epmc.toml: the EPMC backbone of both laws to 1e-10."""
-    import h5py
-
-    from jointsim.run import run_scene
-    from jointsim.scene import load_scene
-
-    data = {}
-    for rev in ("anchor", "manifold"):
-        scene = load_scene("models/hbm/sdof_jenkins_epmc.toml", [f'joint.reversal="{rev}"'])
-        run_scene(scene, tmp_path / f"{rev}.h5")
-        with h5py.File(tmp_path / f"{rev}.h5") as h5:
-            data[rev] = {k: h5["epmc/" + k][()] for k in ("omega", "amplitude", "damping_ratio")}
+    data = _anchor_and_manifold_runs(
+        "models/hbm/sdof_jenkins_epmc.toml", tmp_path,
+        lambda h5: {k: h5["epmc/" + k][()] for k in ("omega", "amplitude", "damping_ratio")})
     for k, a in data["anchor"].items():
         np.testing.assert_allclose(data["manifold"][k], a, rtol=0, atol=1e-10 * np.abs(a).max())
