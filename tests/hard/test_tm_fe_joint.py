@@ -40,6 +40,25 @@ def _first(X, H=7):
     return X[list(coefficient_index(tuple(range(H + 1)), 1))]
 
 
+def _march_and_refined_hbm(sc, model, omega):
+    """The steady march of ``sc`` and the converged HBM (H = 0..63, 4,096 samples)
+    started from it at ``omega``; their built-in cross-check (tol 1e-3)."""
+    res = march_steady(model, sc.analysis.transient, scene=sc, progress=False)
+    assert res.convergence.success, res.convergence.message
+    hs = tuple(range(64))
+    system = HBMSystem(model, hs, 4096)
+    X0 = np.zeros((2 * len(hs) - 1, model.n_dof))
+    X0[:res.X.shape[0]] = res.X
+    sol = solve_point(system, omega, system.force_coefficients(2.0),
+                      z0=system.contact_coordinates(X0), tol=1e-10, max_iter=40)
+    assert sol.convergence.success, sol.convergence.message
+    n = sc.analysis.transient.steps_per_period
+    cc = cross_check(res.X, sc.analysis.transient.harmonics, sol.X, hs, model=model,
+                     loops=(res.last.f[:, :n], res.last.N[:, :n]), tol=1e-3,
+                     step_error=res.step_error)
+    return res, cc
+
+
 @pytest.mark.slow
 def test_fe_joint_march_agrees_with_converged_hbm_at_refined_settings():
     """The refinement path of docs/transient.md: 1,024 steps per period, the
@@ -48,20 +67,7 @@ def test_fe_joint_march_agrees_with_converged_hbm_at_refined_settings():
     samples; H = 0..31 is 3e-4 from it).  The built-in cross-check says agree
     within 1e-3."""
     sc = _scene("lap_joint_default.msh", 1024)
-    model = _damped_model(sc)
-    res = march_steady(model, sc.analysis.transient, scene=sc, progress=False)
-    assert res.convergence.success, res.convergence.message
-    hs = tuple(range(64))
-    system = HBMSystem(model, hs, 4096)
-    X0 = np.zeros((2 * len(hs) - 1, model.n_dof))
-    X0[:res.X.shape[0]] = res.X
-    sol = solve_point(system, OMEGA, system.force_coefficients(2.0),
-                      z0=system.contact_coordinates(X0), tol=1e-10, max_iter=40)
-    assert sol.convergence.success
-    n = sc.analysis.transient.steps_per_period
-    cc = cross_check(res.X, sc.analysis.transient.harmonics, sol.X, hs, model=model,
-                     loops=(res.last.f[:, :n], res.last.N[:, :n]), tol=1e-3,
-                     step_error=res.step_error)
+    res, cc = _march_and_refined_hbm(sc, _damped_model(sc), OMEGA)
     assert cc.agree, cc.verdict
     assert cc.rel_diff[1] < 1e-3
     # the remaining difference is the step: the indicator is within a factor 3 of it
@@ -122,20 +128,7 @@ def test_coupled_fe_joint_march_agrees_with_converged_hbm_at_refined_settings():
                               "analysis.transient.steady_tol=1e-7",
                               "analysis.transient.max_periods=1500",
                               "analysis.transient.steps_per_period=2048"])
-    model = _damped_model(sc, 0.05)
-    res = march_steady(model, sc.analysis.transient, scene=sc, progress=False)
-    assert res.convergence.success, res.convergence.message
-    hs = tuple(range(64))
-    system = HBMSystem(model, hs, 4096)
-    X0 = np.zeros((2 * len(hs) - 1, model.n_dof))
-    X0[:res.X.shape[0]] = res.X
-    sol = solve_point(system, OMEGA_COUPLED, system.force_coefficients(2.0),
-                      z0=system.contact_coordinates(X0), tol=1e-10, max_iter=40)
-    assert sol.convergence.success, sol.convergence.message
-    n = sc.analysis.transient.steps_per_period
-    cc = cross_check(res.X, sc.analysis.transient.harmonics, sol.X, hs, model=model,
-                     loops=(res.last.f[:, :n], res.last.N[:, :n]), tol=1e-3,
-                     step_error=res.step_error)
+    res, cc = _march_and_refined_hbm(sc, _damped_model(sc, 0.05), OMEGA_COUPLED)
     print("coupled FE joint, 2048 steps vs HBM 0..63:", cc.verdict, cc.rel_diff[:3])
     assert cc.agree, cc.verdict
     assert cc.rel_diff[1] < 1e-3
