@@ -96,3 +96,41 @@ def anchor_aft_numpy(U, G, gap0, kn, k, g, N0, basis, coupled, unilateral=True,
     J = np.einsum("kt,etj->ekj", P, df)
     JNN = np.einsum("kt,et,tj->ekj", P, dNdg, Gam)
     return Ft, Nc, J[:, :, :nc], J[:, :, nc:], JNN
+
+
+def aft_history_fd(aft, U, G, columns, h=1e-7):
+    """Central differences of an AFT's contact-force coefficients by single
+    coefficient rows of ``U`` and of ``G`` (every element at once: the elements
+    are independent).
+
+    Parameters
+    ----------
+    aft : jointsim.solvers.aft.AFT
+    U, G : ndarray, shape (n_c, n_e)
+        Slip and gap-change coefficients of the point.
+    columns : iterable of int
+        Coefficient rows to perturb.
+    h : float
+        Step.
+
+    Yields
+    ------
+    which : str
+        ``"u"`` (compare with ``Juu``) or ``"g"`` (with ``Jug``).
+    j : int
+        The perturbed row.
+    fd : ndarray, shape (n_e, n_c)
+        ``d Ft / d X[j, :]``, element by element.
+    """
+    for j in columns:
+        for which in ("u", "g"):
+            X = U if which == "u" else G
+            dX = np.zeros_like(X)
+            dX[j] = h
+
+            def Ft(sign):
+                Xs = X + sign * dX
+                args = (Xs, G) if which == "u" else (U, Xs)
+                return aft.evaluate(*args, jacobian=False).Ft
+
+            yield which, j, (Ft(1) - Ft(-1)) / (2 * h)

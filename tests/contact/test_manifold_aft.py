@@ -24,6 +24,8 @@ from jointsim.model import ContactSet
 from jointsim.scene import Joint
 from jointsim.solvers.aft import AFT
 
+from .._aft_reference import aft_history_fd
+
 H = (0, 1, 2, 3, 4, 5)
 
 
@@ -82,6 +84,16 @@ def coupled_set(law):
                       UnilateralPenalty(np.full(ne, 4.0)), np.zeros((ne, 2)))
 
 
+def _assert_history_jacobian(aft, U, G, res, columns):
+    """``res.Juu`` and ``res.Jug`` against central differences, to 1e-6 of their
+    largest entry, on the coefficient rows ``columns``."""
+    J = {"u": res.Juu, "g": res.Jug}
+    scale = {k: np.abs(v).max() for k, v in J.items()}
+    for which, j, fd in aft_history_fd(aft, U, G, columns):
+        np.testing.assert_allclose(J[which][:, :, j], fd, rtol=0, atol=1e-6 * scale[which],
+                                   err_msg=f"d/d{which} row {j}")
+
+
 @pytest.mark.parametrize("name", ["jenkins", "iwan4"])
 def test_aft_jacobian_against_central_differences(name):
     """dF/dU and dF/dG (coupled, separating N) of every coefficient, 1e-6 relative
@@ -97,17 +109,7 @@ def test_aft_jacobian_against_central_differences(name):
     u = (basis.Gam @ U).T
     assert np.sum(reversals(u) > 2) >= 6 and np.any(res.N <= 0)
     assert np.any(np.abs(res.f) >= 0.3 * res.N - 1e-12)   # some slip
-    h = 1e-7
-    for X, J in ((U, res.Juu), (G, res.Jug)):
-        scale = np.abs(J).max()
-        for j in range(basis.n_coeff):
-            dX = np.zeros_like(X)
-            dX[j] = h
-            args = lambda sign: (U + sign * dX, G) if X is U else (U, G + sign * dX)  # noqa: E731
-            fd = (aft.evaluate(*args(1), jacobian=False).Ft
-                  - aft.evaluate(*args(-1), jacobian=False).Ft) / (2 * h)
-            np.testing.assert_allclose(J[:, :, j], fd, rtol=0, atol=1e-6 * scale,
-                                       err_msg=f"column {j}")
+    _assert_history_jacobian(aft, U, G, res, range(basis.n_coeff))
 
 
 @pytest.mark.parametrize("name", ["jenkins", "iwan4"])
@@ -137,17 +139,7 @@ def test_deeply_nested_loops_overflow_the_stack_with_exact_derivatives(name):
             depth = max(depth, s[:, MF_TOP].max())
     assert depth == MF_DEPTH and np.any(res.N <= 0)
     np.testing.assert_allclose(res.f[:, -4:], f, rtol=0, atol=1e-13)
-    h = 1e-7
-    for X, J in ((U, res.Juu), (G, res.Jug)):
-        scale = np.abs(J).max()
-        for j in range(0, basis.n_coeff, 3):   # every third harmonic coefficient
-            dX = np.zeros_like(X)
-            dX[j] = h
-            args = lambda sign: (U + sign * dX, G) if X is U else (U, G + sign * dX)  # noqa: E731
-            fd = (aft.evaluate(*args(1), jacobian=False).Ft
-                  - aft.evaluate(*args(-1), jacobian=False).Ft) / (2 * h)
-            np.testing.assert_allclose(J[:, :, j], fd, rtol=0, atol=1e-6 * scale,
-                                       err_msg=f"column {j}")
+    _assert_history_jacobian(aft, U, G, res, range(0, basis.n_coeff, 3))   # every third row
 
 
 @pytest.mark.parametrize("name", ["jenkins", "iwan4"])
