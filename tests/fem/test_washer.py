@@ -104,7 +104,9 @@ def test_bad_washer_radius_names_the_key():
 @pytest.mark.slow
 def test_stuck_f1_is_monotone_under_uniform_refinement():
     """10, 5, 2.5 mm (dx_full = 2 dx_lap, ny_half doubled): f1 changes monotonically
-    with shrinking increments (about 40 s)."""
+    with shrinking increments (1-3 min).  Point bolts fail this (159.33, 157.60,
+    159.26 Hz).  The next mesh (1.25 mm, 165.58 Hz) turns back: the contact-patch
+    edge gains a node there (docs/fe.md), which is not a bolt effect."""
     from jointsim.model import build_model
     from jointsim.solvers.modes import elastic_mode
     f = []
