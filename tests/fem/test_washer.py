@@ -99,6 +99,9 @@ def test_bad_washer_radius_names_the_key():
     assert e.value.key == "model.bolt_washer_radius"
     with pytest.raises(WasherError):
         _structure(0.0)
+    with pytest.raises(SceneError) as e:      # meaningless without bolts
+        load_scene(SCENE, base + ["model.bolts=[]", "model.bolt_washer_radius=0.01"])
+    assert e.value.key == "model.bolt_washer_radius" and "model.bolts" in e.value.message
 
 
 @pytest.mark.slow
