@@ -16,6 +16,16 @@ at the preloaded state and its axial spring ``k_b`` acts on changes of length,
 so the bolt tension is ``F + k_b (elongation since preload)``.  The spring
 ``K_bolt`` is part of ``K``; :func:`jointsim.model.preload.structural_model` turns this into the
 constant force ``f_static = f_clamp + K_bolt x0``.
+
+A bolt end is either the tagged node (a point load, the default) or a
+**washer patch** (``washer_radius``, :func:`washer_weights`): the end's axial
+displacement is the weighted average ``sum_i w_i u_i`` of the surface nodes
+under a washer of half-width ``r`` centred on the tagged node, with the
+weights of a uniform pressure (``w_i = int_washer N_i ds / 2r``, summing to
+1), and the clamping force and the spring act through the same weights (an
+RBE3-like averaging: the force on node ``i`` is ``w_i F``).  A point load in
+2D has a logarithmically singular local compliance, so a point bolt softens
+without bound under refinement; a washer's does not (docs/fe.md).
 """
 from __future__ import annotations
 
@@ -106,6 +116,10 @@ class BoltDofs:
         Axial spring [N/m].
     preload : float
         Clamping force [N].
+    washer_lower, washer_upper : (ndarray of int, ndarray), optional
+        Washer patches (:func:`washer_weights`): the axial DOFs ``(m,)`` of the
+        surface nodes under each end and their weights ``(m,)`` (sum 1); None
+        for a point bolt (the end is the node ``lower`` / ``upper``).
     """
 
     name: str
@@ -114,12 +128,51 @@ class BoltDofs:
     axis: np.ndarray
     stiffness: float
     preload: float
+    washer_lower: tuple | None = None
+    washer_upper: tuple | None = None
+
+    @property
+    def axial_component(self) -> int:
+        """The component (0: x, 1: y) the bolt axis lies along (washer bolts only)."""
+        return int(np.argmax(np.abs(self.axis)))
+
+    def end_weights(self, side: str):
+        """(DOFs, weights) of one end along the axis: the washer, or the node.
+
+        Parameters
+        ----------
+        side : {"lower", "upper"}
+
+        Returns
+        -------
+        dofs : ndarray of int, shape (m,)
+        weights : ndarray, shape (m,)
+            ``axis . u_end = sum_k weights[k] x[dofs[k]]``.
+        """
+        washer = getattr(self, f"washer_{side}")
+        if washer is not None:
+            c = self.axial_component
+            return washer[0], washer[1] * self.axis[c]
+        node = getattr(self, side)
+        keep = np.abs(self.axis) > 0
+        return node[keep], self.axis[keep]
 
     @property
     def active_dofs(self) -> np.ndarray:
-        """DOFs the bolt acts on (those along its axis)."""
-        keep = np.abs(self.axis) > 0
-        return np.concatenate([self.lower[keep], self.upper[keep]])
+        """DOFs the bolt acts on (those along its axis, every washer node's)."""
+        return np.concatenate([self.end_weights("lower")[0], self.end_weights("upper")[0]])
+
+    def elongation(self, n: int) -> sp.csr_matrix:
+        """Elongation operator ``e = b @ x`` (upper minus lower end along the axis).
+
+        Returns
+        -------
+        scipy.sparse.csr_matrix, shape (1, n) [m/m]
+        """
+        (dl, wl), (du, wu) = self.end_weights("lower"), self.end_weights("upper")
+        cols = np.concatenate([du, dl])
+        vals = np.concatenate([wu, -wl])
+        return sp.csr_matrix((vals, (np.zeros_like(cols), cols)), shape=(1, n))
 
 
 @dataclass(frozen=True)
@@ -158,19 +211,104 @@ class FEStructure:
         return self.K.shape[0]
 
 
-def _spring(n: int, a: np.ndarray, b: np.ndarray, axis: np.ndarray, k: float):
-    """Axial spring ``k`` along ``axis`` between DOF pairs ``a`` and ``b`` (x, y)."""
-    dofs = np.concatenate([a, b])
-    vec = np.concatenate([-axis, axis])
-    local = k * np.outer(vec, vec)
-    r, c = np.meshgrid(dofs, dofs, indexing="ij")
-    return sp.csr_matrix((local.ravel(), (r.ravel(), c.ravel())), shape=(n, n))
+class WasherError(ValueError):
+    """A washer patch that cannot be placed (bad radius for the mesh or the bolts)."""
+
+
+def washer_weights(basis, mesh: FEMesh, node: int, axis: np.ndarray, radius: float):
+    """Weights of the surface nodes under a washer centred on a bolt-end node.
+
+    The washer is the segment of half-width ``radius`` [m] along the body's
+    surface through ``node``, perpendicular to ``axis``.  The weight of each
+    node is the integral of its edge shape function over the washer divided
+    by the washer width (a uniform pressure: the weights sum to 1), computed
+    with Gauss points on the part of each surface edge the washer covers
+    (exact for the quadratic edges also when the washer ends inside an edge).
+
+    Parameters
+    ----------
+    basis : skfem.Basis
+        Vector basis of the mesh.
+    mesh : FEMesh
+    node : int
+        The tagged bolt-end node (the washer centre), on the surface.
+    axis : ndarray, shape (2,)
+        Unit bolt axis; it must be along x or y.
+    radius : float
+        Washer half-width [m], > 0.
+
+    Returns
+    -------
+    dofs : ndarray of int, shape (m,)
+        The DOFs along the axis of the nodes under the washer.
+    weights : ndarray, shape (m,)
+        Their weights (sum 1).
+
+    Raises
+    ------
+    WasherError
+        If the axis is oblique, or the washer runs past the end of the
+        surface (past a corner of the body).
+    """
+    from .interface import _edge_dofs, _facet_index, edge_shape
+    axis = np.asarray(axis, dtype=float)
+    c = int(np.argmax(np.abs(axis)))
+    if abs(abs(axis[c]) - 1.0) > 1e-12:
+        raise WasherError(f"a washer needs a bolt axis along x or y, got {axis}")
+    if not radius > 0:
+        raise WasherError(f"the washer radius must be > 0, got {radius}")
+    m = basis.mesh
+    p0 = mesh.points[node]
+    tdir = 1 - c                          # the surface runs along the other axis
+    tol = 1e-9
+    # boundary facets on the line through the node, in the node's body
+    bnd = m.boundary_facets()
+    fn = m.facets[:, bnd]
+    on_line = (np.abs(m.p[c, fn[0]] - p0[c]) < tol) & (np.abs(m.p[c, fn[1]] - p0[c]) < tol)
+    body = _body_of(mesh)
+    same = (body[fn[0]] == body[node]) & (body[fn[1]] == body[node])
+    facets = bnd[on_line & same]
+    lo, hi = p0[tdir] - radius, p0[tdir] + radius
+    quadratic = basis.facet_dofs.size > 0
+    xi, wg = np.polynomial.legendre.leggauss(4)
+    acc: dict[int, float] = {}
+    covered = 0.0
+    for f in facets:
+        a, b = m.facets[:, f]
+        sa, sb = m.p[tdir, a], m.p[tdir, b]
+        s0, s1 = max(min(sa, sb), lo), min(max(sa, sb), hi)
+        if s1 - s0 <= tol:
+            continue
+        covered += s1 - s0
+        s = (s0 + s1) / 2 + (s1 - s0) / 2 * xi               # points on the overlap
+        xi_edge = 2 * (s - sa) / (sb - sa) - 1               # edge coordinate, a -> -1
+        N = edge_shape(xi_edge, quadratic)                   # (4, m)
+        w = (wg * (s1 - s0) / 2) @ N / (2 * radius)
+        for d, wk in zip(_edge_dofs(basis, f, a, b, quadratic)[:, c], w):
+            acc[int(d)] = acc.get(int(d), 0.0) + float(wk)
+    if abs(covered - 2 * radius) > 1e-6 * radius:
+        raise WasherError(f"a washer of radius {radius:g} m at ({p0[0]:g}, {p0[1]:g}) runs past "
+                          f"the end of the surface (covers {covered:g} of {2 * radius:g} m)")
+    dofs = np.array(sorted(acc), dtype=np.int64)
+    return dofs, np.array([acc[d] for d in dofs])
+
+
+def _body_of(mesh: FEMesh) -> np.ndarray:
+    """Connected component (body) of each node of the mesh, shape (n_nodes,)."""
+    from scipy.sparse.csgraph import connected_components
+    q = mesh.quads
+    n = len(mesh.points)
+    r = np.repeat(q[:, 0], 3)
+    cc = q[:, 1:].ravel()
+    g = sp.csr_matrix((np.ones(r.size), (r, cc)), shape=(n, n))
+    return connected_components(g, directed=False)[1]
 
 
 def build_structure(mesh: FEMesh, *, E: float, nu: float, rho: float, thickness: float,
                     bolts=(), suspension_stiffness: float = 0.0,
                     interface=("interface_lower", "interface_upper"),
-                    contact_points: str = "nodes", contact_gauss: int = 3) -> FEStructure:
+                    contact_points: str = "nodes", contact_gauss: int = 3,
+                    washer_radius: float | None = None) -> FEStructure:
     """Assemble the lap joint from a tagged mesh.
 
     Parameters
@@ -190,10 +328,18 @@ def build_structure(mesh: FEMesh, *, E: float, nu: float, rho: float, thickness:
         (:func:`jointsim.fem.interface.pair_interface`).
     contact_gauss : int
         Gauss points per edge with ``contact_points = "gauss"``.
+    washer_radius : float, optional
+        Bolt ends as washer patches of this half-width [m]
+        (:func:`washer_weights`); None: point bolts on the tagged nodes.
 
     Returns
     -------
     FEStructure
+
+    Raises
+    ------
+    WasherError
+        When a washer cannot be placed or two bolts' washers overlap.
     """
     basis = vector_basis(mesh)
     K, M = assemble_plane_stress(basis, E, nu, rho, thickness)
@@ -219,10 +365,17 @@ def build_structure(mesh: FEMesh, *, E: float, nu: float, rho: float, thickness:
         axis = axis / length
         axis[np.abs(axis) < 1e-14] = 0.0
         lo, up = point_dofs(basis, lo_node), point_dofs(basis, up_node)
-        K_bolt = K_bolt + _spring(n, lo, up, axis, b.stiffness)
-        f_clamp[lo] += b.preload * axis       # pulls the lower end up
-        f_clamp[up] -= b.preload * axis       # and the upper end down
-        bolt_list.append(BoltDofs(b.tag, lo, up, axis, b.stiffness, b.preload))
+        washers = (None, None)
+        if washer_radius is not None:
+            washers = tuple(washer_weights(basis, mesh, nd, axis, washer_radius)
+                            for nd in (lo_node, up_node))
+        bd = BoltDofs(b.tag, lo, up, axis, b.stiffness, b.preload, *washers)
+        e = bd.elongation(n)
+        K_bolt = K_bolt + b.stiffness * (e.T @ e)
+        f_clamp -= b.preload * e.toarray().ravel()   # pulls the two ends together
+        bolt_list.append(bd)
+    if washer_radius is not None:
+        _check_washers(bolt_list)
     K = sp.csr_matrix(K + K_bolt)
     iface = pair_interface(basis, mesh, interface[0], interface[1], thickness,
                            points=contact_points, n_gauss=contact_gauss)
@@ -232,6 +385,21 @@ def build_structure(mesh: FEMesh, *, E: float, nu: float, rho: float, thickness:
     return FEStructure(mesh=mesh, basis=basis, K=K, M=M, K_bolt=sp.csr_matrix(K_bolt),
                        f_clamp=f_clamp, bolts=tuple(bolt_list), interface=iface,
                        points=points)
+
+
+def _check_washers(bolts) -> None:
+    """Washers must not cover another bolt end's centre (the reduction substitutes it)."""
+    centres = {}
+    for b in bolts:
+        for side in ("lower", "upper"):
+            centres[int(getattr(b, side)[b.axial_component])] = f"{b.name}_{side}"
+    for b in bolts:
+        for side in ("lower", "upper"):
+            own = int(getattr(b, side)[b.axial_component])
+            for d in getattr(b, f"washer_{side}")[0]:
+                if int(d) != own and int(d) in centres:
+                    raise WasherError(f"the washer of {b.name}_{side} covers the end of "
+                                      f"{centres[int(d)]}: washers must not overlap")
 
 
 def merge_coincident(basis) -> sp.csr_matrix:

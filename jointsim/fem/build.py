@@ -11,13 +11,23 @@ The retained (physical) DOFs of the reduced model are, in this order:
 3. x and y of every point of ``model.retain_points`` (default excitation and
    response), unless already retained;
 
-followed by ``model.n_modes`` fixed-interface modal coordinates.  Named
+followed by ``model.n_modes`` fixed-interface modal coordinates.
+
+With washer bolts (``model.bolt_washer_radius``) the retained coordinate of a
+bolt end is not its centre node's displacement but the washer average
+``sum_i w_i u_i`` (:func:`washer_substitution`): the centre node's axial DOF
+is replaced by it before the reduction, so the bolt spring and the clamping
+force act on one retained coordinate, as for a point bolt, and the reduced
+preload stays exact.  ``cb.T`` maps back to the physical full DOFs.  Named
 points of the reduced model: ``"<point>.x"``, ``"<point>.y"`` and
 ``"<point>"`` (= its y DOF, the bending direction).
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+import scipy.sparse as sp
 
 from .reduced import BoltTable, ReducedModel
 from .reduction import craig_bampton
@@ -69,6 +79,48 @@ def retained_dofs(structure, retain_points=("excitation", "response")):
     return np.array(dofs, dtype=np.int64), labels
 
 
+def washer_substitution(structure):
+    """Change of coordinates that makes each washer average a DOF.
+
+    For every washer bolt end with centre DOF ``j`` (axial DOF of the tagged
+    node) and weights ``w`` over DOFs ``d``, the new coordinate
+    ``x'_j = sum_k w_k x[d_k]`` replaces ``x_j``; every other DOF is kept.
+
+    Returns
+    -------
+    S : scipy.sparse.csr_matrix, shape (n_dof, n_dof), or None
+        ``x = S @ x'`` (None without washers).  Each washer's ``w_j`` is > 0
+        (the centre node is under its own washer); washers do not cover other
+        centres (checked when the structure is built), so ``S`` is explicit:
+        ``x_j = (x'_j - sum_{k != j} w_k x'_{d_k}) / w_j``.
+    """
+    n = structure.n_dof
+    rows, cols, vals = [], [], []
+    centres = set()
+    for b in structure.bolts:
+        for side in ("lower", "upper"):
+            washer = getattr(b, f"washer_{side}")
+            if washer is None:
+                continue
+            j = int(getattr(b, side)[b.axial_component])
+            d, w = washer
+            wj = float(w[d == j].sum())
+            if wj <= 0:
+                raise ValueError(f"{b.name}_{side}: the centre node has no weight under "
+                                 "its washer")
+            centres.add(j)
+            rows += [j] * len(d)
+            cols += d.tolist()
+            vals += np.where(d == j, 1.0 / wj, -w / wj).tolist()
+    if not centres:
+        return None
+    keep = np.setdiff1d(np.arange(n), np.fromiter(centres, dtype=np.int64))
+    rows += keep.tolist()
+    cols += keep.tolist()
+    vals += [1.0] * keep.size
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
+
+
 def reduce_structure(structure, n_modes: int, retain_points=("excitation", "response")):
     """Craig-Bampton reduction of an :class:`~jointsim.fem.assembly.FEStructure`.
 
@@ -76,9 +128,18 @@ def reduce_structure(structure, n_modes: int, retain_points=("excitation", "resp
     -------
     rom : jointsim.fem.reduced.ReducedModel
     cb : jointsim.fem.reduction.CraigBampton
+        ``cb.T`` maps to the physical full DOFs; with washer bolts the
+        retained coordinate of a bolt end is the washer average
+        (:func:`washer_substitution`), so ``cb.T[retained, :n_retained]`` is
+        the identity except on those rows.
     """
     B, labels = retained_dofs(structure, retain_points)
-    cb = craig_bampton(structure.K, structure.M, B, n_modes)
+    S = washer_substitution(structure)
+    if S is None:
+        cb = craig_bampton(structure.K, structure.M, B, n_modes)
+    else:
+        cb = craig_bampton(S.T @ structure.K @ S, S.T @ structure.M @ S, B, n_modes)
+        cb = dataclasses.replace(cb, T=np.asarray(S @ cb.T))
     index = cb.reduced_index(structure.n_dof)
     bolts = None
     if structure.bolts:

@@ -13,7 +13,7 @@ import logging
 import time
 
 from .._schema import SceneError
-from ..fem.assembly import build_structure
+from ..fem.assembly import WasherError, build_structure
 from ..fem.build import reduce_structure
 from ..fem.generate import generated_lap_joint
 from ..fem.mesh import read_mesh
@@ -59,7 +59,10 @@ def build_fe(scene) -> StructuralModel:
                                     bolts=m.bolts, suspension_stiffness=m.suspension_stiffness,
                                     interface=(m.interface_lower, m.interface_upper),
                                     contact_points=m.contact_points,
-                                    contact_gauss=m.contact_gauss)
+                                    contact_gauss=m.contact_gauss,
+                                    washer_radius=m.bolt_washer_radius)
+    except WasherError as exc:
+        raise SceneError(file, "model.bolt_washer_radius", str(exc)) from None
     except ValueError as exc:
         raise SceneError(file, "model.mesh" if m.mesh else "model.dx_lap", str(exc)) from None
     t1 = time.perf_counter()
