@@ -313,7 +313,8 @@ class ErrorEstimator:
             if zeta != 0 else float("nan")
         max_iter = EPMC_MAX_ITER if max_iter is None else int(max_iter)
         x1 = yx[:-1] + ALIAS_RICHARDSON * da + dt
-        sol = self._epmc_newton(epx, yx[:-1], x1, lam, max_iter)
+        sol = self._epmc_newton(epx, yx[:-1], x1, lam, max_iter,
+                                float(np.abs(R[:nzx]).max(initial=0.0)))
         if sol is not None:
             # the nonlinear changes; the state's split into truncation and aliasing
             # in the proportion of the linear step
@@ -328,16 +329,29 @@ class ErrorEstimator:
                                float("nan"), frequency=float(fw), damping=float(fz))
 
     @staticmethod
-    def _epmc_newton(epx: EPMCSystem, x0, x1, lam: float, max_iter: int):
+    def _epmc_newton(epx: EPMCSystem, x0, x1, lam: float, max_iter: int, r0: float):
         """Newton on the extended EPMC system at fixed ``log10 a = lam`` from the first
-        step's result ``x1`` (``x0``: the point), or None when it does not settle.
+        step's result ``x1`` (``x0``: the point, ``r0``: max |R| of its structural
+        rows), or None when it does not settle.
 
         Settled: the last step changes frequency, self-excitation and the state
         by at most :data:`EPMC_CHANGE_TOL` of their total change from ``x0`` (an
-        estimate needs a digit or two, not a converged solve).
+        estimate needs a digit or two, not a converged solve).  When the first
+        step has already cut the structural residual to :data:`EPMC_CHANGE_TOL`
+        of ``r0`` (the quadratic region: the lumped cases), ``x1`` is returned
+        after that one residual evaluation (no Jacobian, no solve); the
+        amplitude and phase rows are linear and hold after any step.
         """
         nzx = epx.s.n_z
         x = np.array(x1, dtype=float)
+        if max_iter < 2:
+            return None
+        s, a = epx.s, 10.0 ** lam
+        with np.errstate(over="ignore", invalid="ignore"):
+            r1 = s.evaluate(epx.z0 + a * x[:nzx], x[nzx], epx.F, xi=x[nzx + 1],
+                            jacobian=False, wrt=()).R / a
+        if np.all(np.isfinite(r1)) and np.abs(r1).max(initial=0.0) <= EPMC_CHANGE_TOL * r0:
+            return x
         R, J, _ = epx.fun(np.append(x, lam))
         for _ in range(max_iter - 1):
             if not np.all(np.isfinite(R)):
