@@ -13,8 +13,8 @@ FRC branch at 200 N over 150-160 Hz), ``lap_epmc`` (the coupled-N lap joint on
 the coarse mesh, EPMC from a = 1e-5 to 1e-3).
 
 EPMC cases also run a third variant, ``linear``: the indicators from the first
-Newton step of the extended system only (``indicators.EPMC_MAX_ITER = 1``, the
-estimate before the extended Newton solve), so that the cost of that solve is
+Newton step of the extended system only (``analysis.epmc.error_newton_steps = 1``,
+the estimate before the extended Newton solve), so that the cost of that solve is
 measured side by side.
 
 Usage::
@@ -66,18 +66,14 @@ def _drop_others(path, kind):
 
 
 def run_once(kind, path, overrides, on, out: Path) -> tuple[float, int]:
-    """Wall time and points of one run; ``on``: True, False or ``"linear"``."""
-    from jointsim.solvers import indicators
-    sc = load_scene(path, [*overrides,
+    """Wall time and points of one run; ``on``: True, False or ``"linear"`` (EPMC
+    indicators from the first step only: ``analysis.epmc.error_newton_steps = 1``)."""
+    extra = ["analysis.epmc.error_newton_steps=1"] if on == "linear" else []
+    sc = load_scene(path, [*overrides, *extra,
                            f"analysis.{kind}.error_indicators={str(bool(on)).lower()}"])
-    keep = indicators.EPMC_MAX_ITER
-    indicators.EPMC_MAX_ITER = 1 if on == "linear" else keep
-    try:
-        t = time.perf_counter()
-        run_scene(sc, out, overwrite=True)
-        dt = time.perf_counter() - t
-    finally:
-        indicators.EPMC_MAX_ITER = keep
+    t = time.perf_counter()
+    run_scene(sc, out, overwrite=True)
+    dt = time.perf_counter() - t
     import h5py
     with h5py.File(out, "r") as h5:
         n = int(h5[f"{kind}/omega"].shape[0])
