@@ -11,7 +11,8 @@ points per period.  Two discretisation errors remain:
 * **aliasing** -- the laws are marched on ``N_t`` samples, and the force
   spectrum above ``N_t / 2`` folds back onto the retained harmonics.
 
-Both are estimated at the converged point, without a nonlinear solve, by one
+Both are estimated at the converged point, without a nonlinear solve (HBM;
+EPMC continues it to a short Newton solve, below), by one
 linearised step of an *extended* harmonic balance: the harmonics
 ``H_x = H + {h <= h_ext not in H}`` (``h_ext = min(ext_factor * max(H) + 1,
 N_x / 2 - 1)``) on ``N_x = sample_factor * N_t`` samples (4 N_t by default), evaluated at the
