@@ -314,8 +314,13 @@ class ErrorEstimator:
             if zeta != 0 else float("nan")
         max_iter = EPMC_MAX_ITER if max_iter is None else int(max_iter)
         x1 = yx[:-1] + ALIAS_RICHARDSON * da + dt
-        sol = self._epmc_newton(epx, yx[:-1], x1, lam, max_iter,
-                                float(np.abs(R[:nzx]).max(initial=0.0)))
+        try:
+            sol = self._epmc_newton(epx, yx[:-1], x1, lam, max_iter,
+                                    float(np.abs(R[:nzx]).max(initial=0.0)))
+        except (np.linalg.LinAlgError, RuntimeError, FloatingPointError) as exc:
+            log.debug("extended EPMC solve failed (%s: %s); first step reported",
+                      type(exc).__name__, exc)
+            sol = None
         if sol is not None:
             # the nonlinear changes; the state's split into truncation and aliasing
             # in the proportion of the linear step
