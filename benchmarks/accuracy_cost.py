@@ -12,7 +12,12 @@ summed over the amplitudes (a solve's own time would mostly say how good its
 start was, and every continuation step costs a few such iterations):
 
 * harmonics H, fixed N (Nt = 512; reference H = 31);
-* AFT samples Nt, fixed N (H = 7; reference Nt = 4096);
+* AFT samples Nt, fixed N (H = 7, Nt = 16 to 8192; reference Nt = 16384); cost:
+  one AFT evaluation (contact forces and tangent on the Nt samples) at the
+  solutions, summed over the amplitudes: the work this dial drives.  A Newton
+  iteration costs about the same at every Nt up to 16384 on this joint (the
+  condensed linear algebra dominates the AFT of its 25 elements), so timed by
+  iterations this panel would show no cost trend; both times are printed;
 * harmonics H, coupled N (Nt = 512; reference H = 23).
 
 Second row, the 2-DOF Jenkins chain (models/hbm/chain2_jenkins.toml) near its
@@ -45,6 +50,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import textwrap
 import time
 from pathlib import Path
 
@@ -218,6 +224,18 @@ class FEModeLadder:
         scale, rscale = _scales(ep, _linear_start(a, sys_, self.em, self.xi0), self.em.omega)
         return ep, scale, rscale
 
+    @staticmethod
+    def _aft_time(ep, y, lt):
+        """Time [s] of one AFT evaluation (contact forces and their tangent on the
+        N_t samples, :class:`~jointsim.solvers.aft.AFT`) at the point ``y`` of ``ep``
+        (log10 amplitude ``lt``): the work the samples dial drives."""
+        s = ep.s
+        nz = s.n_z
+        Q = (ep.z0 + 10.0 ** lt * y[:nz]).reshape(s.n_c, s.n_r)
+        U = Q[:, s.t_row] if s.friction else np.zeros((s.n_c, s.n_e))
+        Gq = Q[:, s.n_row] if s.coupled else None
+        return timed(lambda: s.aft.evaluate(U, Gq, True))[0]
+
     def solve(self, H, nt):
         """Frequencies [Hz] and damping ratios at the amplitudes, and the cost [s]: the
         time of one Newton iteration (residual, Jacobian and linear solve) at each
@@ -229,6 +247,7 @@ class FEModeLadder:
         nz = ep.s.n_z
         sz = scale[:nz + 2]
         out, t = [], 0.0
+        self.aft_time = 0.0
         for amp in self.amps:
             lt = float(np.log10(amp))
             g = _embed(self.guess[amp], self.basis, ep.s.basis, ep.s.n_r)
@@ -246,6 +265,7 @@ class FEModeLadder:
                 return np.linalg.solve(J, R)
             dt, _ = timed(iteration)
             y = res.x * sz
+            self.aft_time += self._aft_time(ep, y, lt)
             self.guess[amp] = y
             om, xi = y[nz], y[nz + 1]
             out += [om / (2 * np.pi), xi / (2 * om)]
@@ -254,17 +274,27 @@ class FEModeLadder:
         return np.array(out), t
 
 
-def fe_mode_table(path, amps, settings, ref):
+def fe_mode_table(path, amps, settings, ref, cost="iteration"):
     """Rows ``(setting, error, time)`` of the FE joint's EPMC frequency and damping at
     :data:`FE_AMPS`: error = the largest relative error of the frequencies and damping
-    ratios against the reference setting; ``settings`` and ``ref`` are ``(H, Nt)``."""
+    ratios against the reference setting; ``settings`` and ``ref`` are ``(H, Nt)``.
+
+    ``cost``: ``"iteration"``, the time of one Newton iteration at the solutions
+    (:meth:`FEModeLadder.solve`); ``"aft"``, the time of one AFT evaluation there (the
+    work the samples dial drives; the Newton iteration's time is printed beside it)."""
     lad = FEModeLadder(path, amps)
-    vals = {}
+    vals, aft = {}, {}
     for H, nt in sorted(set(settings) | {ref}):
         vals[(H, nt)] = lad.solve(H, nt)
+        aft[(H, nt)] = lad.aft_time
     r = vals[ref][0]
+    if cost == "aft":
+        for H, nt in settings:
+            print(f"  Nt = {nt}: one AFT evaluation {1e3 * aft[(H, nt)]:.2f} ms, one Newton "
+                  f"iteration {1e3 * vals[(H, nt)][1]:.1f} ms (summed over the amplitudes)")
     return [(f"H={H}" if len({s[1] for s in settings}) == 1 else f"Nt={nt}",
-             float(np.max(np.abs(vals[(H, nt)][0] - r) / np.abs(r))), vals[(H, nt)][1])
+             float(np.max(np.abs(vals[(H, nt)][0] - r) / np.abs(r))),
+             aft[(H, nt)] if cost == "aft" else vals[(H, nt)][1])
             for H, nt in settings]
 
 
@@ -331,7 +361,7 @@ def figure(tables, path):
         ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_xlabel("wall time [ms]")
         ax.set_ylabel("relative error")
-        ax.set_title(title, fontsize=8)
+        ax.set_title("\n".join(textwrap.wrap(title, 62)), fontsize=8)
         ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -348,7 +378,8 @@ def main(argv=None) -> int:
     q = a.quick
     hs_fixed = [1, 3, 7] if q else [1, 3, 5, 7, 9, 11, 15, 23]
     hs_coupled = [1, 3, 7] if q else [1, 3, 5, 7, 9, 11, 15]
-    nts = [32, 128] if q else [16, 32, 64, 128, 256, 512]
+    nts = [32, 128] if q else [16, 32, 64, 128, 256, 512, 1024, 2048, 4096, 8192]
+    nt_ref = 4096 if q else 16384
     h_ref_fixed, h_ref_coupled = (11, 11) if q else (31, 23)
     fx = FE_AMPS["fixed"]
     cp = FE_AMPS["coupled"]
@@ -356,8 +387,9 @@ def main(argv=None) -> int:
         (f"FE, fixed N: EPMC f and zeta at a = {', '.join(f'{x:g}' for x in fx)}: "
          f"harmonics H (Nt = 512, ref. H = {h_ref_fixed})", "",
          fe_mode_table(FIXED, fx, [(H, 512) for H in hs_fixed], (h_ref_fixed, 512))),
-        ("FE, fixed N: same quantities: AFT samples Nt (H = 7, ref. Nt = 4096)", "",
-         fe_mode_table(FIXED, fx, [(7, n) for n in nts], (7, 4096))),
+        (f"FE, fixed N: same quantities: AFT samples Nt (H = 7, ref. Nt = {nt_ref}); "
+         "cost: one AFT evaluation (a Newton iteration costs about the same at every Nt)", "",
+         fe_mode_table(FIXED, fx, [(7, n) for n in nts], (7, nt_ref), cost="aft")),
         (f"FE, coupled N: EPMC f and zeta at a = {', '.join(f'{x:g}' for x in cp)}: "
          f"harmonics H (Nt = 512, ref. H = {h_ref_coupled})", "",
          fe_mode_table(COUPLED, cp, [(H, 512) for H in hs_coupled], (h_ref_coupled, 512))),

@@ -9,7 +9,13 @@ harmonic balance per point (:mod:`jointsim.solvers.indicators`).
 Cases: ``chain2`` (the 2-DOF Jenkins chain FRC, ``models/hbm/chain2_jenkins.toml``,
 branches serial), ``sdof_epmc`` (``models/hbm/sdof_jenkins_epmc.toml``),
 ``lap_fixed`` (the FE lap joint with fixed normal load on the coarse mesh, one
-FRC branch at 200 N over 150-160 Hz).
+FRC branch at 200 N over 150-160 Hz), ``lap_epmc`` (the coupled-N lap joint on
+the coarse mesh, EPMC from a = 1e-5 to 1e-3).
+
+EPMC cases also run a third variant, ``linear``: the indicators from the first
+Newton step of the extended system only (``analysis.epmc.error_newton_steps = 1``,
+the estimate before the extended Newton solve), so that the cost of that solve is
+measured side by side.
 
 Usage::
 
@@ -38,6 +44,10 @@ CASES = {
                   ["model.mesh='../meshes/lap_joint_coarse.msh'", "analysis.hbm.force_scale=[20.0]",
                    "analysis.hbm.omega_start=942.48", "analysis.hbm.omega_end=1005.3",
                    "analysis.modes.full_model=false", "analysis.modes.monolithic=false"]),
+    "lap_epmc": ("epmc", ROOT / "models/lap_joint.toml",
+                 ["model.mesh='../meshes/lap_joint_coarse.msh'",
+                  "analysis.epmc.log10_amplitude_end=-3.0",
+                  "analysis.modes.full_model=false", "analysis.modes.monolithic=false"]),
 }
 
 
@@ -55,8 +65,12 @@ def _drop_others(path, kind):
     return tmp
 
 
-def run_once(kind, path, overrides, on: bool, out: Path) -> tuple[float, int]:
-    sc = load_scene(path, [*overrides, f"analysis.{kind}.error_indicators={str(on).lower()}"])
+def run_once(kind, path, overrides, on, out: Path) -> tuple[float, int]:
+    """Wall time and points of one run; ``on``: True, False or ``"linear"`` (EPMC
+    indicators from the first step only: ``analysis.epmc.error_newton_steps = 1``)."""
+    extra = ["analysis.epmc.error_newton_steps=1"] if on == "linear" else []
+    sc = load_scene(path, [*overrides, *extra,
+                           f"analysis.{kind}.error_indicators={str(bool(on)).lower()}"])
     t = time.perf_counter()
     run_scene(sc, out, overwrite=True)
     dt = time.perf_counter() - t
@@ -80,14 +94,17 @@ def main():
             with tempfile.TemporaryDirectory() as d:
                 out = Path(d) / "x.h5"
                 run_once(kind, scene_path, ov, True, out)          # warm-up (numba)
-                best = {True: float("inf"), False: float("inf")}
+                variants = (True, False, "linear") if kind == "epmc" else (True, False)
+                best = {v: float("inf") for v in variants}
                 n = 0
                 for _ in range(args.repeat):
-                    for on in (True, False):
+                    for on in variants:
                         dt, n = run_once(kind, scene_path, ov, on, out)
                         best[on] = min(best[on], dt)
+            lin = (f"   linear step only {best['linear']:.2f} s "
+                   f"(x{best['linear'] / best[False]:.2f})" if "linear" in best else "")
             print(f"{name:10s} {n:6d} {best[True]:9.2f} {best[False]:11.2f} "
-                  f"{best[True] / best[False]:6.2f}", flush=True)
+                  f"{best[True] / best[False]:6.2f}{lin}", flush=True)
         finally:
             scene_path.unlink(missing_ok=True)
 

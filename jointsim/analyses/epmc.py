@@ -339,7 +339,8 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
         omega, xi, lam = float(y[nz]), float(y[nz + 1]), float(y[nz + 2])
         amp = 10.0 ** lam
         X = ep.coefficients(y)
-        errors = safe_indicators(estimator.epmc, ep, y) if estimator is not None else None
+        errors = safe_indicators(estimator.epmc, ep, y, a.error_newton_steps) \
+            if estimator is not None else None
         with writer.commit():  # the point and its loops: all or nothing
             p = writer.rows("epmc/omega")
             writer.append("epmc/amplitude", amp, amp_unit, "modal amplitude of the fundamental")

@@ -59,9 +59,11 @@ ERROR_DATASETS = {
     "error_force_tail": ("force_tail", "contact-force harmonics above H (up to the extended "
                          "set) against the retained ones h >= 1, ratio of norms", ("hbm", "epmc")),
     "error_frequency": ("frequency", "estimated relative error of the frequency (truncation "
-                        "+ aliasing)", ("epmc",)),
+                        "+ aliasing): its change in a Newton solve of the extended EPMC "
+                        "system (jointsim.solvers.indicators)", ("epmc",)),
     "error_damping": ("damping", "estimated relative error of the damping ratio (truncation "
-                      "+ aliasing)", ("epmc",)),
+                      "+ aliasing): its change in a Newton solve of the extended EPMC "
+                      "system (jointsim.solvers.indicators)", ("epmc",)),
 }
 
 
