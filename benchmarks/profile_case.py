@@ -34,6 +34,8 @@ def main(argv=None) -> None:
     p.add_argument("--solver", default="krylov", choices=("auto", "direct", "krylov"))
     p.add_argument("--root", default=str(ROOT), help="jointsim checkout to run")
     p.add_argument("--top", type=int, default=30, help="profile lines printed")
+    p.add_argument("--sort", default="cumulative", help="pstats sort key (cumulative, tottime)")
+    p.add_argument("--dump", default=None, help="also write the raw profile (pstats) here")
     a = p.parse_args(argv)
     root = Path(a.root).resolve()
     sys.path.insert(0, str(root))
@@ -86,7 +88,9 @@ def main(argv=None) -> None:
             for k in ("iterations", "krylov_iterations", "preconditioners", "linear_solves"):
                 print(f"{k}: {int(f[f'{a.analysis}/{k}'][()].sum())}")
     print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
-    pstats.Stats(prof).sort_stats("cumulative").print_stats(a.top)
+    if a.dump:
+        prof.dump_stats(a.dump)
+    pstats.Stats(prof).sort_stats(a.sort).print_stats(a.top)
 
 
 if __name__ == "__main__":

@@ -47,9 +47,22 @@ from numba import njit, prange
 #: Elements from which the drivers run in parallel threads (below, thread start-up
 #: and barrier waits cost more than the work, badly so on a loaded machine).
 PARALLEL_MIN = 64
+#: ... and work (elements x samples x coefficients, the history Jacobian's size)
+#: from which they do.  Measured on the 2-core machine shared with other jobs
+#: (load 16 to 20), the 121-pair lap joint's AFT with its Jacobian: H = 0..7,
+#: 128 samples (2.3e5): 4.5 ms on one thread against 190 ms threaded; the error
+#: indicators' H = 0..15, 512 samples (1.9e6): 260 ms against 775 ms (a parallel
+#: region waits at its barrier for a descheduled thread, as threaded BLAS does,
+#: see :func:`jointsim.blas.limit_blas_threads`).
+PARALLEL_MIN_WORK = 4_000_000
 
 from ._kernels import (SC_DIR, SC_N_PREV, SC_N_R, SC_SHARED, SC_U_PREV, SC_U_R,
                                 slider_anchor_step, slider_scaled_force)
+
+
+def _threaded(parallel: bool, ne: int, nt: int, nc: int) -> bool:
+    """Whether a driver runs on numba threads (``PARALLEL_MIN``, ``PARALLEL_MIN_WORK``)."""
+    return bool(parallel) and ne >= PARALLEL_MIN and ne * nt * nc >= PARALLEL_MIN_WORK
 
 
 @njit(cache=True, inline="always")
@@ -251,7 +264,7 @@ def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled
     out = _alloc(ne, nt, Gam.shape[1])
     interpolate = gap is not None
     gap = (np.ascontiguousarray(gap, dtype=float) if interpolate else np.zeros((ne, nt)))
-    run = _anchor_parallel if parallel and ne >= PARALLEL_MIN else _anchor_serial
+    run = _anchor_parallel if _threaded(parallel, ne, nt, Gam.shape[1]) else _anchor_serial
     run(u, N, dNdg, k, g, CP, Gam, int(min_periods), int(max_periods), float(tol),
         bool(coupled), gap, interpolate, *out)
     return out
@@ -422,7 +435,8 @@ def scaled_aft(u, N, dNdg, k, g, N_rest, P, Gam, min_periods, max_periods, tol, 
     """
     ne, nt = u.shape
     out = _alloc(ne, nt, Gam.shape[1])
-    run = _scaled_parallel if parallel and ne >= PARALLEL_MIN else _scaled_serial
+    run = _scaled_parallel if _threaded(parallel, ne, u.shape[1], Gam.shape[1]) \
+        else _scaled_serial
     run(u, N, dNdg, k, g, N_rest, P, Gam, int(min_periods), int(max_periods), float(tol),
         bool(coupled), *out)
     return out

@@ -41,7 +41,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._aft_kernels import PARALLEL_MIN, _alloc
+from ._aft_kernels import _alloc, _threaded
 from ._kernels import (MF_DEPTH, MF_DIR, MF_F_PREV, MF_N_PREV, MF_SHARED, MF_TOP, MF_U0,
                        MF_U_PREV, manifold_closes, manifold_direction, manifold_force,
                        manifold_memory_rows)
@@ -235,7 +235,8 @@ def manifold_aft(u, N, dNdg, k, g, P, Gam, min_periods, max_periods, tol, couple
     coupled : bool
         Compute the derivatives with respect to the gap coefficients.
     parallel : bool
-        Allow numba threads (from ``PARALLEL_MIN`` elements).
+        Allow numba threads (on enough work, see
+        :func:`jointsim.contact._aft_kernels._threaded`).
 
     Returns
     -------
@@ -252,7 +253,8 @@ def manifold_aft(u, N, dNdg, k, g, P, Gam, min_periods, max_periods, tol, couple
     """
     ne, nt = u.shape
     out = _alloc(ne, nt, Gam.shape[1])
-    run = _manifold_parallel if parallel and ne >= PARALLEL_MIN else _manifold_serial
+    run = _manifold_parallel if _threaded(parallel, ne, u.shape[1], Gam.shape[1]) \
+        else _manifold_serial
     run(np.ascontiguousarray(u, dtype=float), np.ascontiguousarray(N, dtype=float),
         np.ascontiguousarray(dNdg, dtype=float), np.ascontiguousarray(k, dtype=float),
         np.ascontiguousarray(g, dtype=float), np.ascontiguousarray(P), np.ascontiguousarray(Gam),

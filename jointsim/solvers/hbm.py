@@ -280,7 +280,7 @@ class HBMSystem:
         X = np.zeros((nc, self.model.n_dof))
         lin = self.lin
         for h in self.basis.harmonics:
-            A, B, Bp, E = lin.blocks(h * omega, xi)
+            _, _, Bp, E = lin.blocks(h * omega, xi, parts="yq")
             qh = self._complex(Q, h)
             Fy = lin.Z.T @ self._complex(F, h)
             y = lin.solve_E(E, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)

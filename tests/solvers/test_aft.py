@@ -28,6 +28,9 @@ def test_parallel_false_gives_the_same_numbers_on_one_thread(reversal, monkeypat
     rng = np.random.default_rng(7)
     U = rng.normal(size=(basis.n_coeff, ne)) * 0.5
     G = rng.normal(size=(basis.n_coeff, ne)) * 0.15
+    # a case this small runs on one thread anyway (work thresholds): lower them
+    monkeypatch.setattr(AK, "PARALLEL_MIN_WORK", 0)
+    monkeypatch.setattr(HK, "PARALLEL_MIN_WORK", 0)
     threaded = AFT(cs, basis).evaluate(U, G)
 
     def threads(*args):
