@@ -8,6 +8,7 @@ compares every setting with the most refined complete one::
 
     python benchmarks/study_converged.py run [--H 15 19 23 31] [--out results/study23]
     python benchmarks/study_converged.py compare [--H 15 19 23 31] [--out results/study23]
+    python benchmarks/study_converged.py refine --H 15 --to 15 31 --amps 3e-4 1e-3 3e-3
 
 ``run`` writes a copy of ``models/lap_joint.toml`` without ``[analysis.hbm]``
 to ``OUT/lap_joint_study.toml`` and runs, one at a time (one process each),::
@@ -53,8 +54,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from jointsim.converge import errors, quantities  # noqa: E402
+from jointsim.post.study import fraction_weights, loop_points, weighted_fractions  # noqa: E402
 from jointsim.post.study_tables import (confusion_table, control_table, headline,  # noqa: E402
                                         results_rows)
 from jointsim.scene import load_scene  # noqa: E402
@@ -136,12 +139,6 @@ def at_amplitudes(path: Path) -> tuple[np.ndarray, np.ndarray]:
                 np.where(ok, g["damping_ratio"][()], np.nan))
 
 
-def _rel(v, ref):
-    with np.errstate(invalid="ignore", divide="ignore"):
-        e = np.abs(v - ref) / np.abs(ref)
-    return np.where(np.isfinite(ref) & ~np.isfinite(v), np.inf, e)
-
-
 def _mx(e) -> float:
     e = np.asarray(e, dtype=float)
     e = e[~np.isnan(e)]
@@ -190,7 +187,10 @@ def compare(ladder: list[int], out: Path) -> int:
             continue
         s = info[H]
         f, z = at_amplitudes(files[H])
-        ef, ez = _rel(f, rf), _rel(z, rz)
+        # an exact solve that did not converge in this setting is left out of (a):
+        # (b) covers its amplitude along the branch
+        ef, ez = np.abs(f - rf) / np.abs(rf), np.abs(z - rz) / np.abs(rz)
+        unsolved = [f"{x:g}" for x, v in zip(eval(LOOP_AMPLITUDES), f) if np.isnan(v)]
         e = errors(quantities(files[H], scene[H]), ref_q)
 
         def sel(prefix, what):
@@ -213,32 +213,131 @@ def compare(ladder: list[int], out: Path) -> int:
         if meets and pick is None:
             pick = H
         if H != ref_H:
-            print(f"|   | per amplitude: f {np.array2string(ef, precision=1)}, zeta "
-                  f"{np.array2string(ez, precision=1)} |")
+            fm = {"float_kind": lambda v: f"{v:.1e}"}
+            print(f"|   | solved, per amplitude: f {np.array2string(ef, formatter=fm)}, zeta "
+                  f"{np.array2string(ez, formatter=fm)}"
+                  + (f" (not solved at a = {', '.join(unsolved)})" if unsolved else "") + " |")
     if pick is None:
-        print(f"\nno setting below H = {ref_H} meets {RTOL_FREQUENCY:g} / {RTOL_DAMPING:g}")
-        return 2
-    print(f"\nleast refined setting within {RTOL_FREQUENCY:.0%} in frequency and "
-          f"{RTOL_DAMPING:.0%} in damping of H = 0..{ref_H}: H = 0..{pick}, "
-          f"Nt = {n_samples(pick)}\n")
-    with h5py.File(files[pick], "r", locking=False) as h5:
-        for r in results_rows(h5, f"coupled N, H 0..{pick}, Nt {n_samples(pick)}"):
+        print(f"\nno setting below H = {ref_H} meets {RTOL_FREQUENCY:g} / {RTOL_DAMPING:g}; "
+              f"the rows of the reference H = 0..{ref_H}:\n")
+    else:
+        print(f"\nleast refined setting within {RTOL_FREQUENCY:.0%} in frequency and "
+              f"{RTOL_DAMPING:.0%} in damping of H = 0..{ref_H}: H = 0..{pick}, "
+              f"Nt = {n_samples(pick)}\n")
+    show = ref_H if pick is None else pick
+    for H in complete:
+        with h5py.File(files[H], "r", locking=False) as h5:
+            sets = loop_points(h5, "epmc")
+            w = fraction_weights(h5, sets.loaded.shape[1])["area"]
+            man, mas, _ = weighted_fractions(sets, w)
+            print(f"H = {H}: loop sets at a = {np.array2string(sets.parameter, formatter={"float_kind": lambda v: f"{v:.3g}"})}, "
+                  f"area shares manifold {np.array2string(man, precision=2)}, Masing "
+                  f"{np.array2string(mas, precision=2)}")
+    print()
+    with h5py.File(files[show], "r", locking=False) as h5:
+        for r in results_rows(h5, f"coupled N, H 0..{show}, Nt {n_samples(show)}"):
             print(r)
         print()
         for r in headline(h5) + confusion_table(h5) + control_table(h5)[:1]:
             print(r)
-    return 0
+    return 0 if pick is not None else 2
+
+
+def refine(files: list[Path], targets: list[int], scene_path: Path, amps=None) -> dict:
+    """EPMC frequency and damping at the loop amplitudes at finer harmonics, by Newton
+    at fixed amplitude from a coarser run's branch (no continuation).
+
+    For each file and each target H' (above the file's H), the file's branch
+    (``/epmc/y``) is interpolated in log10 a at each loop amplitude (the first
+    crossing, as :func:`jointsim.analyses.epmc.solve_at_amplitudes` does), the
+    harmonics the file does not keep start at zero (``_embed`` of
+    ``benchmarks/accuracy_cost.py``), and Newton solves the mode at H' with
+    ``Nt = n_samples(H')`` (tolerance 1e-8 on ``max|R| / rscale``, at most 40
+    iterations, dense linear solves).  This is the reference the ladder falls back
+    on when the continuation at H' does not finish.
+
+    Returns
+    -------
+    dict
+        ``(file, H') -> (f [Hz], zeta, converged)``, each of shape (n_amps,)
+        (``amps``, default the four loop amplitudes).
+    """
+    from accuracy_cost import _embed
+    from jointsim.analyses.epmc import _linear_start, _scales
+    from jointsim.model import build_model
+    from jointsim.scene import EPMCAnalysis
+    from jointsim.solvers.condensation import dense_array
+    from jointsim.solvers.epmc import EPMCSystem
+    from jointsim.solvers.hbm import HBMSystem
+    from jointsim.solvers.modes import elastic_mode
+    from jointsim.solvers.newton import NewtonOptions, newton
+
+    model = build_model(load_scene(str(scene_path)))
+    em = elastic_mode(model, 1, None)
+    xi0 = float(em.phi @ dense_array(model.C) @ em.phi)
+    amps = np.array(amps if amps else eval(LOOP_AMPLITUDES), dtype=float)
+    a0 = EPMCAnalysis(log10_amplitude_start=-5.0, log10_amplitude_end=END)
+    out = {}
+    for f in files:
+        with h5py.File(f, "r", locking=False) as h5:
+            Y = h5["epmc/y"][()]
+            H0 = int(np.max(h5["epmc/harmonics"][()]))
+            nt0 = n_samples(H0)
+        s0 = HBMSystem(model, tuple(range(H0 + 1)), nt0, linear_solver="direct")
+        for Ht in targets:
+            if Ht < H0:   # Ht == H0 reproduces the file's own solves (a check)
+                continue
+            sys_ = HBMSystem(model, tuple(range(Ht + 1)), n_samples(Ht), linear_solver="direct")
+            ep = EPMCSystem(sys_, em.phi, sys_.force_coefficients(0.0))
+            scale, rscale = _scales(ep, _linear_start(a0, sys_, em, xi0), em.omega)
+            nz = sys_.n_z
+            sz = scale[:nz + 2]
+            fr, ze = np.full(amps.size, np.nan), np.full(amps.size, np.nan)
+            ok = np.zeros(amps.size, bool)
+            for k, amp in enumerate(amps):
+                lt = float(np.log10(amp))
+                lam = Y[:, -1]
+                seg = np.flatnonzero((lam[:-1] - lt) * (lam[1:] - lt) <= 0.0)
+                if seg.size == 0:
+                    continue
+                i = int(seg[0])
+                w = (lt - lam[i]) / (lam[i + 1] - lam[i]) if lam[i + 1] != lam[i] else 0.0
+                g = _embed(((1 - w) * Y[i] + w * Y[i + 1])[:-1], s0.basis, sys_.basis,
+                           sys_.n_r)
+
+                def fun(zs, lt=lt):
+                    R, J, ev = ep.fun(np.append(zs * sz, lt))
+                    return R / rscale, J[:, :nz + 2] * sz[None, :] / rscale, ev
+
+                res = newton(fun, g / sz, NewtonOptions(1e-8, 40, check_start=True))
+                log.info("%s -> H = %d at a = %g: %s", f.name, Ht, amp, res.message)
+                if res.success:
+                    y = res.x * sz
+                    fr[k], ze[k], ok[k] = y[nz] / (2 * np.pi), y[nz + 1] / (2 * y[nz]), True
+            out[(f.name, Ht)] = (fr, ze, ok)
+            print(f"{f.name} -> H = 0..{Ht}, Nt = {n_samples(Ht)} (Newton at fixed a): "
+                  f"f = {np.array2string(fr, precision=3)} Hz, zeta = "
+                  f"{np.array2string(100 * ze, precision=4)} %", flush=True)
+    return out
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("what", choices=("run", "compare"))
+    p.add_argument("what", choices=("run", "compare", "refine"))
     p.add_argument("--H", type=int, nargs="+", default=[15, 19, 23, 31],
                    help="highest harmonic of each setting, coarse to fine")
     p.add_argument("--out", type=Path, default=ROOT / "results" / "study23")
+    p.add_argument("--to", type=int, nargs="+", default=[31],
+                   help="refine: target highest harmonics")
+    p.add_argument("--amps", type=float, nargs="+", default=None,
+                   help="refine: modal amplitudes (default the four loop amplitudes)")
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     ladder = sorted(a.H)
+    if a.what == "refine":
+        refine([a.out / f"h{H}.h5" for H in ladder], a.to, a.out / "lap_joint_study.toml",
+               a.amps)
+        return 0
     return run(ladder, a.out) if a.what == "run" else compare(ladder, a.out)
 
 
