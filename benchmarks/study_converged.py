@@ -161,7 +161,9 @@ def compare(ladder: list[int], out: Path) -> int:
         with h5py.File(f, "r", locking=False) as h5:
             e = h5.get("epmc")
             info[H] = dict(status=st, wall=float(h5.attrs.get("wall_time_s", np.nan)),
-                           points=int(e.attrs.get("n_points", 0)) if e is not None else 0,
+                           points=int(e["amplitude"].shape[0]) if e and "amplitude" in e else 0,
+                           last=(float(np.log10(e["amplitude"][-1]))
+                                 if e and "amplitude" in e and e["amplitude"].shape[0] else np.nan),
                            branch=str(e.attrs.get("branch_status", "-")) if e else "-",
                            message=str(e.attrs.get("message", "")) if e else "",
                            epmc_s=float(e.attrs.get("time_s", np.nan)) if e else np.nan)
@@ -206,7 +208,8 @@ def compare(ladder: list[int], out: Path) -> int:
         print(f"| {H} | {n_samples(H)} | {s['status']}, EPMC {s['branch']} | {s['points']} | "
               f"{s['wall']:.0f} ({s['epmc_s']:.0f}) | " + " | ".join(cells) + " |")
         if s["branch"] != "complete":
-            print(f"|   | message: {s['message']} |")
+            print(f"|   | last point at log10 a = {s['last']:.4f}; message: "
+                  f"{s['message'] or s['status']} |")
         meets = (H != ref_H and s["status"] == "complete"
                  and max(row["ef"], row["bf"], row["qf"]) <= RTOL_FREQUENCY
                  and max(row["ez"], row["bz"], row["qz"]) <= RTOL_DAMPING)
@@ -230,7 +233,8 @@ def compare(ladder: list[int], out: Path) -> int:
             sets = loop_points(h5, "epmc")
             w = fraction_weights(h5, sets.loaded.shape[1])["area"]
             man, mas, _ = weighted_fractions(sets, w)
-            print(f"H = {H}: loop sets at a = {np.array2string(sets.parameter, formatter={"float_kind": lambda v: f"{v:.3g}"})}, "
+            g3 = {"float_kind": lambda v: f"{v:.3g}"}
+            print(f"H = {H}: loop sets at a = {np.array2string(sets.parameter, formatter=g3)}, "
                   f"area shares manifold {np.array2string(man, precision=2)}, Masing "
                   f"{np.array2string(mas, precision=2)}")
     print()
@@ -318,6 +322,22 @@ def refine(files: list[Path], targets: list[int], scene_path: Path, amps=None) -
             print(f"{f.name} -> H = 0..{Ht}, Nt = {n_samples(Ht)} (Newton at fixed a): "
                   f"f = {np.array2string(fr, precision=3)} Hz, zeta = "
                   f"{np.array2string(100 * ze, precision=4)} %", flush=True)
+    # every file's own solves against the finest refined values (from the first file
+    # that reached them): the ladder's errors against H' when H' did not complete
+    Ht = max(targets)
+    ref = next((v for (name, t), v in out.items() if t == Ht), None)
+    if ref is not None:
+        all_amps = np.array(eval(LOOP_AMPLITUDES), dtype=float)
+        idx = [int(np.argmin(np.abs(all_amps - x))) for x in amps]
+        fm = {"float_kind": lambda v: f"{v:.1e}"}
+        for f in files:
+            fo, zo = at_amplitudes(f)
+            ef = np.abs(fo[idx] - ref[0]) / ref[0]
+            ez = (zo[idx] - ref[1]) / ref[1]
+            ok = (np.nanmax(ef) <= RTOL_FREQUENCY) and (np.nanmax(np.abs(ez)) <= RTOL_DAMPING)
+            print(f"{f.name} against H = 0..{Ht} at a = {amps.tolist()}: f "
+                  f"{np.array2string(ef, formatter=fm)}, zeta {np.array2string(ez, formatter=fm)}"
+                  f" -> {'meets' if ok else 'misses'} {RTOL_FREQUENCY:.0%} / {RTOL_DAMPING:.0%}")
     return out
 
 
