@@ -250,7 +250,7 @@ def washer_weights(basis, mesh: FEMesh, node: int, axis: np.ndarray, radius: flo
         If the axis is oblique, or the washer runs past the end of the
         surface (past a corner of the body).
     """
-    from .interface import _edge_dofs, _facet_index, edge_shape
+    from .interface import _edge_dofs, edge_shape
     axis = np.asarray(axis, dtype=float)
     c = int(np.argmax(np.abs(axis)))
     if abs(abs(axis[c]) - 1.0) > 1e-12:
