@@ -122,12 +122,15 @@ class AFT:
         else:
             N = np.ascontiguousarray(np.broadcast_to(c.N0[:, None], (ne, nt)), dtype=float)
             dNdg = np.zeros((ne, nt))
-        extra = ({"gap": g} if self.coupled and self.closing == "interpolated"
-                 and self.law.uses_gap else {})
+        extra = ({"gap": g, "dF": np.zeros((ne, b.n_coeff))}
+                 if self.coupled and self.closing == "interpolated" and self.law.uses_gap
+                 else {})
         f, au, ag, Juu, Jug, periods, change = self.law.aft(
             u, N, dNdg, b, self.min_periods, self.max_periods, self.periodic_tol, self.coupled,
             self.parallel, **extra)
         Ft = f @ b.P.T
+        if extra:
+            Ft += extra["dF"]       # the opening intervals' sub-sample quadrature
         Nc = N @ b.P.T
         JNN = None
         if jacobian:
