@@ -1,6 +1,8 @@
-"""Sample-count convergence (aliasing) of clapping HBM points with the anchor of a
-re-closing contact at the interpolated closing instant (the default) or at the last
-open sample (``AFT(closing="sample")``), issue 13 case 5.
+"""Sample-count convergence (aliasing) of clapping HBM points with
+``AFT(closing="interpolated")`` (scene key ``joint.closing``: the anchor of a re-closing
+contact at the interpolated closing instant, and the interval of each opening
+integrated up to the interpolated opening instant) or ``AFT(closing="sample")`` (the
+default: the anchor at the last open sample, plain samples), issue 13 case 5.
 
 Two points, each solved by Newton at fixed frequency for every sample count from the
 same start, first harmonic compared with the finest interpolated solution:
@@ -50,6 +52,7 @@ def _lap():
     model = with_mode_damping(model, undamped_modes(model), 0.05)
     hs = tuple(range(8))
     s = HBMSystem(model, hs, 1024)
+    s.aft.closing = "interpolated"
     sol = solve_point(s, 1053.0, s.force_coefficients(2.0), tol=1e-11, max_iter=60)
     assert sol.convergence.success, sol.convergence.message
     return model, 7, 2.0, 1053.0, sol.X, [128, 256, 512, 1024, 2048, 4096, 8192]
