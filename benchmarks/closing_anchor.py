@@ -51,11 +51,15 @@ def _lap():
     model = build_model(sc)
     model = with_mode_damping(model, undamped_modes(model), 0.05)
     hs = tuple(range(8))
-    s = HBMSystem(model, hs, 1024)
-    s.aft.closing = "interpolated"
-    sol = solve_point(s, 1053.0, s.force_coefficients(2.0), tol=1e-11, max_iter=60)
-    assert sol.convergence.success, sol.convergence.message
-    return model, 7, 2.0, 1053.0, sol.X, [128, 256, 512, 1024, 2048, 4096, 8192]
+    X = None
+    for nt in (128, 1024):      # Newton from the stuck response converges at 128 samples
+        s = HBMSystem(model, hs, nt)
+        s.aft.closing = "interpolated"
+        sol = solve_point(s, 1053.0, s.force_coefficients(2.0), tol=1e-11, max_iter=60,
+                          z0=None if X is None else s.contact_coordinates(X))
+        assert sol.convergence.success, (nt, sol.convergence.message)
+        X = sol.X
+    return model, 7, 2.0, 1053.0, X, [128, 256, 512, 1024, 2048, 4096, 8192]
 
 
 def convergence(model, H, fs, omega, X0, nts):

@@ -35,6 +35,12 @@ The instantaneous part ``P diag(a) Gam`` is assembled from the Fourier sums
 of the tangents up to harmonic ``2 max(h)`` (:func:`jointsim._harmonic_kernels.add_diag_products`), so no
 ``n_c x n_t x n_c`` product is formed per element.
 
+With the gap samples (``joint.closing = "interpolated"``) the anchored march also
+places the anchor of a re-closing contact at the closing instant
+(:func:`closing_anchor`) and integrates the interval in which a contact opens up to
+the opening instant (:func:`opening_weights`; its correction of ``P f`` is returned in
+``dF``, its derivatives go to the history blocks).
+
 The laws themselves are the scalar functions of
 :mod:`jointsim.contact._kernels` (``slider_anchor_step``,
 ``slider_scaled_force``); this module only marches them.
@@ -247,14 +253,16 @@ def _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, cou
     nt = u.shape[1]
     ns = k.shape[1]
     nc = Gam.shape[1]
-    # opening quadrature: DFT columns of the two samples and derivative vectors
-    Pt = np.zeros(nc)
-    Pn = np.zeros(nc)
-    vw = np.zeros(nc)
-    cut = np.zeros(nc)
-    cun = np.zeros(nc)
-    cgt = np.zeros(nc)
-    cgn = np.zeros(nc)
+    # opening quadrature: DFT columns of the two samples and derivative vectors (one
+    # allocation, and a dummy without interpolation: this runs per element)
+    work = np.zeros((7, nc if interpolate else 1))
+    Pt = work[0]
+    Pn = work[1]
+    vw = work[2]
+    cut = work[3]
+    cun = work[4]
+    cgt = work[5]
+    cgn = work[6]
     w = np.zeros(ns)
     wstart = np.zeros(ns)
     s = np.full(ns, -1, dtype=np.int64)

@@ -171,6 +171,38 @@ def test_fold_scene_with_huge_friction_and_interpolated_closing(tmp_path):
 
 
 @pytest.mark.slow
+def test_fold_scene_with_huge_friction_time_marching_agrees_with_hbm(tmp_path):
+    """Time marching (1,024 steps per period, from rest) at omega = 1.19, where the
+    mu = 1e6 contact claps (open over 25 % of the period): HBM (H = 0..7, 512 samples,
+    interpolated closing) solved by Newton from the march's harmonics agrees to 1.1e-3
+    of the first harmonic (measured; against H = 0..31 at 2,048 samples 1.2e-3, and
+    4.0e-4 for a march at 4,096 steps: the march's first order in the step)."""
+    from jointsim.model import build_model
+    from jointsim.solvers.hbm import HBMSystem, solve_point
+
+    out = run_scene(load_scene(FOLD, [
+        "joint.mu=1e6", "joint.closing='interpolated'", "analysis.hbm.omega_end=0.6",
+        "analysis.transient.omega=1.19", "analysis.transient.force_scale=0.1",
+        "analysis.transient.steps_per_period=1024", "analysis.transient.steady_tol=1e-9",
+        "analysis.transient.max_periods=4000"]), tmp_path / "tm.h5")
+    with h5py.File(out) as h:
+        assert h["transient"].attrs["success"]
+        Xt = h["crosscheck/X_transient"][()]
+    # the first period's change is NaN by definition (solvers/transient.py, docs)
+    assert_all_finite(out, allow=("transient/period_change",))
+    s = HBMSystem(build_model(load_scene(FOLD, ["joint.mu=1e6",
+                                                "joint.closing='interpolated'"])),
+                  tuple(range(8)), 512)
+    sol = solve_point(s, 1.19, s.force_coefficients(0.1), z0=s.contact_coordinates(Xt),
+                      tol=1e-11, max_iter=40)
+    assert sol.convergence.success
+    ev = s.evaluate(s.contact_coordinates(sol.X), 1.19, s.force_coefficients(0.1), wrt=(),
+                    jacobian=False)
+    assert 0.1 < np.mean(ev.aft.N <= 0.0) < 0.9                    # it claps
+    assert np.abs(sol.X - Xt).max() < 2e-3 * np.abs(sol.X[1:3]).max()
+
+
+@pytest.mark.slow
 def test_fold_scene_with_mu_1_completes_with_interpolated_closing(tmp_path):
     """mu = 1: the element sticks at its closing instants; with the anchor at the last
     open sample the branch stops at omega = 1.457 on a step of the residual, with
