@@ -398,9 +398,11 @@ class _Output:
                 f"response changes almost discontinuously where the last clap vanishes (as "
                 f"mu -> infinity it jumps: physics of a contact that never slips, whose "
                 f"steady state depends on its history, not a numerical defect).  Run the "
-                f"range beyond as a second branch (analysis.hbm.omega_start beyond "
-                f"lam = {lam:.8g}), lower joint.mu so that the element slips where its normal "
-                f"load is smallest, or follow the history by time marching")
+                f"branch from the other end of the range (swap analysis.hbm.omega_start and "
+                f"omega_end: a clapping family that ends at lam = {lam:.8g} is often reached "
+                f"there from the other side), lower joint.mu so that the element slips "
+                f"where its normal load is smallest, or follow the history by time "
+                f"marching")
 
     def finish_branch(self, ib, fs, success, message) -> str | None:
         """Status, peak and peak loops of a finished branch; the failure, if any."""
