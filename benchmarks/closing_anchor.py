@@ -1,6 +1,8 @@
-"""Sample-count convergence (aliasing) of clapping HBM points with the anchor of a
-re-closing contact at the interpolated closing instant (the default) or at the last
-open sample (``AFT(closing="sample")``), issue 13 case 5.
+"""Sample-count convergence (aliasing) of clapping HBM points with
+``AFT(closing="interpolated")`` (scene key ``joint.closing``: the anchor of a re-closing
+contact at the interpolated closing instant, and the interval of each opening
+integrated up to the interpolated opening instant) or ``AFT(closing="sample")`` (the
+default: the anchor at the last open sample, plain samples), issue 13 case 5.
 
 Two points, each solved by Newton at fixed frequency for every sample count from the
 same start, first harmonic compared with the finest interpolated solution:
@@ -26,7 +28,7 @@ from jointsim.harmonics import coefficient_index
 from jointsim.model import build_model
 from jointsim.run import run_scene
 from jointsim.scene import load_scene
-from jointsim.solvers.hbm import HBMSystem, solve_point
+from jointsim.solvers.hbm import HBMSystem, first_point, frc_scales, solve_point
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -49,8 +51,17 @@ def _lap():
     model = build_model(sc)
     model = with_mode_damping(model, undamped_modes(model), 0.05)
     hs = tuple(range(8))
+    # the branch start's robust path (Newton from the static state, else a force
+    # homotopy) at 128 samples, then Newton at 1,024
+    s = HBMSystem(model, hs, 128)
+    s.aft.closing = "interpolated"
+    scale, rscale = frc_scales(s, s.force_coefficients(2.0), 1000.0, 1100.0)
+    first = first_point(s, 1053.0, 2.0, scale=scale, rscale=rscale, tol=1e-9)
+    assert first.convergence.success, first.convergence.message
     s = HBMSystem(model, hs, 1024)
-    sol = solve_point(s, 1053.0, s.force_coefficients(2.0), tol=1e-11, max_iter=60)
+    s.aft.closing = "interpolated"
+    sol = solve_point(s, 1053.0, s.force_coefficients(2.0), z0=first.z, tol=1e-11,
+                      max_iter=60)
     assert sol.convergence.success, sol.convergence.message
     return model, 7, 2.0, 1053.0, sol.X, [128, 256, 512, 1024, 2048, 4096, 8192]
 

@@ -356,10 +356,13 @@ class Joint:
     closing: str = spec("sample", choices=("sample", "interpolated"),
                         doc="harmonic balance (AFT) with the anchored law and a separating "
                             "contact: where a slider takes its anchor when the contact closes "
-                            "between two samples; 'sample': at the last open sample; "
-                            "'interpolated': at the closing instant (linear in the gap), so "
-                            "the residual is continuous when a closing instant crosses a "
-                            "sample (README: Hard cases, closing instants)")
+                            "between two samples, and how the interval in which it opens is "
+                            "integrated; 'sample': at the last open sample, plain samples; "
+                            "'interpolated': at the closing instant, and the force integrated "
+                            "up to the opening instant (both linear in the gap), so the "
+                            "residual is continuous when a closing or an opening instant "
+                            "crosses a sample (README: Hard cases, closing and opening "
+                            "instants)")
     mu: float = spec(0.1, doc="friction coefficient", ge=0)
     kt: float = spec(1.0, doc="tangential stiffness per unit area; lumped and prescribed "
                               "models: area defaults to 1, so kt is a plain spring [N/m, "

@@ -51,8 +51,10 @@ def anchor_aft_numpy(U, G, gap0, kn, k, g, N0, basis, coupled, unilateral=True,
     df = np.zeros((ne, nt, 2 * nc))
     du = np.concatenate([Gam, np.zeros_like(Gam)], axis=1)   # d u_t / d(U, G)
     dgv = np.concatenate([np.zeros_like(Gam), Gam], axis=1)  # d g_t / d(U, G)
+    dF = np.zeros((ne, nc, 1 + 2 * nc))      # opening quadrature: value, d/d(U, G)
     for p in range(max_periods):
         w_start = w.copy()
+        dF[:] = 0.0
         for t in range(nt):
             ut = u[:, t:t + 1]
             Nt = N[:, t:t + 1]
@@ -87,15 +89,60 @@ def anchor_aft_numpy(U, G, gap0, kn, k, g, N0, basis, coupled, unilateral=True,
             w = w_new
             f[:, t] = fi.sum(axis=1)
             df[:, t] = dfi.sum(axis=1)
+            if coupled and closing == "interpolated":
+                _opening_quadrature(t, u, gs, N, dNdg, w, dw, k, g, du, dgv, Gam, P, dF)
         scale = np.abs(u).max(axis=1) + np.abs(w).max(axis=1)
         change = np.abs(w - w_start).max(axis=1) / np.where(scale > 0, scale, 1.0)
         if p + 1 >= min_periods and np.all(change <= tol):
             break
-    Ft = f @ P.T
+    Ft = f @ P.T + dF[:, :, 0]
     Nc = N @ P.T
-    J = np.einsum("kt,etj->ekj", P, df)
+    J = np.einsum("kt,etj->ekj", P, df) + dF[:, :, 1:]
     JNN = np.einsum("kt,et,tj->ekj", P, dNdg, Gam)
     return Ft, Nc, J[:, :, :nc], J[:, :, nc:], JNN
+
+
+def _opening_quadrature(t, u, gs, N, dNdg, w, dw, k, g, du, dgv, Gam, P, dF):
+    """Elements that are closed at sample ``t`` and open at the next: replace the
+    trapezoid's ``P_t f_t / 2`` of that interval by the integral of the force up to
+    the opening instant (gap linear, zero at ``phi``) against the linear weights
+    ``P_t (2 - 3 s) + P_tn (3 s - 1)``, by 3-point Gauss-Legendre on the stuck and the
+    slipping part (the force is linear on each), derivatives in forward mode at the
+    nodes.  Writes ``dF[e, :, 0]`` (value) and ``dF[e, :, 1:]`` (by U, G)."""
+    nt = u.shape[1]
+    tn = (t + 1) % nt
+    xg, wg = np.polynomial.legendre.leggauss(3)
+    for e in np.flatnonzero((N[:, t] > 0) & (N[:, tn] <= 0) & (gs[:, tn] > gs[:, t])):
+        g0, g1 = gs[e, t], gs[e, tn]
+        phi = g0 / (g0 - g1)
+        dphi = (g0 * dgv[tn] - g1 * dgv[t]) / (g0 - g1) ** 2
+        for i in range(k.shape[1]):
+            F0 = k[e, i] * (u[e, t] - w[e, i])
+            Dl = k[e, i] * (u[e, tn] - u[e, t])
+            S = g[e, i] * N[e, t]
+            tr = F0 + phi * Dl
+            sg = np.sign(tr)
+            s1 = phi if sg == 0 else np.clip((sg * S - F0) / (Dl + sg * S / phi), 0.0, phi)
+            dF0 = k[e, i] * (du[t] - dw[e, i])
+            dD = k[e, i] * (du[tn] - du[t])
+            dS = g[e, i] * dNdg[e, t] * dgv[t]
+            tot = np.zeros((P.shape[0], 1 + dF.shape[2] - 1))
+            for lo, hi, stuck in ((0.0, s1, True), (s1, phi, False)):
+                for x, wt in zip(xg, wg):
+                    sq = lo + (hi - lo) * (x + 1) / 2
+                    h = wt * (hi - lo) / 2
+                    if stuck:
+                        fv = F0 + sq * Dl
+                        dfv = dF0 + sq * dD
+                    else:
+                        fv = sg * S * (1 - sq / phi)
+                        dfv = sg * (dS * (1 - sq / phi) + S * sq / phi ** 2 * dphi)
+                    wv = P[:, t] * (2 - 3 * sq) + P[:, tn] * (3 * sq - 1)
+                    tot[:, 0] += h * fv * wv
+                    tot[:, 1:] += h * wv[:, None] * dfv[None, :]
+            tot[:, 0] -= P[:, t] * F0 / 2
+            tot[:, 1:] -= P[:, t][:, None] * dF0[None, :] / 2
+            dF[e] += tot
 
 
 def aft_history_fd(aft, U, G, columns, h=1e-7):

@@ -61,6 +61,8 @@ log = logging.getLogger(__name__)
 STEEP_RATIO = 100.0
 #: ``_explain_steep`` forms a dense ``dR/dz``: only up to this many unknowns.
 STEEP_MAX_UNKNOWNS = 4000
+#: ``_grazing``: an element open over at most this many samples of the period grazes.
+GRAZING_SAMPLES = 2
 
 
 def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
@@ -359,16 +361,48 @@ class _Output:
                     f"between samples), lower joint.mu so that the element slips over "
                     f"several samples after each closure, or compute this response by time "
                     f"marching")
-        return (head + f"At each clap of this separating contact (its closing instant is "
-                f"interpolated between samples) the slip force mu N drops below the stuck "
-                f"force kt |u - w| only within a change of N of kt |u - w| / mu before the "
-                f"contact opens, so with joint.mu = {joint.mu:g} the element stays stuck "
-                f"until about one time sample before opening and the force at the last "
-                f"closed sample of the AFT grid drops to 0 when the opening instant crosses "
-                f"it (the mu -> infinity limit of a clapping contact, whose stuck force jumps "
-                f"to 0 at separation: physics of the model, which a sampled AFT resolves "
-                f"only to one sample); lower joint.mu so that the element slips over several "
-                f"samples before each opening, or compute this response by time marching")
+        return head + self._grazing(F, y, joint.mu)
+
+    def _grazing(self, F, y, mu) -> str:
+        """Cause of a nearly discontinuous residual under ``joint.closing =
+        'interpolated'`` (closing and opening instants between samples resolved): a
+        clap that appears or vanishes (a grazing contact) while the element never slips
+        (issue 13 case 5: the fold scene at mu = 1e6 stops at omega = 1.47596, where
+        the last clap vanishes)."""
+        system = self.system
+        fs = []
+        for v in (y[-1], 2.0 * y[-1] - y[-2]):
+            ev = system.evaluate(v[:-1], float(v[-1]), F, jacobian=False)
+            fs.append(ev.aft)
+        n_t = fs[0].N.shape[1]
+        opens = [np.sum(a.N <= 0.0, axis=1) for a in fs]        # open samples per element
+        few = [np.flatnonzero((o > 0) & (o <= GRAZING_SAMPLES)) for o in opens]
+        vanish = np.flatnonzero((opens[0] > 0) != (opens[1] > 0))
+        lam = float(y[-1][-1])
+        if len(few[0]) == 0 and len(few[1]) == 0 and len(vanish) == 0:
+            return (f"The closing and opening instants of this separating contact are "
+                    f"interpolated between samples, and the residual is still nearly "
+                    f"discontinuous here; lower joint.mu, or compute this response by time "
+                    f"marching")
+        e = int((list(vanish) + list(few[0]) + list(few[1]))[0])
+        where = (f"at the last point element {e} opens over {int(opens[0][e])} of {n_t} "
+                 f"samples, one secant step on over {int(opens[1][e])}")
+        width = float(np.abs(fs[0].f[e]).max()) / mu if mu > 0 else float("inf")
+        return (f"A clap vanishes (or appears) here: {where} (a grazing contact).  With "
+                f"joint.mu = {mu:g} the element never slips while closed, and a contact "
+                f"that sticks and never opens keeps whatever anchor it has: every anchor is "
+                f"a periodic state.  The branch arrives with the anchor of its last clap; "
+                f"where the contact no longer opens, the AFT marches the law from rest (the "
+                f"anchor of the static state).  For a finite mu the two join within a change "
+                f"of the smallest normal load of about kt |u - w| / mu = {width:.1e}, so the "
+                f"response changes almost discontinuously where the last clap vanishes (as "
+                f"mu -> infinity it jumps: physics of a contact that never slips, whose "
+                f"steady state depends on its history, not a numerical defect).  Run the "
+                f"branch from the other end of the range (swap analysis.hbm.omega_start and "
+                f"omega_end: a clapping family that ends at lam = {lam:.8g} is often reached "
+                f"there from the other side), lower joint.mu so that the element slips "
+                f"where its normal load is smallest, or follow the history by time "
+                f"marching")
 
     def finish_branch(self, ib, fs, success, message) -> str | None:
         """Status, peak and peak loops of a finished branch; the failure, if any."""

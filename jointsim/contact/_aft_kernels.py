@@ -35,6 +35,12 @@ The instantaneous part ``P diag(a) Gam`` is assembled from the Fourier sums
 of the tangents up to harmonic ``2 max(h)`` (:func:`jointsim._harmonic_kernels.add_diag_products`), so no
 ``n_c x n_t x n_c`` product is formed per element.
 
+With the gap samples (``joint.closing = "interpolated"``) the anchored march also
+places the anchor of a re-closing contact at the closing instant
+(:func:`closing_anchor`) and integrates the interval in which a contact opens up to
+the opening instant (:func:`opening_weights`; its correction of ``P f`` is returned in
+``dF``, its derivatives go to the history blocks).
+
 The laws themselves are the scalar functions of
 :mod:`jointsim.contact._kernels` (``slider_anchor_step``,
 ``slider_scaled_force``); this module only marches them.
@@ -112,12 +118,164 @@ def closing_anchor(u0, u1, g0, g1):
     return u0 + th * du, 1.0 - th, th, -du * g1 / (d * d), du * g0 / (d * d)
 
 
+@njit(cache=True, inline="always")
+def opening_weights(F0, D, S, phi, c0, c1):
+    """Sub-sample quadrature of a slider's force over the interval in which its
+    contact opens, and its partials.
+
+    Between the last closed sample (``s = 0``) and the first open one (``s = 1``,
+    ``s`` the fraction of the sample interval) the inputs are linear: the trial
+    (stuck) force is ``F0 + s D`` and the slip limit ``S (1 - s / phi)``, zero at
+    the opening instant ``s = phi``.  With linear inputs the Jenkins slider's
+    force is exactly ``clip(F0 + s D, -S (1 - s/phi), S (1 - s/phi))`` on
+    ``[0, phi]`` (once it reaches the falling limit it stays on it) and 0 after:
+    stuck up to ``s1`` and then on the limit, ``s1 -> phi`` as mu -> infinity (the
+    stuck force then drops to 0 at the opening instant).  Returned is
+    ``Q = int_0^phi f(s) (c0 + c1 s) ds``.
+
+    Parameters
+    ----------
+    F0 : float
+        Force at the last closed sample, ``k (u_t - w)`` [N], ``|F0| <= S``.
+    D : float
+        Change of the trial force over the interval, ``k (u_{t+1} - u_t)`` [N].
+    S : float
+        Slip force at the last closed sample, ``g N_t`` [N], > 0.
+    phi : float
+        Opening instant, fraction of the interval, in (0, 1].
+    c0, c1 : float
+        Weight ``c0 + c1 s``.
+
+    Returns
+    -------
+    Q, dQdF0, dQdD, dQdS, dQdphi : float
+        The integral [N] and its partial derivatives (the stick/slip switch ``s1``
+        needs none: ``f`` is continuous there; with ``S = inf``, never slipping,
+        ``f`` drops to 0 at ``phi`` and ``dQ/dphi`` is that jump times the weight).
+    """
+    tr = F0 + phi * D
+    sg = 1.0 if tr > 0.0 else (-1.0 if tr < 0.0 else 0.0)
+    L = 0.0                                   # phi - s1: length of the slip part
+    if sg != 0.0:
+        L = tr / (D + sg * S / phi)
+        L = min(max(L, 0.0), phi)
+    s1 = phi - L
+    m0 = s1
+    m1 = s1 * s1 / 2.0
+    m2 = s1 * s1 * s1 / 3.0
+    dF0 = c0 * m0 + c1 * m1
+    dD = c0 * m1 + c1 * m2
+    q = F0 * dF0 + D * dD
+    dS = 0.0
+    dphi = 0.0
+    if L > 0.0:
+        # slip part, r = phi - s in [0, L]: int sg S (r / phi) (c0 + c1 phi - c1 r) dr
+        cc = c0 + c1 * phi
+        L2 = L * L
+        L3 = L2 * L
+        dS = sg * (cc * L2 / 2.0 - c1 * L3 / 3.0) / phi
+        q += S * dS
+        # d/dphi at fixed s1: int sg S (s / phi^2) (c0 + c1 s) ds, s = phi - r
+        dphi = sg * S * (phi * cc * L - cc * L2 / 2.0 - c1 * phi * L2 / 2.0
+                         + c1 * L3 / 3.0) / (phi * phi)
+    else:
+        # stuck up to the opening (S = inf, the never-slipping limit): the force
+        # jumps to 0 at s = phi, whose derivative is the boundary term
+        dphi = tr * (c0 + c1 * phi)
+    return q, dF0, dD, dS, dphi
+
+
+@njit(cache=True, inline="always")
+def _add_outer(Jx, e, v, c, Gam, s):
+    """``Jx[e] += v (x) c Gam[s]`` (nothing when ``s < 0`` or ``c == 0``)."""
+    if s < 0 or c == 0.0:
+        return
+    nc = Gam.shape[1]
+    for kk in range(nc):
+        pk = v[kk] * c
+        if pk == 0.0:
+            continue
+        for j in range(nc):
+            Jx[e, kk, j] += pk * Gam[s, j]
+
+
+@njit(cache=True, inline="always")
+def _opening(e, t, tn, u, gap, dn, k, g, Nt, w, s, a, b, s2, a2, b2, CP, Gam, coupled, dF,
+             Juu, Jug, Pt, Pn, vw, cut, cun, cgt, cgn):
+    """Opening-interval correction of :func:`_anchor_one` (see :func:`anchor_aft`):
+    ``dF[e] += P_t (A - f_t / 2) + P_tn B`` over the sliders, with ``A``, ``B`` the
+    quadrature of the force against the weights ``2 - 3 s`` and ``3 s - 1`` (the
+    linear weights for which the trapezoid rule is the integral of the linear
+    interpolant of ``f``), and its exact derivatives: by ``u_t``, ``u_tn``
+    (``Juu``), by ``N_t`` and the opening instant ``phi = g_t / (g_t - g_tn)``
+    (``Jug``) and, through the anchor's history rows, by the earlier samples."""
+    nc = Gam.shape[1]
+    g0 = gap[e, t]
+    g1 = gap[e, tn]
+    d = g0 - g1
+    phi = g0 / d
+    dpg0 = -g1 / (d * d)
+    dpg1 = g0 / (d * d)
+    ut = u[e, t]
+    un = u[e, tn]
+    for kk in range(nc):
+        Pt[kk] = CP[kk, t + 1] - CP[kk, t]
+        Pn[kk] = CP[kk, tn + 1] - CP[kk, tn]
+        cut[kk] = 0.0
+        cun[kk] = 0.0
+        cgt[kk] = 0.0
+        cgn[kk] = 0.0
+    for i in range(k.shape[1]):
+        ki = k[e, i]
+        F0 = ki * (ut - w[i])
+        D = ki * (un - ut)
+        S = g[e, i] * Nt
+        qa, aF, aD, aS, aP = opening_weights(F0, D, S, phi, 2.0, -3.0)
+        qb, bF, bD, bS, bP = opening_weights(F0, D, S, phi, -1.0, 3.0)
+        # dS/dg; 0 when the slider sticks up to the opening (so that g = inf, the
+        # never-slipping limit, stays finite)
+        cS = g[e, i] * dn if (aS != 0.0 or bS != 0.0) else 0.0
+        for kk in range(nc):
+            dF[e, kk] += Pt[kk] * (qa - 0.5 * F0) + Pn[kk] * qb
+            vF = Pt[kk] * (aF - 0.5) + Pn[kk] * bF
+            vD = Pt[kk] * aD + Pn[kk] * bD
+            vS = Pt[kk] * aS + Pn[kk] * bS
+            vP = Pt[kk] * aP + Pn[kk] * bP
+            cut[kk] += ki * (vF - vD)
+            cun[kk] += ki * vD
+            cgt[kk] += cS * vS + dpg0 * vP
+            cgn[kk] += dpg1 * vP
+            vw[kk] = -ki * vF
+        # the anchor after sample t: a Gam[s] + a2 Gam[s2] (u), b ... (gap)
+        _add_outer(Juu, e, vw, a[i], Gam, s[i])
+        _add_outer(Juu, e, vw, a2[i], Gam, s2[i])
+        if coupled:
+            _add_outer(Jug, e, vw, b[i], Gam, s[i])
+            _add_outer(Jug, e, vw, b2[i], Gam, s2[i])
+    _add_outer(Juu, e, cut, 1.0, Gam, t)
+    _add_outer(Juu, e, cun, 1.0, Gam, tn)
+    if coupled:
+        _add_outer(Jug, e, cgt, 1.0, Gam, t)
+        _add_outer(Jug, e, cgn, 1.0, Gam, tn)
+
+
 @njit(cache=True)
 def _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
-                gap, interpolate, f, au, ag, Juu, Jug, periods, change):
+                gap, interpolate, dF, f, au, ag, Juu, Jug, periods, change):
     """One element of :func:`anchor_aft` (outputs written in place)."""
     nt = u.shape[1]
     ns = k.shape[1]
+    nc = Gam.shape[1]
+    # opening quadrature: DFT columns of the two samples and derivative vectors (one
+    # allocation, and a dummy without interpolation: this runs per element)
+    work = np.zeros((7, nc if interpolate else 1))
+    Pt = work[0]
+    Pn = work[1]
+    vw = work[2]
+    cut = work[3]
+    cun = work[4]
+    cgt = work[5]
+    cgn = work[6]
     w = np.zeros(ns)
     wstart = np.zeros(ns)
     s = np.full(ns, -1, dtype=np.int64)
@@ -133,6 +291,7 @@ def _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, cou
     for p in range(max_periods):
         Juu[e, :, :] = 0.0
         Jug[e, :, :] = 0.0
+        dF[e, :] = 0.0
         for i in range(ns):
             start[i] = 0
             wstart[i] = w[i]
@@ -180,6 +339,15 @@ def _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, cou
             f[e, t] = fe
             au[e, t] = de
             ag[e, t] = dg
+            tn = t + 1 if t < nt - 1 else 0
+            if interpolate and Nt > 0.0 and N[e, tn] <= 0.0 and gap[e, tn] > gap[e, t]:
+                # the contact opens between the samples t and tn: the force of the
+                # interval [t, tn] by sub-sample quadrature (opening_weights) instead
+                # of the trapezoid's P_t f_t / 2, so the coefficients are continuous
+                # when an opening instant crosses a sample (a stuck force drops to 0
+                # at the opening instant as mu -> infinity)
+                _opening(e, t, tn, u, gap, dn, k, g, Nt, w, s, a, b, s2, a2, b2, CP, Gam,
+                         coupled, dF, Juu, Jug, Pt, Pn, vw, cut, cun, cgt, cgn)
         wmax = 0.0
         ch = 0.0
         for i in range(ns):
@@ -202,22 +370,22 @@ def _alloc(ne, nt, nc):
 
 @njit(cache=True)
 def _anchor_serial(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
-                   gap, interpolate, f, au, ag, Juu, Jug, periods, change):
+                   gap, interpolate, dF, f, au, ag, Juu, Jug, periods, change):
     for e in range(u.shape[0]):
         _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
-                    gap, interpolate, f, au, ag, Juu, Jug, periods, change)
+                    gap, interpolate, dF, f, au, ag, Juu, Jug, periods, change)
 
 
 @njit(cache=True, parallel=True)
 def _anchor_parallel(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
-                     gap, interpolate, f, au, ag, Juu, Jug, periods, change):
+                     gap, interpolate, dF, f, au, ag, Juu, Jug, periods, change):
     for e in prange(u.shape[0]):
         _anchor_one(e, u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
-                    gap, interpolate, f, au, ag, Juu, Jug, periods, change)
+                    gap, interpolate, dF, f, au, ag, Juu, Jug, periods, change)
 
 
 def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled,
-               parallel=True, gap=None):
+               parallel=True, gap=None, dF=None):
     """Periodic march of banks of anchored sliders with history derivatives.
 
     Parameters
@@ -245,28 +413,43 @@ def anchor_aft(u, N, dNdg, k, g, CP, Gam, min_periods, max_periods, tol, coupled
         slider that was separated at the sample before a closed one takes its
         anchor at the closing instant between them (:func:`closing_anchor`, linear
         in the gap) instead of at the last open sample, so the force is
-        continuous in the inputs when a closing instant crosses a sample.
-        None: the anchor of the last open sample (``u`` there).
+        continuous in the inputs when a closing instant crosses a sample; and the
+        interval in which a contact opens (closed at ``t``, open at ``t + 1``) is
+        integrated by sub-sample quadrature up to the opening instant (linear in
+        the gap, :func:`opening_weights`), its difference from the sampled
+        ``P f`` written to ``dF``, so the force coefficients are continuous when an
+        opening instant crosses a sample (a stuck force that drops to 0 there).
+        None: the anchor of the last open sample (``u`` there), plain samples.
+    dF : ndarray, shape (n_e, n_c), optional
+        Output (overwritten): the opening-interval quadrature's correction of
+        the force coefficients, ``Ft = P f + dF`` (its derivatives are in
+        ``Juu`` and ``Jug``); zero without ``gap``.
 
     Returns
     -------
     f, au, ag : ndarray, shape (n_e, n_t)
-        Force [N] over the last period and its instantaneous tangents
-        ``df/du`` [N/m] and ``df/dN * dN/dg`` [N/m].
+        Force [N] over the last period (at the samples) and its instantaneous
+        tangents ``df/du`` [N/m] and ``df/dN * dN/dg`` [N/m].
     Juu, Jug : ndarray, shape (n_e, n_c, n_c)
-        History part of ``dF/dU`` and ``dF/dG`` (``F = P f``).
+        History part of ``dF/dU`` and ``dF/dG`` (``F = P f + dF``), with the
+        derivatives of the opening quadrature.
     periods : ndarray of int, shape (n_e,)
         Periods marched.
     change : ndarray, shape (n_e,)
         Largest anchor change over the last period, relative [-].
     """
     ne, nt = u.shape
-    out = _alloc(ne, nt, Gam.shape[1])
+    nc = Gam.shape[1]
+    out = _alloc(ne, nt, nc)
     interpolate = gap is not None
     gap = (np.ascontiguousarray(gap, dtype=float) if interpolate else np.zeros((ne, nt)))
-    run = _anchor_parallel if _threaded(parallel, ne, nt, Gam.shape[1]) else _anchor_serial
+    if dF is None:
+        dF = np.zeros((ne, nc))
+    elif dF.shape != (ne, nc) or dF.dtype != np.float64 or not dF.flags.c_contiguous:
+        raise ValueError(f"dF must be a C-contiguous float array of shape {(ne, nc)}")
+    run = _anchor_parallel if _threaded(parallel, ne, nt, nc) else _anchor_serial
     run(u, N, dNdg, k, g, CP, Gam, int(min_periods), int(max_periods), float(tol),
-        bool(coupled), gap, interpolate, *out)
+        bool(coupled), gap, interpolate, dF, *out)
     return out
 
 

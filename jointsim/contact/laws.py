@@ -210,7 +210,9 @@ class TangentialLaw:
     uses_gap : bool
         True when ``aft`` takes the gap samples (keyword ``gap``) to place the
         anchor of a contact that closes between two samples at its closing
-        instant (:class:`jointsim.solvers.aft.AFT`, ``closing``).
+        instant and to integrate the interval in which it opens up to its opening
+        instant (keyword ``dF``, the correction of the coefficients;
+        :class:`jointsim.solvers.aft.AFT`, ``closing``).
     """
 
     name: ClassVar[str] = ""
@@ -442,9 +444,9 @@ class AnchoredBank(SliderBank):
     uses_gap: ClassVar[bool] = True
 
     def aft(self, u, N, dNdg, basis, min_periods, max_periods, tol, coupled, parallel=True,
-            gap=None):
+            gap=None, dF=None):
         return AK.anchor_aft(u, N, dNdg, self.k, self.g, basis.CP, basis.Gam, min_periods,
-                             max_periods, tol, coupled, parallel, gap=gap)
+                             max_periods, tol, coupled, parallel, gap=gap, dF=dF)
 
 
 @dataclass(frozen=True)

@@ -74,10 +74,14 @@ class AFT:
         Where the sliders of a contact that closes between two samples take
         their anchor (laws with ``uses_gap``, coupled normal load):
         ``"interpolated"`` at the closing instant, where the linear
-        interpolation of the gap between the samples is zero, so the forces are
-        continuous in the coefficients when a closing instant crosses a sample;
-        ``"sample"`` at the last open sample (the force then steps by about
-        ``kt |du/dt| dt`` when the first closed sample changes).  None: the
+        interpolation of the gap between the samples is zero, and the interval in
+        which a contact opens is integrated up to the opening instant (sub-sample
+        quadrature, :func:`jointsim.contact._aft_kernels.opening_weights`), so the
+        forces are continuous in the coefficients when a closing or an opening
+        instant crosses a sample; ``"sample"`` at the last open sample, plain
+        samples (the force then steps by about ``kt |du/dt| dt`` when the first
+        closed sample changes, and by the stuck force when the last closed one
+        does).  None: the
         contact set's ``closing`` (scene key ``joint.closing``, default
         ``"sample"``; README "Hard cases").
     """
@@ -122,12 +126,15 @@ class AFT:
         else:
             N = np.ascontiguousarray(np.broadcast_to(c.N0[:, None], (ne, nt)), dtype=float)
             dNdg = np.zeros((ne, nt))
-        extra = ({"gap": g} if self.coupled and self.closing == "interpolated"
-                 and self.law.uses_gap else {})
+        extra = ({"gap": g, "dF": np.zeros((ne, b.n_coeff))}
+                 if self.coupled and self.closing == "interpolated" and self.law.uses_gap
+                 else {})
         f, au, ag, Juu, Jug, periods, change = self.law.aft(
             u, N, dNdg, b, self.min_periods, self.max_periods, self.periodic_tol, self.coupled,
             self.parallel, **extra)
         Ft = f @ b.P.T
+        if extra:
+            Ft += extra["dF"]       # the opening intervals' sub-sample quadrature
         Nc = N @ b.P.T
         JNN = None
         if jacobian:
