@@ -380,10 +380,10 @@ class _Output:
         vanish = np.flatnonzero((opens[0] > 0) != (opens[1] > 0))
         lam = float(y[-1][-1])
         if len(few[0]) == 0 and len(few[1]) == 0 and len(vanish) == 0:
-            return (f"The closing and opening instants of this separating contact are "
-                    f"interpolated between samples, and the residual is still nearly "
-                    f"discontinuous here; lower joint.mu, or compute this response by time "
-                    f"marching")
+            return ("The closing and opening instants of this separating contact are "
+                    "interpolated between samples, and the residual is still nearly "
+                    "discontinuous here; lower joint.mu, or compute this response by time "
+                    "marching")
         e = int((list(vanish) + list(few[0]) + list(few[1]))[0])
         where = (f"at the last point element {e} opens over {int(opens[0][e])} of {n_t} "
                  f"samples, one secant step on over {int(opens[1][e])}")
