@@ -73,7 +73,8 @@ class SteadyResult:
     energy : EnergyBalance or None
     period_change : ndarray, shape (n_periods,)
         Largest change of the displacements between consecutive periods,
-        relative to the vibration amplitude (``nan`` for the first period).
+        relative to the vibration amplitude; the first period is compared with its
+        initial state held for a period (the change from the start) [-].
     error_estimate : float
         Remaining distance to the steady state estimated from the geometric
         decrease of ``period_change`` (``change * rho / (1 - rho)``, ``inf``
@@ -410,8 +411,9 @@ def _periods_until_steady(ga: GeneralizedAlpha, s, settings, h: float, rigid: Ri
                 if k < len(known):   # resumed: this period's change is stored
                     c = float(known[k])
                 else:
-                    c = period_change(rigid.elastic(pd.x[1:]), rigid.elastic(last.x[1:])) \
-                        if last is not None else np.nan
+                    before = (last.x[1:] if last is not None
+                              else np.broadcast_to(pd.x[0], pd.x[1:].shape))
+                    c = period_change(rigid.elastic(pd.x[1:]), rigid.elastic(before))
                 changes.append(c)
                 last = pd
                 bar.update(1)
