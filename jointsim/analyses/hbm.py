@@ -49,7 +49,7 @@ from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
 from ..solvers.crosscheck import HBMSolutions
 from ..harmonics import harmonic_amplitude
 from ..results import Convergence
-from ..solvers.frc_diagnosis import diagnose_failure, undamped_resonances
+from ..solvers.frc_diagnosis import closing_advice, diagnose_failure, undamped_resonances
 from ..solvers.hbm import HBMSystem, first_point, frc_scales, refine_peak
 from ..solvers.indicators import ErrorEstimator, ToleranceWatch, safe_indicators
 from ..solvers.jacobian import BorderedJacobian
@@ -409,7 +409,8 @@ class _Output:
                              "maximising over frequency (false: largest computed point, "
                              "e.g. at a fold)")
         if not success and rows.size:
-            message = self._explain(message, F, rows)
+            message = closing_advice(self.scene.joint, self.scene.effects,
+                                     self._explain(message, F, rows))
         # the status last: a branch marked finished has its peak and loops in the file
         # ("worker died" is not final: --resume computes the branch on)
         g.attrs[f"branch{ib}_message"] = message

@@ -91,6 +91,10 @@ BEHIND_COS = 0.9
 #: more) of perpendicular to its orientation reference is ambiguously oriented by it;
 #: it is then oriented like the previous tangent when that is the clearer reference.
 AMBIGUOUS_COS = 0.2
+#: A failed branch reports the accepted points whose secant runs against the one
+#: before (cosine below ``-REVERSAL_COS``) among its last ``REVERSAL_WINDOW`` points.
+REVERSAL_COS = 0.0
+REVERSAL_WINDOW = 100
 #: ``adapt_scale``: rescale ``z`` when ``max|z - z0|`` exceeds this many ``z`` scales.
 SCALE_GROWTH = 2.0
 #: ``adapt_scale``: a run of points whose ``max|z - z0|`` never decreases, growing
@@ -277,6 +281,9 @@ class Continuation:
         self.points, self.infos = [], []
         self._turned = False
         self.nfev = self.n_failed = 0
+        self.n_retraced = 0     # corrector tries rejected as landing on the traced branch
+        self.reversals = []     # (index, lam) of accepted points whose secant reverses
+        #                         the one before (:meth:`_lost_way`)
         self.h = float(step)
         self._start(y0, solve_first, tangent0)
 
@@ -309,6 +316,11 @@ class Continuation:
         return R / self.rscale, scale_columns(J, self._col), extra
 
     def _accept(self, yh, info: PointInfo) -> None:
+        if len(self.points) > 1:
+            a, b = self.points[-2] / self.scale, self.points[-1] / self.scale
+            d0, d1 = b - a, yh - b
+            if float(d0 @ d1) < -REVERSAL_COS * np.linalg.norm(d0) * np.linalg.norm(d1):
+                self.reversals.append((len(self.points), float(yh[-1] * self.scale[-1])))
         self.points.append(yh * self.scale)
         info.z_scale = float(self.scale[:-1].max(initial=0.0))
         self.infos.append(info)
@@ -410,6 +422,7 @@ class Continuation:
                       desc, np.linalg.norm(yc - pred), h)
         if ok and self._retraces(yc, yk):
             ok = False
+            self.n_retraced += 1
             log.debug("%s: corrector landed back on the traced branch (h = %.3g)", desc, h)
         if not ok:
             self.n_failed += 1
@@ -587,6 +600,7 @@ class Continuation:
         self._turned = False   # set by a turn at a non-smooth fold (:func:`fold_step`)
         direction, step_min, step_max = self.direction, self.step_min, self.step_max
         corner_tries = jump_tries = 0
+        retraced0 = self.n_retraced
         while True:
             h = self.h
             # do not aim (much) past the end of the range
@@ -618,7 +632,8 @@ class Continuation:
                 return self._finish(status, f"corrector failed with the step shrunk below "
                                             f"step_min = {step_min:g} at lam = "
                                             f"{yk[-1] * scale[-1]:.8g} after "
-                                            f"{len(self.points)} points")
+                                            f"{len(self.points)} points"
+                                            + self._lost_way(self.n_retraced - retraced0))
         t_new = self._new_tangent(J, yk, yc, t)
         lam_new = yc[-1]
         if (lam_new - self._lam_end_h) * direction >= 0:
@@ -638,6 +653,26 @@ class Continuation:
                 return self.message
         self._check_max_points()
         return self.message
+
+    def _lost_way(self, retraced: int) -> str:
+        """What a failed branch did before it gave up, when it lost its way: its
+        last corrector tries landed back on the branch already traced (``retraced``
+        of them in the failed step), and the lam of its recent reversals (accepted
+        points whose secant runs against the one before, ``REVERSAL_COS``).
+        Empty when neither happened."""
+        rev = [lam for i, lam in self.reversals if len(self.points) - i <= REVERSAL_WINDOW]
+        if not retraced and not rev:
+            return ""
+        out = []
+        if retraced:
+            out.append(f"{retraced} of its last corrector tries landed back on the branch "
+                       f"already traced (the branch was running back along itself)")
+        if rev:
+            where = ", ".join(f"{v:.8g}" for v in rev[-6:])
+            out.append(f"in its last {REVERSAL_WINDOW} points it reversed direction "
+                       f"{len(rev)} times (at lam = {where}): it zig-zags between nearby "
+                       f"pieces of the branch, a fold or corner it did not resolve")
+        return "; " + "; ".join(out)
 
     def _rescale(self) -> None:
         """``adapt_scale``: grow the ``z`` scales with the solution; stop an unbounded one."""
