@@ -57,6 +57,21 @@ def test_a_failed_branch_says_it_zig_zagged_and_ran_back_along_itself():
     assert "reversed direction 1 times" in msg and f"{y[-1]:.8g}" in msg
 
 
+def test_a_point_oriented_against_the_branch_is_flagged():
+    """``sign det [J; t]`` is kept along a branch: on ``z = lam`` the tangent
+    reversed at a regular point flips it (the landing of point 110 at 1032.506
+    rad/s on the coupled lap joint); not after a turn at a non-smooth fold."""
+    c = Continuation(_line, np.zeros(2), 10.0, scale=np.ones(2), rscale=1.0, step=0.1,
+                     step_min=1e-6, step_max=0.5, max_points=50, tol=1e-12)
+    c.step()
+    J, t = np.array([[1.0, -1.0]]), c._t
+    assert c._sign != 0
+    assert not c._flips(J, t)
+    assert c._flips(J, -t)
+    c._turned = True
+    assert not c._flips(J, -t)
+
+
 def _sections(closing="sample", reversal="anchor", law="jenkins", normal="coupled",
               separation=True, friction=True):
     return (SimpleNamespace(closing=closing, reversal=reversal, law=law),
