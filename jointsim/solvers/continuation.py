@@ -40,8 +40,9 @@ tolerances refer to the scaled quantities.
   branch round); a new tangent nearly perpendicular to that reference
   (``AMBIGUOUS_COS``) is oriented like the previous tangent instead, when that
   one is clearly on one side (the sign of so small a product is a coin flip).
-* Orientation kept: a corrected point whose tangent, oriented by the direction
-  of travel, has the other ``sign det [J; t]`` than the last point is rejected
+* Orientation kept: a point found by a remedy (a longer step, a corner step)
+  whose tangent, oriented by the direction of travel, has the other
+  ``sign det [J; t]`` than the last point is rejected
   and the step shrunk (it landed on a nearby piece of the branch running the
   other way; ``ORIENTATION``, up to ``ORIENTATION_MAX_UNKNOWNS``; not after a
   turn at a non-smooth fold).  A branch that gives up says when it reversed
@@ -294,7 +295,8 @@ class Continuation:
         self.nfev = self.n_failed = 0
         self.n_retraced = 0     # corrector tries rejected as landing on the traced branch
         self.n_flipped = 0      # ... as oriented against the branch (:meth:`_flips`)
-        self._sign = 0          # sign det [J; t] at the last accepted point (0: unknown)
+        self._J = None          # scaled Jacobian at the last accepted point
+        self._sign = None       # its sign det [J; t] once computed (:meth:`_flips`)
         self.reversals = []     # (index, lam) of accepted points whose secant reverses
         #                         the one before (:meth:`_lost_way`)
         self.h = float(step)
@@ -365,7 +367,7 @@ class Continuation:
         t = tangent(J, t_prev)
         self._accept(yh, PointInfo(it, float(np.abs(R).max(initial=0.0)), 0.0, t, extra))
         self._yh, self._t = yh, t
-        self._sign = self._orientation_sign(J, t)
+        self._J, self._sign = J, None
         if not solve_first:
             # a resumed branch whose last point already ended it
             if (yh[-1] - self._lam_end_h) * self.direction \
@@ -617,6 +619,7 @@ class Continuation:
         retraced0 = self.n_retraced
         while True:
             h = self.h
+            remedy = False
             # do not aim (much) past the end of the range
             if t[-1] * direction > 0:
                 to_end = (self._lam_end_h - yk[-1]) / t[-1]
@@ -626,9 +629,11 @@ class Continuation:
             if not ok and jump_tries == 0 and h < step_max:
                 jump_tries += 1
                 ok, h, yc, R, J, extra, it = self._try_longer(yk, t, h)
+                remedy = ok
             if not ok and CORNERS and corner_tries < 2 and h < 0.05 * step_max:
                 corner_tries += 1
                 ok, h, yc, R, J, extra, it = self._try_corner(yk, t, h)
+                remedy = ok
             change = self._monitor_change(yk, yc) if ok else 0.0
             if ok and change > 1.0 and h > 2.0 * step_min:
                 # too large a change of a monitored quantity (e.g. damping at the
@@ -639,7 +644,7 @@ class Continuation:
                 continue
             if ok:
                 t_new = self._new_tangent(J, yk, yc, t)
-                if not self._flips(J, t_new) or h <= 2.0 * step_min:
+                if not remedy or h <= 2.0 * step_min or not self._flips(J, t_new):
                     break
                 # a regular point whose tangent, oriented by the direction of travel,
                 # gives the branch the other orientation: the corrector landed on a
@@ -669,7 +674,7 @@ class Continuation:
                                          f"points")
         self._accept(yc, info)
         self._yh, self._t = yc, t_new
-        self._sign = self._orientation_sign(J, t_new)
+        self._J, self._sign = J, None
         self.h = next_step(h, it, self.target_iter, step_min, step_max, change)
         if self.adapt_scale:
             self._rescale()
@@ -698,10 +703,17 @@ class Continuation:
         joint's 20 N FRC at H = 0..11, Nt = 256 did that twice near 1033 rad/s
         (J regular at both points, smallest singular values 2.6 and 2.5) and then
         ran back along itself until the step fell below ``step_min``.  A flipped
-        point is rejected and the step shrunk.  Not checked after a turn at a
-        non-smooth fold, or when either sign is unknown.
+        point is rejected and the step shrunk.  Checked (two dense determinants)
+        only for points found by a remedy (a longer step over a kink, a corner
+        step; the flipped landing above came from :func:`corner_step`, which
+        tries both orientations of the tangent beyond a corner), not after a
+        turn at a non-smooth fold, nor when either sign is unknown.
         """
-        if self._turned or not self._sign:
+        if self._turned or self._J is None:
+            return False
+        if self._sign is None:
+            self._sign = self._orientation_sign(self._J, self._t)
+        if not self._sign:
             return False
         s = self._orientation_sign(J, t_new)
         return s != 0 and s != self._sign

@@ -65,8 +65,8 @@ def test_a_point_oriented_against_the_branch_is_flagged():
                      step_min=1e-6, step_max=0.5, max_points=50, tol=1e-12)
     c.step()
     J, t = np.array([[1.0, -1.0]]), c._t
-    assert c._sign != 0
     assert not c._flips(J, t)
+    assert c._sign != 0
     assert c._flips(J, -t)
     c._turned = True
     assert not c._flips(J, -t)
