@@ -545,7 +545,7 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         step_max=a.step_max, max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
         solve_first=solve_first, tangent0=t0, on_point=on_point, progress=progress,
         desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})", lam_start=a.omega_start,
-        adapt_scale=True, z_origin=system.static_coordinates())
+        adapt_scale=True, z_origin=system.static_coordinates(), keep_orientation=True)
     return _explain_failure(br.convergence, system, F, a, float(br.y[-1][-1]))
 
 

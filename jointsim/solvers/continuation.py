@@ -230,6 +230,11 @@ class Continuation:
     z_origin : ndarray, shape (n,), optional
         ``z0`` of ``adapt_scale`` (default ``y0[:-1]``; a resumed branch passes
         the start of the uninterrupted one).
+    keep_orientation : bool
+        Reject a point found by a remedy that flips ``sign det [J; t]``
+        (:meth:`_flips`).  The FRC runner sets it; the EPMC branch of the coupled
+        lap joint at H = 0..15 gives up with it (at log10 a = -3.93), so EPMC
+        keeps the previous behaviour.
 
     Attributes
     ----------
@@ -266,8 +271,10 @@ class Continuation:
                  max_iter: int = 20, target_iter: int = TARGET_ITER, max_jump: float = 2.0,
                  backtrack: int = 4, stall: int = 5, solve_first: bool = True,
                  tangent0=None, desc: str = "continuation", monitor=None,
-                 lam_start=None, adapt_scale: bool = False, z_origin=None):
+                 lam_start=None, adapt_scale: bool = False, z_origin=None,
+                 keep_orientation: bool = False):
         y0 = np.asarray(y0, dtype=float).copy()
+        self.keep_orientation = bool(keep_orientation)
         self.adapt_scale = bool(adapt_scale)
         self._z0 = y0[:-1].copy() if z_origin is None else np.asarray(z_origin, dtype=float)
         self._growth = []     # (|z - z0|, lam) of the points of a geometric growth
@@ -709,7 +716,7 @@ class Continuation:
         tries both orientations of the tangent beyond a corner), not after a
         turn at a non-smooth fold, nor when either sign is unknown.
         """
-        if self._turned or self._J is None:
+        if not self.keep_orientation or self._turned or self._J is None:
             return False
         if self._sign is None:
             self._sign = self._orientation_sign(self._J, self._t)
@@ -795,7 +802,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                     solve_first: bool = True, tangent0=None, on_point=None,
                     progress: bool = True, desc: str = "continuation",
                     monitor=None, lam_start=None, adapt_scale: bool = False,
-                    z_origin=None) -> Branch:
+                    z_origin=None, keep_orientation: bool = False) -> Branch:
     """Follow the solution branch of ``R(z, lam) = 0`` from ``y0`` to ``lam = lam_end``.
 
     Drives a :class:`Continuation` (whose parameters it takes) to its end.
@@ -805,7 +812,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
     fun, y0, lam_end, scale, rscale, step, step_min, step_max, max_points, tol
         As for :class:`Continuation`.
     max_iter, target_iter, max_jump, backtrack, stall, solve_first, tangent0, desc, monitor
-    adapt_scale, z_origin
+    adapt_scale, z_origin, keep_orientation
         As for :class:`Continuation`.
     lam_start : float, optional
         Where the branch began, when ``y0`` is a later point of it (resume).
@@ -834,7 +841,8 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                             max_jump=max_jump, backtrack=backtrack, stall=stall,
                             solve_first=solve_first, tangent0=tangent0, desc=desc,
                             monitor=monitor, lam_start=lam_start,
-                            adapt_scale=adapt_scale, z_origin=z_origin)
+                            adapt_scale=adapt_scale, z_origin=z_origin,
+                            keep_orientation=keep_orientation)
         span = abs(cont.lam_end - cont.lam0)
         done = 0
         while True:

@@ -67,7 +67,8 @@ def test_a_point_oriented_against_the_branch_is_flagged():
     reversed at a regular point flips it (the landing of point 110 at 1032.506
     rad/s on the coupled lap joint); not after a turn at a non-smooth fold."""
     c = Continuation(_line, np.zeros(2), 10.0, scale=np.ones(2), rscale=1.0, step=0.1,
-                     step_min=1e-6, step_max=0.5, max_points=50, tol=1e-12)
+                     step_min=1e-6, step_max=0.5, max_points=50, tol=1e-12,
+                     keep_orientation=True)
     c.step()
     J, t = np.array([[1.0, -1.0]]), c._t
     assert not c._flips(J, t)
