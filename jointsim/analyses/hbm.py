@@ -49,7 +49,7 @@ from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
 from ..solvers.crosscheck import HBMSolutions
 from ..harmonics import harmonic_amplitude
 from ..results import Convergence
-from ..solvers.frc_diagnosis import diagnose_failure, undamped_resonances
+from ..solvers.frc_diagnosis import closing_advice, diagnose_failure, undamped_resonances
 from ..solvers.hbm import HBMSystem, first_point, frc_scales, refine_peak
 from ..solvers.indicators import ErrorEstimator, ToleranceWatch, safe_indicators
 from ..solvers.jacobian import BorderedJacobian
@@ -443,7 +443,8 @@ class _Output:
                              "maximising over frequency (false: largest computed point, "
                              "e.g. at a fold)")
         if not success and rows.size:
-            message = self._explain(message, F, rows)
+            message = closing_advice(self.scene.joint, self.scene.effects,
+                                     self._explain(message, F, rows))
         # the status last: a branch marked finished has its peak and loops in the file
         # ("worker died" is not final: --resume computes the branch on)
         g.attrs[f"branch{ib}_message"] = message
@@ -578,7 +579,7 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         step_max=a.step_max, max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
         solve_first=solve_first, tangent0=t0, on_point=on_point, progress=progress,
         desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})", lam_start=a.omega_start,
-        adapt_scale=True, z_origin=system.static_coordinates())
+        adapt_scale=True, z_origin=system.static_coordinates(), keep_orientation=True)
     return _explain_failure(br.convergence, system, F, a, float(br.y[-1][-1]))
 
 

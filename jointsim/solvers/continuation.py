@@ -40,6 +40,13 @@ tolerances refer to the scaled quantities.
   branch round); a new tangent nearly perpendicular to that reference
   (``AMBIGUOUS_COS``) is oriented like the previous tangent instead, when that
   one is clearly on one side (the sign of so small a product is a coin flip).
+* Orientation kept: a point found by a remedy (a longer step, a corner step)
+  whose tangent, oriented by the direction of travel, has the other
+  ``sign det [J; t]`` than the last point is rejected
+  and the step shrunk (it landed on a nearby piece of the branch running the
+  other way; ``ORIENTATION``, up to ``ORIENTATION_MAX_UNKNOWNS``; not after a
+  turn at a non-smooth fold).  A branch that gives up says when it reversed
+  direction and ran back along itself.
 * No retracing: a corrected point that lies back on the last
   ``RETRACE_POINTS`` points of the branch (closer to one of their segments
   than half its distance from the current point) is rejected; at a sharp
@@ -70,7 +77,7 @@ import numpy as np
 from ..results import (NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS, Convergence)
 from .jacobian import drop_last_column, scale_columns, solve
 from .newton import NewtonOptions, newton
-from .arclength import bordered, corner_step, fold_step, tangent
+from .arclength import bordered, corner_step, fold_step, orientation, tangent
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +98,15 @@ BEHIND_COS = 0.9
 #: more) of perpendicular to its orientation reference is ambiguously oriented by it;
 #: it is then oriented like the previous tangent when that is the clearer reference.
 AMBIGUOUS_COS = 0.2
+#: A failed branch reports the accepted points whose secant runs against the one
+#: before (cosine below ``-REVERSAL_COS``) among its last ``REVERSAL_WINDOW`` points.
+REVERSAL_COS = 0.0
+REVERSAL_WINDOW = 100
+#: Reject a corrected point whose tangent gives the branch the other orientation
+#: ``sign det [J; t]`` than at the last point (:meth:`Continuation._flips`); only up to
+#: ``ORIENTATION_MAX_UNKNOWNS`` unknowns (a dense determinant per point).
+ORIENTATION = True
+ORIENTATION_MAX_UNKNOWNS = 2000
 #: ``adapt_scale``: rescale ``z`` when ``max|z - z0|`` exceeds this many ``z`` scales.
 SCALE_GROWTH = 2.0
 #: ``adapt_scale``: a run of points whose ``max|z - z0|`` never decreases, growing
@@ -214,6 +230,11 @@ class Continuation:
     z_origin : ndarray, shape (n,), optional
         ``z0`` of ``adapt_scale`` (default ``y0[:-1]``; a resumed branch passes
         the start of the uninterrupted one).
+    keep_orientation : bool
+        Reject a point found by a remedy that flips ``sign det [J; t]``
+        (:meth:`_flips`).  The FRC runner sets it; the EPMC branch of the coupled
+        lap joint at H = 0..15 gives up with it (at log10 a = -3.93), so EPMC
+        keeps the previous behaviour.
 
     Attributes
     ----------
@@ -250,8 +271,10 @@ class Continuation:
                  max_iter: int = 20, target_iter: int = TARGET_ITER, max_jump: float = 2.0,
                  backtrack: int = 4, stall: int = 5, solve_first: bool = True,
                  tangent0=None, desc: str = "continuation", monitor=None,
-                 lam_start=None, adapt_scale: bool = False, z_origin=None):
+                 lam_start=None, adapt_scale: bool = False, z_origin=None,
+                 keep_orientation: bool = False):
         y0 = np.asarray(y0, dtype=float).copy()
+        self.keep_orientation = bool(keep_orientation)
         self.adapt_scale = bool(adapt_scale)
         self._z0 = y0[:-1].copy() if z_origin is None else np.asarray(z_origin, dtype=float)
         self._growth = []     # (|z - z0|, lam) of the points of a geometric growth
@@ -277,6 +300,12 @@ class Continuation:
         self.points, self.infos = [], []
         self._turned = False
         self.nfev = self.n_failed = 0
+        self.n_retraced = 0     # corrector tries rejected as landing on the traced branch
+        self.n_flipped = 0      # ... as oriented against the branch (:meth:`_flips`)
+        self._J = None          # scaled Jacobian at the last accepted point
+        self._sign = None       # its sign det [J; t] once computed (:meth:`_flips`)
+        self.reversals = []     # (index, lam) of accepted points whose secant reverses
+        #                         the one before (:meth:`_lost_way`)
         self.h = float(step)
         self._start(y0, solve_first, tangent0)
 
@@ -309,6 +338,11 @@ class Continuation:
         return R / self.rscale, scale_columns(J, self._col), extra
 
     def _accept(self, yh, info: PointInfo) -> None:
+        if len(self.points) > 1:
+            a, b = self.points[-2] / self.scale, self.points[-1] / self.scale
+            d0, d1 = b - a, yh - b
+            if float(d0 @ d1) < -REVERSAL_COS * np.linalg.norm(d0) * np.linalg.norm(d1):
+                self.reversals.append((len(self.points), float(yh[-1] * self.scale[-1])))
         self.points.append(yh * self.scale)
         info.z_scale = float(self.scale[:-1].max(initial=0.0))
         self.infos.append(info)
@@ -340,6 +374,7 @@ class Continuation:
         t = tangent(J, t_prev)
         self._accept(yh, PointInfo(it, float(np.abs(R).max(initial=0.0)), 0.0, t, extra))
         self._yh, self._t = yh, t
+        self._J, self._sign = J, None
         if not solve_first:
             # a resumed branch whose last point already ended it
             if (yh[-1] - self._lam_end_h) * self.direction \
@@ -410,6 +445,7 @@ class Continuation:
                       desc, np.linalg.norm(yc - pred), h)
         if ok and self._retraces(yc, yk):
             ok = False
+            self.n_retraced += 1
             log.debug("%s: corrector landed back on the traced branch (h = %.3g)", desc, h)
         if not ok:
             self.n_failed += 1
@@ -587,8 +623,10 @@ class Continuation:
         self._turned = False   # set by a turn at a non-smooth fold (:func:`fold_step`)
         direction, step_min, step_max = self.direction, self.step_min, self.step_max
         corner_tries = jump_tries = 0
+        retraced0 = self.n_retraced
         while True:
             h = self.h
+            remedy = False
             # do not aim (much) past the end of the range
             if t[-1] * direction > 0:
                 to_end = (self._lam_end_h - yk[-1]) / t[-1]
@@ -598,9 +636,11 @@ class Continuation:
             if not ok and jump_tries == 0 and h < step_max:
                 jump_tries += 1
                 ok, h, yc, R, J, extra, it = self._try_longer(yk, t, h)
+                remedy = ok
             if not ok and CORNERS and corner_tries < 2 and h < 0.05 * step_max:
                 corner_tries += 1
                 ok, h, yc, R, J, extra, it = self._try_corner(yk, t, h)
+                remedy = ok
             change = self._monitor_change(yk, yc) if ok else 0.0
             if ok and change > 1.0 and h > 2.0 * step_min:
                 # too large a change of a monitored quantity (e.g. damping at the
@@ -610,7 +650,17 @@ class Continuation:
                 corner_tries, jump_tries = 2, 1  # no longer steps or corner tricks now
                 continue
             if ok:
-                break
+                t_new = self._new_tangent(J, yk, yc, t)
+                if not remedy or h <= 2.0 * step_min or not self._flips(J, t_new):
+                    break
+                # a regular point whose tangent, oriented by the direction of travel,
+                # gives the branch the other orientation: the corrector landed on a
+                # piece running the other way (or the stepper turned round)
+                ok = False
+                self.n_failed += 1
+                self.n_flipped += 1
+                log.debug("%s: corrected point at lam = %.8g is oriented against the "
+                          "branch (h = %.3g); retrying", self.desc, yc[-1] * scale[-1], h)
             self.h = h * 0.5
             if self.h < step_min:
                 status = NON_FINITE if not np.isfinite(np.abs(R).max(initial=0.0)) \
@@ -618,8 +668,8 @@ class Continuation:
                 return self._finish(status, f"corrector failed with the step shrunk below "
                                             f"step_min = {step_min:g} at lam = "
                                             f"{yk[-1] * scale[-1]:.8g} after "
-                                            f"{len(self.points)} points")
-        t_new = self._new_tangent(J, yk, yc, t)
+                                            f"{len(self.points)} points"
+                                            + self._lost_way(self.n_retraced - retraced0))
         lam_new = yc[-1]
         if (lam_new - self._lam_end_h) * direction >= 0:
             return self._close_at_end(yk, t, yc, R, extra, it, h, t_new)
@@ -631,6 +681,7 @@ class Continuation:
                                          f"points")
         self._accept(yc, info)
         self._yh, self._t = yc, t_new
+        self._J, self._sign = J, None
         self.h = next_step(h, it, self.target_iter, step_min, step_max, change)
         if self.adapt_scale:
             self._rescale()
@@ -638,6 +689,61 @@ class Continuation:
                 return self.message
         self._check_max_points()
         return self.message
+
+    def _orientation_sign(self, J, t) -> int:
+        """``sign det [J; t]`` (scaled), 0 when not checked: ``ORIENTATION`` off, more
+        than ``ORIENTATION_MAX_UNKNOWNS`` unknowns, or non-finite values."""
+        if not ORIENTATION or self.n1 - 1 > ORIENTATION_MAX_UNKNOWNS:
+            return 0
+        return orientation(J, t)
+
+    def _flips(self, J, t_new) -> bool:
+        """Whether the corrected point's tangent ``t_new`` (oriented by the direction of
+        travel) gives the branch the other orientation than at the last point.
+
+        Along a branch of regular points, folds included, ``sign det [J; t]`` with
+        ``t`` the tangent in the direction of travel does not change; it changes
+        between two accepted points only at a branch point, at a non-smooth fold
+        (passed by :func:`fold_step`, which keeps the orientation and is not
+        checked here) or when the corrector landed on a nearby piece of the branch
+        that runs the other way, or turned the stepper round.  The coupled lap
+        joint's 20 N FRC at H = 0..11, Nt = 256 did that twice near 1033 rad/s
+        (J regular at both points, smallest singular values 2.6 and 2.5) and then
+        ran back along itself until the step fell below ``step_min``.  A flipped
+        point is rejected and the step shrunk.  Checked (two dense determinants)
+        only for points found by a remedy (a longer step over a kink, a corner
+        step; the flipped landing above came from :func:`corner_step`, which
+        tries both orientations of the tangent beyond a corner), not after a
+        turn at a non-smooth fold, nor when either sign is unknown.
+        """
+        if not self.keep_orientation or self._turned or self._J is None:
+            return False
+        if self._sign is None:
+            self._sign = self._orientation_sign(self._J, self._t)
+        if not self._sign:
+            return False
+        s = self._orientation_sign(J, t_new)
+        return s != 0 and s != self._sign
+
+    def _lost_way(self, retraced: int) -> str:
+        """What a failed branch did before it gave up, when it lost its way: its
+        last corrector tries landed back on the branch already traced (``retraced``
+        of them in the failed step), and the lam of its recent reversals (accepted
+        points whose secant runs against the one before, ``REVERSAL_COS``).
+        Empty when neither happened."""
+        rev = [lam for i, lam in self.reversals if len(self.points) - i <= REVERSAL_WINDOW]
+        if not retraced and not rev:
+            return ""
+        out = []
+        if retraced:
+            out.append(f"{retraced} of its last corrector tries landed back on the branch "
+                       f"already traced (the branch was running back along itself)")
+        if rev:
+            where = ", ".join(f"{v:.8g}" for v in rev[-6:])
+            out.append(f"in its last {REVERSAL_WINDOW} points it reversed direction "
+                       f"{len(rev)} times (at lam = {where}): it zig-zags between nearby "
+                       f"pieces of the branch, a fold or corner it did not resolve")
+        return "; " + "; ".join(out)
 
     def _rescale(self) -> None:
         """``adapt_scale``: grow the ``z`` scales with the solution; stop an unbounded one."""
@@ -696,7 +802,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                     solve_first: bool = True, tangent0=None, on_point=None,
                     progress: bool = True, desc: str = "continuation",
                     monitor=None, lam_start=None, adapt_scale: bool = False,
-                    z_origin=None) -> Branch:
+                    z_origin=None, keep_orientation: bool = False) -> Branch:
     """Follow the solution branch of ``R(z, lam) = 0`` from ``y0`` to ``lam = lam_end``.
 
     Drives a :class:`Continuation` (whose parameters it takes) to its end.
@@ -706,7 +812,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
     fun, y0, lam_end, scale, rscale, step, step_min, step_max, max_points, tol
         As for :class:`Continuation`.
     max_iter, target_iter, max_jump, backtrack, stall, solve_first, tangent0, desc, monitor
-    adapt_scale, z_origin
+    adapt_scale, z_origin, keep_orientation
         As for :class:`Continuation`.
     lam_start : float, optional
         Where the branch began, when ``y0`` is a later point of it (resume).
@@ -735,7 +841,8 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                             max_jump=max_jump, backtrack=backtrack, stall=stall,
                             solve_first=solve_first, tangent0=tangent0, desc=desc,
                             monitor=monitor, lam_start=lam_start,
-                            adapt_scale=adapt_scale, z_origin=z_origin)
+                            adapt_scale=adapt_scale, z_origin=z_origin,
+                            keep_orientation=keep_orientation)
         span = abs(cont.lam_end - cont.lam0)
         done = 0
         while True:

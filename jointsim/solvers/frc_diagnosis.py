@@ -176,3 +176,42 @@ def diagnose_failure(resonances, lam: float, rel: float = 0.1):
         return None
     unb = [r for r in near if r.unbounded]
     return min(unb or near, key=lambda r: abs(r.omega - lam))
+
+
+def closing_advice(joint, effects, message: str) -> str:
+    """A failed branch's message extended by the sampled-closing advice, when it applies.
+
+    With an anchored slider law (``joint.reversal = "anchor"``, law ``jenkins`` or
+    ``iwan4``) on a coupled, separating contact and ``joint.closing = "sample"``, a
+    slider that re-closes takes its anchor at the first closed AFT sample, so the
+    residual jumps a little whenever a closing instant crosses a sample.  Where the
+    branch folds (a near-singular Jacobian) these jumps leave nearby pieces of the
+    branch that the stepper can take for the branch and zig-zag between (the coupled
+    lap joint's 20 N FRC at H = 0..11, Nt = 256 near 1033 rad/s; README "Hard
+    cases").  ``joint.closing = "interpolated"`` makes the residual continuous there.
+
+    Parameters
+    ----------
+    joint, effects : scene sections
+        ``scene.joint`` and ``scene.effects``.
+    message : str
+        The branch's failure message.
+
+    Returns
+    -------
+    str
+        ``message``, with the advice appended when the branch's corrector failed on
+        such a contact (and the message does not already name the closing).
+    """
+    if ("corrector failed" not in message or "joint.closing" in message
+            or getattr(joint, "closing", "sample") != "sample"
+            or joint.reversal != "anchor" or joint.law not in ("jenkins", "iwan4")
+            or not (effects.friction and effects.normal == "coupled" and effects.separation)):
+        return message
+    return (f"{message}; this coupled, separating contact takes a re-closing slider's "
+            f"anchor at the first closed AFT sample (joint.closing = 'sample'), so the "
+            f"residual jumps a little whenever a closing instant crosses a sample, and "
+            f"where the branch folds these jumps leave nearby pieces of it that the "
+            f"continuation can zig-zag between: set joint.closing = 'interpolated' (the "
+            f"residual is then continuous there), or change analysis.hbm.n_samples or "
+            f"analysis.hbm.step_max")
