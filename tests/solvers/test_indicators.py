@@ -56,6 +56,25 @@ def _check(est, true, what):
         f"{what}: order differs: estimates {est}, true {true}"
 
 
+def _check_epmc_ladder(runs, ep_ref, y_ref, label):
+    """Check each EPMC indicator (state, frequency, damping ratio) of ``runs``, a list
+    of ``(system, epmc, y)`` at the same modal amplitude, against the true error from the
+    reference point ``(ep_ref, y_ref)`` with :func:`_check`."""
+    Xr = ep_ref.coefficients(y_ref)
+    wr, zr = y_ref[-3], y_ref[-2] / (2 * y_ref[-3])
+    est, true = {"X": [], "w": [], "z": []}, {"X": [], "w": [], "z": []}
+    for s, ep, y in runs:
+        ind = ErrorEstimator(s).epmc(ep, y)
+        est["X"].append(ind.estimate)
+        true["X"].append(_rel(ep.coefficients(y), Xr, s))
+        est["w"].append(ind.frequency)
+        true["w"].append(abs(y[-3] - wr) / wr)
+        est["z"].append(ind.damping)
+        true["z"].append(abs(y[-2] / (2 * y[-3]) - zr) / abs(zr))
+    for k, what in (("X", "state"), ("w", "frequency"), ("z", "damping ratio")):
+        _check(est[k], true[k], f"{label}: {what}")
+
+
 class _Case:
     """A forced point: its refined solutions and indicators at several settings."""
 
@@ -167,20 +186,8 @@ def test_epmc_indicators_track_the_true_error(amp):
     nz = s7.n_z
     _, epr, yr = _mode_point(m, 63, 4096, amp, np.append(_embed(s7, y7[:nz], 63),
                                                           y7[nz:nz + 2]))
-    Xr = epr.coefficients(yr)
-    wr, zr = yr[-3], yr[-2] / (2 * yr[-3])
-    est, true = {"X": [], "w": [], "z": []}, {"X": [], "w": [], "z": []}
-    for H, nt in ((3, 128), (7, 32), (7, 512)):
-        s, ep, y = _mode_point(m, H, nt, amp)
-        ind = ErrorEstimator(s).epmc(ep, y)
-        est["X"].append(ind.estimate)
-        true["X"].append(_rel(ep.coefficients(y), Xr, s))
-        est["w"].append(ind.frequency)
-        true["w"].append(abs(y[-3] - wr) / wr)
-        est["z"].append(ind.damping)
-        true["z"].append(abs(y[-2] / (2 * y[-3]) - zr) / abs(zr))
-    for k, what in (("X", "state"), ("w", "frequency"), ("z", "damping ratio")):
-        _check(est[k], true[k], f"epmc {what} at a = {amp}")
+    runs = [_mode_point(m, H, nt, amp) for H, nt in ((3, 128), (7, 32), (7, 512))]
+    _check_epmc_ladder(runs, epr, yr, f"epmc at a = {amp}")
 
 
 # -- the FE joint ------------------------------------------------------------------------
@@ -249,22 +256,12 @@ def _fe_epmc_check(scene, lam, settings, href=31, nref=2048):
     nz = s7.n_z
     _, epr, yr = _fe_mode_point(model, em, href, nref, lam,
                                 np.append(_embed(s7, y7[:nz], href), y7[nz:nz + 2]))
-    Xr = epr.coefficients(yr)
-    wr, zr = yr[-3], yr[-2] / (2 * yr[-3])
-    est, true = {"X": [], "w": [], "z": []}, {"X": [], "w": [], "z": []}
     Q7 = y7[:nz].reshape(s7.n_c, s7.n_r)
+    runs = []
     for H, nt in settings:
         g = _embed(s7, y7[:nz], H) if H >= 7 else Q7[:2 * H + 1].ravel()
-        s, ep, y = _fe_mode_point(model, em, H, nt, lam, np.append(g, y7[nz:nz + 2]))
-        ind = ErrorEstimator(s).epmc(ep, y)
-        est["X"].append(ind.estimate)
-        true["X"].append(_rel(ep.coefficients(y), Xr, s))
-        est["w"].append(ind.frequency)
-        true["w"].append(abs(y[-3] - wr) / wr)
-        est["z"].append(ind.damping)
-        true["z"].append(abs(y[-2] / (2 * y[-3]) - zr) / abs(zr))
-    for k, what in (("X", "state"), ("w", "frequency"), ("z", "damping ratio")):
-        _check(est[k], true[k], f"FE epmc {what} at log10 a = {lam}")
+        runs.append(_fe_mode_point(model, em, H, nt, lam, np.append(g, y7[nz:nz + 2])))
+    _check_epmc_ladder(runs, epr, yr, f"FE epmc at log10 a = {lam}")
 
 
 @pytest.mark.slow
