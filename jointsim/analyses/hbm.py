@@ -49,7 +49,8 @@ from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
 from ..solvers.crosscheck import HBMSolutions
 from ..harmonics import harmonic_amplitude
 from ..results import Convergence
-from ..solvers.frc_diagnosis import closing_advice, diagnose_failure, undamped_resonances
+from ..solvers.frc_diagnosis import (closing_advice, diagnose_failure, sampled_reclosing,
+                                     undamped_resonances)
 from ..solvers.hbm import HBMSystem, first_point, frc_scales, refine_peak
 from ..solvers.indicators import ErrorEstimator, ToleranceWatch, safe_indicators
 from ..solvers.jacobian import BorderedJacobian
@@ -90,7 +91,8 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
     todo = _branches_to_run(writer, a, g)
     job_args = dict(system=system, a=a, dof=dof,
                     want_aft=loop_rule(scene) in ("all", "masing.points"),
-                    n_branches=len(a.force_scale))
+                    n_branches=len(a.force_scale),
+                    keep_orientation=sampled_reclosing(scene.joint, scene.effects))
     n_workers = a.workers or min(len(todo), os.cpu_count() or 1)
     if not (n_workers > 1 and len(todo) > 1 and _can_fork() and not _in_daemon()):
         n_workers = 1
@@ -528,7 +530,8 @@ def _point_record(system, F, y, info, ib, dof, want_aft, measure="fundamental",
                 N=np.array(aft.N) if (want_aft and aft is not None) else None)
 
 
-def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progress):
+def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progress,
+                keep_orientation=False):
     """Follow one FRC branch; every accepted point goes to ``on_record(record)``.
 
     Returns
@@ -579,7 +582,8 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         step_max=a.step_max, max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
         solve_first=solve_first, tangent0=t0, on_point=on_point, progress=progress,
         desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})", lam_start=a.omega_start,
-        adapt_scale=True, z_origin=system.static_coordinates(), keep_orientation=True)
+        adapt_scale=True, z_origin=system.static_coordinates(),
+        keep_orientation=keep_orientation)
     return _explain_failure(br.convergence, system, F, a, float(br.y[-1][-1]))
 
 

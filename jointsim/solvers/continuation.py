@@ -41,8 +41,9 @@ tolerances refer to the scaled quantities.
   (``AMBIGUOUS_COS``) is oriented like the previous tangent instead, when that
   one is clearly on one side (the sign of so small a product is a coin flip).
 * Orientation kept: a point found by a remedy (a longer step, a corner step)
-  whose tangent, oriented by the direction of travel, has the other
-  ``sign det [J; t]`` than the last point is rejected
+  that runs back against the last step and whose tangent, oriented by the
+  direction of travel, has the other ``sign det [J; t]`` than the last point
+  is rejected
   and the step shrunk (it landed on a nearby piece of the branch running the
   other way; ``ORIENTATION``, up to ``ORIENTATION_MAX_UNKNOWNS``; not after a
   turn at a non-smooth fold).  A branch that gives up says when it reversed
@@ -232,7 +233,11 @@ class Continuation:
         the start of the uninterrupted one).
     keep_orientation : bool
         Reject a point found by a remedy that flips ``sign det [J; t]``
-        (:meth:`_flips`).  The FRC runner sets it; the EPMC branch of the coupled
+        (:meth:`_flips`).  The FRC runner sets it where re-closing contacts take
+        their anchor at a sample (:func:`jointsim.solvers.frc_diagnosis.
+        sampled_reclosing`: the residual's small jumps leave nearby pieces of the
+        branch); on the stiff chain (kt = 1e4, fixed N) it stopped a branch that
+        completes without it.  The EPMC branch of the coupled
         lap joint at H = 0..15 gives up with it (at log10 a = -3.93), so EPMC
         keeps the previous behaviour.
 
@@ -651,7 +656,8 @@ class Continuation:
                 continue
             if ok:
                 t_new = self._new_tangent(J, yk, yc, t)
-                if not remedy or h <= 2.0 * step_min or not self._flips(J, t_new):
+                if not remedy or h <= 2.0 * step_min or not self._reverses(yk, yc) \
+                        or not self._flips(J, t_new):
                     break
                 # a regular point whose tangent, oriented by the direction of travel,
                 # gives the branch the other orientation: the corrector landed on a
@@ -724,6 +730,18 @@ class Continuation:
             return False
         s = self._orientation_sign(J, t_new)
         return s != 0 and s != self._sign
+
+    def _reverses(self, yk, yc) -> bool:
+        """Whether the step ``yk -> yc`` (scaled) runs against the last accepted step
+        (negative cosine of the two secants).  Only such a landing is checked by
+        :meth:`_flips`: a remedy that keeps the direction of travel may cross a kink
+        of a non-smooth residual where ``sign det [J; t]`` changes legitimately
+        (the stiff chain at kt = 1e4 and the fold scene at mu = 1e6 stopped early
+        when every flipped remedy point was rejected)."""
+        if len(self.points) < 2:
+            return False
+        d0 = yk - self.points[-2] / self.scale
+        return float(d0 @ (yc - yk)) < 0.0
 
     def _lost_way(self, retraced: int) -> str:
         """What a failed branch did before it gave up, when it lost its way: its

@@ -178,6 +178,29 @@ def diagnose_failure(resonances, lam: float, rel: float = 0.1):
     return min(unb or near, key=lambda r: abs(r.omega - lam))
 
 
+def sampled_reclosing(joint, effects) -> bool:
+    """Whether re-closing sliders take their anchor at an AFT sample: an anchored slider
+    law (``joint.reversal = "anchor"``, law ``jenkins`` or ``iwan4``) on a coupled,
+    separating contact with ``joint.closing = "sample"``.  The residual then jumps a
+    little whenever a closing instant crosses a sample (:func:`closing_advice`), and
+    the FRC's continuation keeps the branch's orientation against corrector landings
+    on nearby pieces of it (``keep_orientation`` of
+    :class:`jointsim.solvers.continuation.Continuation`).
+
+    Parameters
+    ----------
+    joint, effects : scene sections
+        ``scene.joint`` and ``scene.effects``.
+
+    Returns
+    -------
+    bool
+    """
+    return (getattr(joint, "closing", "sample") == "sample" and joint.reversal == "anchor"
+            and joint.law in ("jenkins", "iwan4")
+            and bool(effects.friction and effects.normal == "coupled" and effects.separation))
+
+
 def closing_advice(joint, effects, message: str) -> str:
     """A failed branch's message extended by the sampled-closing advice, when it applies.
 
@@ -203,10 +226,8 @@ def closing_advice(joint, effects, message: str) -> str:
         ``message``, with the advice appended when the branch's corrector failed on
         such a contact (and the message does not already name the closing).
     """
-    if ("corrector failed" not in message or "joint.closing" in message
-            or getattr(joint, "closing", "sample") != "sample"
-            or joint.reversal != "anchor" or joint.law not in ("jenkins", "iwan4")
-            or not (effects.friction and effects.normal == "coupled" and effects.separation)):
+    if "corrector failed" not in message or "joint.closing" in message \
+            or not sampled_reclosing(joint, effects):
         return message
     return (f"{message}; this coupled, separating contact takes a re-closing slider's "
             f"anchor at the first closed AFT sample (joint.closing = 'sample'), so the "
