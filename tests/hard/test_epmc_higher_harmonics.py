@@ -30,19 +30,14 @@ import numpy as np
 import pytest
 
 from jointsim.run import run_scene
-from jointsim.solvers.continuation import Continuation
 
 from .._scenes import COUPLED, lap_scene
+from ._line import line_continuation
 
-
-def _line(y):
-    """``R = z - lam``: a straight branch, for the stepper's orientation rule."""
-    return np.array([y[0] - y[1]]), np.array([[1.0, -1.0]]), None
 
 
 def test_a_tiny_step_back_does_not_turn_the_branch_round():
-    c = Continuation(_line, np.zeros(2), 10.0, scale=np.ones(2), rscale=1.0, step=0.1,
-                     step_min=1e-6, step_max=0.5, max_points=50, tol=1e-12)
+    c = line_continuation()
     c.step()
     yk = c._yh
     y_prev = c.points[-2] / c.scale
@@ -55,8 +50,7 @@ def test_a_tiny_step_back_does_not_turn_the_branch_round():
 
 
 def test_a_tangent_perpendicular_to_its_secant_is_oriented_like_the_previous_one():
-    c = Continuation(_line, np.zeros(2), 10.0, scale=np.ones(2), rscale=1.0, step=0.1,
-                     step_min=1e-6, step_max=0.5, max_points=50, tol=1e-12)
+    c = line_continuation()
     c.step()
     yk = c._yh
     # a Jacobian whose null direction is e_lam, nearly perpendicular to the secant

@@ -35,21 +35,16 @@ import numpy as np
 import pytest
 
 from jointsim.run import run_scene
-from jointsim.solvers.continuation import Continuation
 from jointsim.solvers.frc_diagnosis import closing_advice
 
 from .._scenes import COUPLED, lap_scene
+from ._line import line_continuation
 from ._files import assert_all_finite
 
 
-def _line(y):
-    """``R = z - lam``: a straight branch."""
-    return np.array([y[0] - y[1]]), np.array([[1.0, -1.0]]), None
-
 
 def test_a_failed_branch_says_it_zig_zagged_and_ran_back_along_itself():
-    c = Continuation(_line, np.zeros(2), 10.0, scale=np.ones(2), rscale=1.0, step=0.1,
-                     step_min=1e-6, step_max=0.5, max_points=50, tol=1e-12)
+    c = line_continuation()
     c.step()
     c.step()
     assert c.reversals == [] and c._lost_way(0) == ""
@@ -66,9 +61,7 @@ def test_a_point_oriented_against_the_branch_is_flagged():
     """``sign det [J; t]`` is kept along a branch: on ``z = lam`` the tangent
     reversed at a regular point flips it (the landing of point 110 at 1032.506
     rad/s on the coupled lap joint); not after a turn at a non-smooth fold."""
-    c = Continuation(_line, np.zeros(2), 10.0, scale=np.ones(2), rscale=1.0, step=0.1,
-                     step_min=1e-6, step_max=0.5, max_points=50, tol=1e-12,
-                     keep_orientation=True)
+    c = line_continuation(keep_orientation=True)
     c.step()
     J, t = np.array([[1.0, -1.0]]), c._t
     assert not c._flips(J, t)
