@@ -110,3 +110,30 @@ def test_epmc_at_amplitudes_on_the_krylov_path(tmp_path):
             got[solver] = (g["omega"][()], g["damping_ratio"][()])
     np.testing.assert_allclose(got["krylov"][0], got["direct"][0], rtol=1e-9)
     np.testing.assert_allclose(got["krylov"][1], got["direct"][1], rtol=1e-6, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_coupled_lap_joint_epmc_at_h15_nt512_stops_with_its_cause(tmp_path):
+    """Open hard case (README "EPMC hard cases"): at H = 0..15 with Nt = 512 (the
+    ``reference`` preset's sampling) the branch gives up near log10 a = -4.25, where
+    H = 0..15 at Nt = 256 completes.  Until it is fixed, what must hold: no NaN or Inf
+    in the file, the points up to there kept, and a message that says the branch ran
+    back along itself.  If it completes, the test asks for the whole range."""
+    harmonics = ",".join(str(h) for h in range(16))
+    scene = lap_scene(COUPLED, ("epmc",), [DEFAULT_MESH, f"analysis.epmc.harmonics=[{harmonics}]",
+                                           "analysis.epmc.n_samples=512"])
+    out = tmp_path / "h15_512.h5"
+    try:
+        run_scene(scene, out)
+    except RuntimeError as exc:
+        assert "back along itself" in str(exc) or "zig-zags" in str(exc), str(exc)
+    with h5py.File(out, "r") as h5:
+        g = h5["epmc"]
+        for k in ("omega", "damping_ratio", "X", "amplitude"):
+            assert np.all(np.isfinite(g[k][()]))
+        lam = np.log10(g["amplitude"][()])
+        if g.attrs["branch_status"] == "complete":
+            assert lam[-1] == pytest.approx(scene.analysis.epmc.log10_amplitude_end)
+        else:
+            assert "back along itself" in g.attrs["message"], g.attrs["message"]
+            assert len(lam) >= 20 and lam[-1] > -4.5
