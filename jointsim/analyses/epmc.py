@@ -28,8 +28,8 @@ from ..io.hbm_points import write_error_indicators
 from ..io.hdf5 import unit, write_loops
 from ..masing import check_loops
 from ..results import SUCCESS, Convergence
-from ..solvers.continuation import (TARGET_ITER, Branch, PointInfo, continue_branch,
-                                     next_step)
+from ..solvers.branch_record import Branch, PointInfo
+from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
 from ..solvers.epmc import EPMCSystem
 from ..solvers.condensation import dense_array
 from ..solvers.hbm import HBMSystem

@@ -40,14 +40,9 @@ tolerances refer to the scaled quantities.
   branch round); a new tangent nearly perpendicular to that reference
   (``AMBIGUOUS_COS``) is oriented like the previous tangent instead, when that
   one is clearly on one side (the sign of so small a product is a coin flip).
-* Orientation kept: a point found by a remedy (a longer step, a corner step)
-  that runs back against the last step and whose tangent, oriented by the
-  direction of travel, has the other ``sign det [J; t]`` than the last point
-  is rejected
-  and the step shrunk (it landed on a nearby piece of the branch running the
-  other way; ``ORIENTATION``, up to ``ORIENTATION_MAX_UNKNOWNS``; not after a
-  turn at a non-smooth fold).  A branch that gives up says when it reversed
-  direction and ran back along itself.
+* Orientation kept (``keep_orientation``): a remedy point that runs back and
+  flips ``sign det [J; t]`` is rejected and the step shrunk; a branch that gives
+  up says when it reversed and ran back along itself (:mod:`.branch_watch`).
 * No retracing: a corrected point that lies back on the last
   ``RETRACE_POINTS`` points of the branch (closer to one of their segments
   than half its distance from the current point) is rejected; at a sharp
@@ -71,14 +66,15 @@ interrupted run keeps the branch so far).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..results import (NON_FINITE, NOT_CONVERGED, STEP_TOO_SMALL, SUCCESS, Convergence)
 from .jacobian import drop_last_column, scale_columns, solve
 from .newton import NewtonOptions, newton
-from .arclength import bordered, corner_step, fold_step, orientation, tangent
+from .arclength import bordered, corner_step, fold_step, tangent
+from .branch_record import Branch, PointInfo
+from .branch_watch import lost_way_message, orientation_sign, runs_back
 
 log = logging.getLogger(__name__)
 
@@ -99,15 +95,6 @@ BEHIND_COS = 0.9
 #: more) of perpendicular to its orientation reference is ambiguously oriented by it;
 #: it is then oriented like the previous tangent when that is the clearer reference.
 AMBIGUOUS_COS = 0.2
-#: A failed branch reports the accepted points whose secant runs against the one
-#: before (cosine below ``-REVERSAL_COS``) among its last ``REVERSAL_WINDOW`` points.
-REVERSAL_COS = 0.0
-REVERSAL_WINDOW = 100
-#: Reject a corrected point whose tangent gives the branch the other orientation
-#: ``sign det [J; t]`` than at the last point (:meth:`Continuation._flips`); only up to
-#: ``ORIENTATION_MAX_UNKNOWNS`` unknowns (a dense determinant per point).
-ORIENTATION = True
-ORIENTATION_MAX_UNKNOWNS = 2000
 #: ``adapt_scale``: rescale ``z`` when ``max|z - z0|`` exceeds this many ``z`` scales.
 SCALE_GROWTH = 2.0
 #: ``adapt_scale``: a run of points whose ``max|z - z0|`` never decreases, growing
@@ -115,56 +102,6 @@ SCALE_GROWTH = 2.0
 #: of the range, is an unbounded response (an undamped resonance).
 UNBOUNDED_GROWTH = 100.0
 UNBOUNDED_LAM = 1e-3
-
-
-@dataclass
-class PointInfo:
-    """Bookkeeping of one accepted point.
-
-    Attributes
-    ----------
-    iterations : int
-        Newton iterations of its corrector.
-    residual : float
-        ``max|R| / rscale`` at the point.
-    step : float
-        Scaled arclength step that led to it (0 for the first point).
-    tangent : ndarray, shape (n + 1,)
-        Unit tangent at the point (scaled variables).
-    extra : object
-        What the residual function returned besides ``R`` and ``J``.
-    z_scale : float
-        Largest ``z`` scale to continue from the point with (``adapt_scale``;
-        ``tangent`` is scaled by it).  A resumed branch starts with it.
-    """
-
-    iterations: int
-    residual: float
-    step: float
-    tangent: np.ndarray
-    extra: object = None
-    z_scale: float = 0.0
-
-
-@dataclass
-class Branch:
-    """A continued branch.
-
-    Attributes
-    ----------
-    y : ndarray, shape (n_points, n + 1)
-        Accepted points (unscaled), ``lam`` last.
-    iterations, residual, step : ndarray, shape (n_points,)
-    convergence : jointsim.results.Convergence
-        ``iterations`` counts accepted points.
-    """
-
-    y: np.ndarray
-    iterations: np.ndarray
-    residual: np.ndarray
-    step: np.ndarray
-    convergence: Convergence
-    tangents: list = field(default_factory=list, repr=False)
 
 
 class Continuation:
@@ -343,11 +280,8 @@ class Continuation:
         return R / self.rscale, scale_columns(J, self._col), extra
 
     def _accept(self, yh, info: PointInfo) -> None:
-        if len(self.points) > 1:
-            a, b = self.points[-2] / self.scale, self.points[-1] / self.scale
-            d0, d1 = b - a, yh - b
-            if float(d0 @ d1) < -REVERSAL_COS * np.linalg.norm(d0) * np.linalg.norm(d1):
-                self.reversals.append((len(self.points), float(yh[-1] * self.scale[-1])))
+        if self.points and self._reverses(self.points[-1] / self.scale, yh):
+            self.reversals.append((len(self.points), float(yh[-1] * self.scale[-1])))
         self.points.append(yh * self.scale)
         info.z_scale = float(self.scale[:-1].max(initial=0.0))
         self.infos.append(info)
@@ -696,72 +630,30 @@ class Continuation:
         self._check_max_points()
         return self.message
 
-    def _orientation_sign(self, J, t) -> int:
-        """``sign det [J; t]`` (scaled), 0 when not checked: ``ORIENTATION`` off, more
-        than ``ORIENTATION_MAX_UNKNOWNS`` unknowns, or non-finite values."""
-        if not ORIENTATION or self.n1 - 1 > ORIENTATION_MAX_UNKNOWNS:
-            return 0
-        return orientation(J, t)
-
     def _flips(self, J, t_new) -> bool:
         """Whether the corrected point's tangent ``t_new`` (oriented by the direction of
-        travel) gives the branch the other orientation than at the last point.
-
-        Along a branch of regular points, folds included, ``sign det [J; t]`` with
-        ``t`` the tangent in the direction of travel does not change; it changes
-        between two accepted points only at a branch point, at a non-smooth fold
-        (passed by :func:`fold_step`, which keeps the orientation and is not
-        checked here) or when the corrector landed on a nearby piece of the branch
-        that runs the other way, or turned the stepper round.  The coupled lap
-        joint's 20 N FRC at H = 0..11, Nt = 256 did that twice near 1033 rad/s
-        (J regular at both points, smallest singular values 2.6 and 2.5) and then
-        ran back along itself until the step fell below ``step_min``.  A flipped
-        point is rejected and the step shrunk.  Checked (two dense determinants)
-        only for points found by a remedy (a longer step over a kink, a corner
-        step; the flipped landing above came from :func:`corner_step`, which
-        tries both orientations of the tangent beyond a corner), not after a
-        turn at a non-smooth fold, nor when either sign is unknown.
-        """
+        travel) flips ``sign det [J; t]`` against the last point (:mod:`.branch_watch`);
+        False without ``keep_orientation``, after a turn at a non-smooth fold, or when
+        either sign is unknown."""
         if not self.keep_orientation or self._turned or self._J is None:
             return False
         if self._sign is None:
-            self._sign = self._orientation_sign(self._J, self._t)
+            self._sign = orientation_sign(self._J, self._t)
         if not self._sign:
             return False
-        s = self._orientation_sign(J, t_new)
+        s = orientation_sign(J, t_new)
         return s != 0 and s != self._sign
 
     def _reverses(self, yk, yc) -> bool:
-        """Whether the step ``yk -> yc`` (scaled) runs against the last accepted step
-        (negative cosine of the two secants).  Only such a landing is checked by
-        :meth:`_flips`: a remedy that keeps the direction of travel may cross a kink
-        of a non-smooth residual where ``sign det [J; t]`` changes legitimately
-        (the stiff chain at kt = 1e4 and the fold scene at mu = 1e6 stopped early
-        when every flipped remedy point was rejected)."""
+        """Whether the step ``yk -> yc`` (scaled) runs back against the last accepted
+        step (:func:`.branch_watch.runs_back`)."""
         if len(self.points) < 2:
             return False
-        d0 = yk - self.points[-2] / self.scale
-        return float(d0 @ (yc - yk)) < 0.0
+        return runs_back(yk - self.points[-2] / self.scale, yc - yk)
 
     def _lost_way(self, retraced: int) -> str:
-        """What a failed branch did before it gave up, when it lost its way: its
-        last corrector tries landed back on the branch already traced (``retraced``
-        of them in the failed step), and the lam of its recent reversals (accepted
-        points whose secant runs against the one before, ``REVERSAL_COS``).
-        Empty when neither happened."""
-        rev = [lam for i, lam in self.reversals if len(self.points) - i <= REVERSAL_WINDOW]
-        if not retraced and not rev:
-            return ""
-        out = []
-        if retraced:
-            out.append(f"{retraced} of its last corrector tries landed back on the branch "
-                       f"already traced (the branch was running back along itself)")
-        if rev:
-            where = ", ".join(f"{v:.8g}" for v in rev[-6:])
-            out.append(f"in its last {REVERSAL_WINDOW} points it reversed direction "
-                       f"{len(rev)} times (at lam = {where}): it zig-zags between nearby "
-                       f"pieces of the branch, a fold or corner it did not resolve")
-        return "; " + "; ".join(out)
+        """:func:`.branch_watch.lost_way_message` of this branch."""
+        return lost_way_message(self.reversals, len(self.points), retraced)
 
     def _rescale(self) -> None:
         """``adapt_scale``: grow the ``z`` scales with the solution; stop an unbounded one."""
