@@ -43,6 +43,14 @@ Crash consistency (issue 11):
   renames the file to ``<name>.damaged`` (:func:`set_aside`) and computes
   the run again from the start, so that the run still completes with the
   uninterrupted result.
+* **Resumed files are rewritten.**  A kill inside that flush can also leave
+  a file that reads whole but whose free-space bookkeeping (the end of the
+  allocated space recorded in the superblock) lags behind blocks that its
+  metadata already points to; appending to it in place would then overwrite
+  them.  ``--resume`` therefore copies every object of the killed file into a
+  new file (:func:`rewrite`) and renames it over the old one before it appends;
+  the copy reads every block, data included, so a file with a block beyond its
+  recorded end is found damaged and set aside like the others.
 """
 from __future__ import annotations
 
@@ -139,6 +147,33 @@ def set_aside(path) -> Path:
         dest = path.with_name(f"{path.name}.damaged.{k}")
     os.replace(path, dest)
     return dest
+
+
+def rewrite(path) -> None:
+    """Copy every object and attribute of ``path`` into a new file and rename it over ``path``.
+
+    The copy allocates its space afresh, so nothing of the old file's
+    free-space bookkeeping survives; a kill during the copy leaves ``path``
+    as it was (the copy is written under ``<name>.new``).  Soft links stay
+    soft links.
+    """
+    path = Path(path)
+    fresh = path.with_name(path.name + ".new")
+    try:
+        with h5py.File(path, "r", locking=False) as src, \
+                h5py.File(fresh, "w", locking=False) as dst:
+            for key, value in src.attrs.items():
+                dst.attrs[key] = value
+            for name in src:
+                link = src.get(name, getlink=True)
+                if isinstance(link, h5py.SoftLink):
+                    dst[name] = h5py.SoftLink(link.path)
+                else:
+                    src.copy(src[name], dst, name=name)
+    except BaseException:
+        fresh.unlink(missing_ok=True)
+        raise
+    os.replace(fresh, path)
 
 
 def lock_path(path) -> Path:
@@ -435,6 +470,11 @@ class ResultWriter:
             try:
                 with h5py.File(self.path, "r", locking=False) as h5:
                     _walk(h5)
+                    ours = "schema_version" in h5.attrs and h5.attrs.get("scene", "") == scene.text
+                if ours:
+                    # never append to a killed file in place: the copy reads every block
+                    # (data too) and allocates afresh (module doc, "Resumed files")
+                    rewrite(self.path)
             except (OSError, KeyError, RuntimeError, ValueError) as exc:
                 # torn inside the HDF5 library (a kill during its flush): what it
                 # held cannot be trusted; keep it aside and compute the run again

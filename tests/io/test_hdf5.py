@@ -161,3 +161,100 @@ def test_loops_resumed_from_a_file_without_the_excess_stay_aligned(tmp_path):
         write_loops(w, 1, u, f, N, rep, "SI", "prescribed")
     with open_result(tmp_path / "n.h5") as h5:
         assert h5["prescribed/masing/manifold_excess"].shape == (2, 1)
+
+
+def _everything(path) -> dict:
+    """Every attribute and dataset of a file, by path (soft links as their targets)."""
+    out = {}
+    with h5py.File(path, "r", locking=False) as h5:
+        out["/"] = {k: str(v) for k, v in h5.attrs.items()}
+
+        def visit(name, obj):
+            out[name] = {k: str(v) for k, v in obj.attrs.items()}
+            if isinstance(obj, h5py.Dataset):
+                out[name + "[]"] = (obj[()].tolist(), obj.maxshape)
+        h5.visititems(visit)
+        out["links"] = {k: h5.get(k, getlink=True).path for k in h5
+                        if isinstance(h5.get(k, getlink=True), h5py.SoftLink)}
+    return out
+
+
+def test_resume_copies_the_file_afresh_with_its_content(tmp_path):
+    """--resume never appends to a killed file in place: it copies every object into a new
+    file first (same attributes, rows, extendable shapes and soft links), then appends."""
+    scene = load_scene(SEED / "const.toml")
+    path = tmp_path / "r.h5"
+    with ResultWriter(path, scene) as w:
+        for i in range(4):
+            with w.commit():
+                w.append("hbm/omega", np.float64(i), "rad/s", doc="frequency")
+                w.append("hbm/loops/u", np.arange(3.0) + i, "m")
+        w.h5["loops"] = h5py.SoftLink("/hbm/loops")
+        w.finish("interrupted", "stopped")
+    before = _everything(path)
+    inode = path.stat().st_ino
+    with ResultWriter(path, scene, resume=True) as w:
+        assert path.stat().st_ino != inode           # a new file, renamed into place
+        after = _everything(path)
+        w.append("hbm/omega", np.float64(9.0), "rad/s")
+    assert not (tmp_path / "r.h5.new").exists()
+    for key in ("status", "message", "pid"):         # what resuming itself changes
+        before["/"].pop(key), after["/"].pop(key)
+    assert after == before
+    assert after["links"] == {"loops": "/hbm/loops"}
+    assert after["hbm/omega[]"][1] == (None,)        # still extendable
+    with h5py.File(path, "r") as h5:
+        assert list(h5["hbm/omega"][()]) == [0.0, 1.0, 2.0, 3.0, 9.0]
+        np.testing.assert_array_equal(h5["loops/u"][3], [3.0, 4.0, 5.0])
+
+
+def test_resume_sets_aside_a_file_with_data_beyond_its_recorded_end(tmp_path, caplog):
+    """A kill inside HDF5's flush can leave the superblock's end of file short of blocks
+    that the metadata already points to: such a file reads whole as metadata (the old
+    check passed it) but appending in place overwrites those blocks.  Built here by
+    moving the recorded end back; --resume must find it damaged, set it aside and
+    compute the run again."""
+    import struct
+    scene = load_scene(SEED / "const.toml")
+    good = tmp_path / "good.h5"
+    with ResultWriter(good, scene) as w:
+        for i in range(4):
+            with w.commit():
+                w.append("hbm/X", np.full(50, float(i)), "m")
+        w.finish("interrupted", "stopped")
+    with h5py.File(good, "a") as h5:                 # rows whose data land at the file's end
+        h5["hbm/X"].resize((200, 50))
+        h5["hbm/X"][4:] = np.arange(196.0)[:, None]
+    data = good.read_bytes()
+    assert data[8] == 0, "expected a version-0 superblock (end of file address at byte 40)"
+    path = tmp_path / "r.h5"
+
+    def walks(p) -> bool:
+        try:
+            with h5py.File(p, "r") as h5:
+                h5.visititems(lambda n, o: dict(o.attrs) and None)
+            return True
+        except (OSError, RuntimeError):
+            return False
+
+    def reads(p) -> bool:
+        try:
+            with h5py.File(p, "r") as h5:
+                h5["hbm/X"][()]
+            return True
+        except (OSError, RuntimeError):
+            return False
+    for cut in range(len(data) - 8, len(data) // 2, -8):
+        torn = bytearray(data)
+        struct.pack_into("<Q", torn, 40, cut)
+        path.write_bytes(bytes(torn))
+        if walks(path) and not reads(path):
+            break
+    else:
+        pytest.fail("no end-of-file address found that hides only data blocks")
+    with ResultWriter(path, scene, resume=True) as w:
+        assert w.rows("hbm/X") == 0                  # computed again from the start
+    assert (tmp_path / "r.h5.damaged").exists()
+    assert "damaged" in caplog.text
+    with h5py.File(path, "r") as h5:
+        assert h5.attrs["status"] == "complete"
