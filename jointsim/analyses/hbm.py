@@ -538,6 +538,7 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
     -------
     Convergence
     """
+    t_branch = time.perf_counter()
     F = system.force_coefficients(job.fs)
     scale, rscale = frc_scales(system, F, a.omega_start, a.omega_end)
     system.stats.take()          # the scales' solves are not a point's
@@ -584,6 +585,8 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})", lam_start=a.omega_start,
         adapt_scale=True, z_origin=system.static_coordinates(),
         keep_orientation=keep_orientation)
+    log.info("hbm branch %d/%d (force scale %g): %d points in %.1f s", job.ib + 1, n_branches,
+             job.fs, len(br.y), time.perf_counter() - t_branch)
     return _explain_failure(br.convergence, system, F, a, float(br.y[-1][-1]))
 
 
@@ -692,7 +695,10 @@ def _run_branches_forked(todo, job_args, n_workers, write_point, finish_branch):
     from tqdm import tqdm
     ctx = mp.get_context("fork")
     q = ctx.Queue()
-    pending = list(todo)
+    # the largest force scale first (longest branch first: gross slip costs the most
+    # per point), so that the short ones fill the other workers; the branches and the
+    # file's rows do not depend on the order (issue 10)
+    pending = sorted(todo, key=lambda job: -abs(float(job.fs)))
     running: dict[int, tuple] = {}
     failures: list[str] = []
     bar = tqdm(desc=f"hbm ({n_workers} workers)", unit="pt", disable=None, leave=False)

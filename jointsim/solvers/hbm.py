@@ -123,6 +123,9 @@ class HBMSystem:
         self.krylov = linear_solver == "krylov"
         self.stats = LinearStats()
         self.preconditioner = PreconditionerCache()
+        #: ``(omega, xi) -> (blocks, S)`` of the last ``OMEGA_CACHE`` frequencies
+        #: (:meth:`harmonic_blocks`; an explicit attribute, never shared between systems)
+        self.omega_cache = {}
         #: GMRES tolerance of the Krylov path's solves (relative residual)
         self.krylov_rtol = KRYLOV_RTOL
         log.info("HBM system: %d DOFs condensed onto %d contact coordinates x %d "
@@ -168,6 +171,42 @@ class HBMSystem:
             out[ic] = v.real
             out[is_] = -v.imag
 
+    # -- the linear part per frequency ------------------------------------------
+    def harmonic_blocks(self, omega: float, xi: float = 0.0):
+        """Per harmonic ``(A, B, B', Ef)`` at ``omega`` (``Ef`` factorised) and the list
+        of the ``S_h`` formed from them so far (None until formed).
+
+        They depend on ``(omega, xi)`` only, so the last ``OMEGA_CACHE`` frequencies
+        are kept in :attr:`omega_cache`: Newton at a fixed frequency (the first point,
+        the scale estimate, the corrector closing a branch, peak refinement) and the
+        reconstruction of an accepted point form them once, and every structured
+        Jacobian at that frequency shares its ``S_h`` (formed once).  Bit-identical to
+        forming them again (the same operations).
+
+        Returns
+        -------
+        blocks : list of tuple
+            ``(A, B, B', Ef)`` per harmonic of the basis (read-only arrays).
+        S : list
+            ``S_h`` per harmonic once formed (:meth:`HBMJacobian.schur`), else None.
+        """
+        key = (float(omega), float(xi))
+        cache = self.omega_cache
+        got = cache.pop(key, None)
+        if got is None:
+            lin = self.lin
+            blocks = []
+            for h in self.basis.harmonics:
+                A, B, Bp, E = lin.blocks(h * omega, xi)
+                for a in (A, B, Bp):
+                    a.flags.writeable = False
+                blocks.append((A, B, Bp, lin.factor_E(E) if lin.n_y else E))
+            got = (blocks, [None] * len(blocks))
+        cache[key] = got                       # most recent last
+        while len(cache) > OMEGA_CACHE:
+            cache.pop(next(iter(cache)))
+        return got
+
     # -- residual --------------------------------------------------------------
     def evaluate(self, z, omega: float, F, xi: float = 0.0, jacobian: bool = True,
                  wrt=("omega",), J_out=None) -> Evaluation:
@@ -201,10 +240,9 @@ class HBMSystem:
             if jacobian and not structured else None
         dR = {p: np.zeros((nc, nr)) for p in wrt} if jacobian else {}
         lin = self.lin
-        for h in self.basis.harmonics:
+        hblocks, S_kept = self.harmonic_blocks(omega, xi)
+        for h, (A, B, Bp, Ef) in zip(self.basis.harmonics, hblocks):
             nu = h * omega
-            A, B, Bp, E = lin.blocks(nu, xi)
-            Ef = lin.factor_E(E) if lin.n_y else E
             qh = self._complex(Q, h)
             Fh = self._complex(F, h)
             Fq = lin.Psi.T @ Fh
@@ -263,7 +301,8 @@ class HBMSystem:
                             aft.Jug if (aft is not None and self.friction and self.coupled)
                             else None,
                             aft.JNN if (aft is not None and self.coupled) else None,
-                            stats=self.stats, cache=self.preconditioner, rtol=self.krylov_rtol)
+                            stats=self.stats, cache=self.preconditioner, rtol=self.krylov_rtol,
+                            schur=S_kept)
         return Evaluation(R=R.ravel(), J=J, dR={p: v.ravel() for p, v in dR.items()}, aft=aft)
 
     def _add_element_blocks(self, J, aft):
@@ -279,8 +318,15 @@ class HBMSystem:
         Q = np.asarray(z, dtype=float).reshape(nc, nr)
         X = np.zeros((nc, self.model.n_dof))
         lin = self.lin
-        for h in self.basis.harmonics:
-            _, _, Bp, E = lin.blocks(h * omega, xi, parts="yq")
+        # the blocks of an evaluated frequency (not for a full E: its solve from the
+        # LU factors differs from a fresh solve in the last bits)
+        kept = self.omega_cache.get((float(omega), float(xi))) \
+            if lin.kind != "direct" else None
+        for k, h in enumerate(self.basis.harmonics):
+            if kept is not None:
+                _, _, Bp, E = kept[0][k]
+            else:
+                _, _, Bp, E = lin.blocks(h * omega, xi, parts="yq")
             qh = self._complex(Q, h)
             Fy = lin.Z.T @ self._complex(F, h)
             y = lin.solve_E(E, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)
@@ -441,6 +487,9 @@ def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: in
 #: :func:`frc_scales`: the resonance solve gives up when its best residual has not
 #: fallen by 10 % in this many Newton steps
 RESONANCE_STALL = 3
+#: Frequencies whose harmonic blocks an :class:`HBMSystem` keeps
+#: (:meth:`HBMSystem.harmonic_blocks`).
+OMEGA_CACHE = 2
 #: :func:`frc_scales`: ... or when an iterate is farther from the static state than
 #: this many times the stuck response
 RESONANCE_BOUND = 10.0

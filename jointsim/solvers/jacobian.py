@@ -100,7 +100,7 @@ class LinearStats:
 # GMRES
 # --------------------------------------------------------------------------
 def gmres(matvec, b, psolve, rtol: float = KRYLOV_RTOL, restart: int = KRYLOV_RESTART,
-          maxiter: int = KRYLOV_MAXITER):
+          maxiter: int = KRYLOV_MAXITER, x0=None):
     """Right-preconditioned restarted GMRES for ``A x = b`` (real).
 
     Minimises ``|b - A P^-1 u|`` over the Krylov space of ``A P^-1``, with
@@ -117,6 +117,9 @@ def gmres(matvec, b, psolve, rtol: float = KRYLOV_RTOL, restart: int = KRYLOV_RE
     rtol : float
         Stop at ``|b - A x| <= rtol |b|``.
     restart, maxiter : int
+    x0 : ndarray, shape (n,), optional
+        Start (default zero), e.g. the result of an attempt that ran out of
+        iterations.
 
     Returns
     -------
@@ -139,6 +142,10 @@ def gmres(matvec, b, psolve, rtol: float = KRYLOV_RTOL, restart: int = KRYLOV_RE
     total = 0
     r = b.copy()
     beta = bn
+    if x0 is not None and np.all(np.isfinite(x0)):
+        r0 = b - matvec(x0)
+        if float(np.linalg.norm(r0)) < bn:          # a better start than zero
+            x, r, beta = np.array(x0, dtype=float), r0, float(np.linalg.norm(r0))
     while True:
         if beta <= rtol * bn or total >= maxiter:
             return x, total, beta / bn
@@ -213,10 +220,14 @@ class HBMJacobian:
     rtol : float, optional
         GMRES tolerance of its solves (default ``KRYLOV_RTOL``; the error indicators
         use a looser one).
+    schur : list, optional
+        The ``S_h`` list (entries None until formed) shared by every Jacobian at the
+        same frequency (:meth:`jointsim.solvers.hbm.HBMSystem.harmonic_blocks`);
+        default a list of its own.
     """
 
     def __init__(self, basis, lin, blocks, t_row, n_row, Juu=None, Jug=None, JNN=None,
-                 col=None, stats=None, cache=None, rtol=None):
+                 col=None, stats=None, cache=None, rtol=None, schur=None):
         self.basis, self.lin, self.blocks = basis, lin, blocks
         self.n_r = lin.n_r
         self.n_c = basis.n_coeff
@@ -232,7 +243,8 @@ class HBMJacobian:
         self._ic = np.array([basis.index[k][0] for k in h])
         self._is = np.array([basis.index[k][1] if k else basis.index[k][0] for k in h])
         self._h0 = np.array([k == 0 for k in h])
-        self._S = [None] * len(blocks)        # S_h once formed (shared by scaled copies)
+        # S_h once formed (shared by scaled copies and Jacobians at the same frequency)
+        self._S = [None] * len(blocks) if schur is None else schur
         self._products = [0]                  # unformed J v so far (shared likewise)
 
     # -- pieces -------------------------------------------------------------------
@@ -251,12 +263,18 @@ class HBMJacobian:
             self.schur(i)
 
     def schur(self, i: int) -> np.ndarray:
-        """``S_h`` (complex, n_r x n_r) of the ``i``-th harmonic (formed once, then kept)."""
+        """``S_h`` (complex, n_r x n_r) of the ``i``-th harmonic (formed once, then kept).
+
+        Returns the kept array itself, read-only (no copy: callers that modify it,
+        like the preconditioner's build, copy it into their own storage).
+        """
         if self._S[i] is None:
             A, B, Bp, Ef = self.blocks[i]
-            self._S[i] = np.array(A, dtype=complex) if not self.lin.n_y \
+            S = np.array(A, dtype=complex) if not self.lin.n_y \
                 else A - B @ self.lin.solve_E(Ef, Bp)
-        return self._S[i].copy()
+            S.flags.writeable = False
+            self._S[i] = S
+        return self._S[i]
 
     def _apply_S(self, Xc, herm: bool = False):
         """``S_h x_h`` (or ``S_h^H x_h``) for every harmonic; ``Xc`` (n_h, n_r) complex."""
@@ -420,7 +438,8 @@ def krylov_solve(core: HBMJacobian, matvec, b, make_psolve, shift=None):
     total = it
     if rel > rtol and not fresh:
         P, fresh = cache.refresh(core, shift), True
-        x, it, rel = gmres(matvec, b, make_psolve(P), rtol=rtol)
+        # on from where the reused preconditioner got to
+        x, it, rel = gmres(matvec, b, make_psolve(P), rtol=rtol, x0=x)
         total += it
     if stats is not None:
         stats.solves += 1

@@ -39,6 +39,17 @@ ITERATION_WEIGHT = 2.5
 #: Largest threshold of the chord policy (GMRES iterations; below the restart length).
 REFRESH_MAX = 60
 
+#: A truncated preconditioner (gross slip: 25 to 50 GMRES iterations even fresh, so
+#: it serves its own Jacobian only and every Newton iteration builds one) would be
+#: offered to the next Jacobians while a solve with it needs at most this many times
+#: the iterations it needed fresh (0: never).  Off: measured side by side at 121
+#: pairs, force scale 20, first 12 points, load 10 (``benchmarks/profile_case.py hbm
+#: --force 20 --points 12``), at 2.0 the builds went 46 -> 22 but the GMRES
+#: iterations 1,976 -> 3,489 and the time 61.9 -> 74.1 s (a reused truncated
+#: preconditioner needs about twice its fresh iterations; they cost more than the
+#: builds saved).
+TRUNCATED_REUSE = 0.0
+
 #: Add the element-block stage to the harmonic preconditioner (when its low-rank
 #: correction is truncated or off).
 TWO_STAGE = True
@@ -114,16 +125,28 @@ class PreconditionerCache:
             jac.stats.factorizations += 1
         return self.current
 
+    def _truncated(self) -> bool:
+        """Whether the current preconditioner is a truncated one kept for reuse
+        (``TRUNCATED_REUSE``)."""
+        return TRUNCATED_REUSE > 0 and self.current is not None \
+            and bool(getattr(self.current, "truncated", False))
+
     def budget(self) -> int:
         """GMRES iterations a reused preconditioner gets before it is rebuilt."""
-        return self.threshold() if self.cost_reuse else 2 * self.threshold()
+        if self.cost_reuse or self._truncated():
+            return self.threshold()
+        return 2 * self.threshold()
 
     def threshold(self) -> int:
         """GMRES iterations above which the preconditioner is dropped.
 
         With the cost model: the iterations it needed when fresh plus the number of
-        iterations a build costs (``build_flops / iteration_flops``).
+        iterations a build costs (``build_flops / iteration_flops``).  A truncated one
+        (``TRUNCATED_REUSE``): that factor times the iterations it needed fresh.
         """
+        if self._truncated():
+            return max(self.refresh_iterations,
+                       int(TRUNCATED_REUSE * max(self.fresh_iterations, 1)))
         if not self.cost_reuse or self.current is None \
                 or self.fresh_iterations > self.refresh_iterations:
             return self.refresh_iterations
@@ -178,11 +201,15 @@ class HarmonicPreconditioner:
     def __init__(self, jac, shift=None):
         self.jac = jac
         self.C2 = None
-        blocks = []
         t, n = jac.t_row, jac.n_row
+        nr = jac.n_r
+        # assembled in place in one stacked (n_h, n_r, n_r) array (S_h is jac's kept,
+        # read-only array: copied once, here)
+        blocks = np.empty((len(jac.basis.harmonics), nr, nr), dtype=complex)
         for i, h in enumerate(jac.basis.harmonics):
             ic, is_ = jac._ic[i], jac._is[i]
-            P = jac.schur(i)
+            P = blocks[i]
+            P[...] = jac.schur(i)
             if jac.Juu is not None:
                 P[t, t] += _project(jac.Juu, ic, is_, h)
             if jac.Jug is not None:
@@ -190,15 +217,14 @@ class HarmonicPreconditioner:
             if jac.JNN is not None:
                 P[n, n] -= _project(jac.JNN, ic, is_, h)
             if shift is not None and shift[0] == i:
-                P = P + self._rank_one(P, i, shift[1], shift[2])
-            blocks.append(P)
+                P += self._rank_one(P, i, shift[1], shift[2])
         # explicit inverses, stacked (n_h, n_r, n_r): one batched product per
         # application, and the (R, R) rows and columns the low-rank stage needs
         try:
-            self.Pinv = np.linalg.inv(np.array(blocks))
+            self.Pinv = np.linalg.inv(blocks)
         except np.linalg.LinAlgError:      # a singular block: GMRES then has to cope
             log.debug("harmonic preconditioner: a singular block, pseudo-inverse used")
-            self.Pinv = np.linalg.pinv(np.array(blocks))
+            self.Pinv = np.linalg.pinv(blocks)
         self.Pinv[jac._h0] = self.Pinv[jac._h0].real
         self.lowrank = None
         self.truncated = True
@@ -360,6 +386,8 @@ class HarmonicPreconditioner:
             np.matmul(G[:, l * d:(l + 1) * d], Ls[l], out=Mk[:, l * d:(l + 1) * d])
         Mk[np.arange(m), np.arange(m)] += 1.0
         self.lowrank = (R, Ls, sla.lu_factor(Mk, check_finite=False), nR, nb)
+        # the R columns of P_h^-1: the correction P^-1 E (L x_K) lives on the R rows
+        self.PinvR = np.ascontiguousarray(self.Pinv[:, :, R])
 
     def _harmonic_solve(self, V):
         """``P^-1`` of the harmonic stage; ``V`` (n_c, n_r) real, returns (n_c, n_r)."""
@@ -434,7 +462,11 @@ class HarmonicPreconditioner:
         # element-major K order (l, b, k) from the (k, b nl + l) columns of Y
         yK = Y[:, R].reshape(nc, nb, nl).transpose(2, 1, 0).ravel()
         xK = sla.lu_solve(Mlu, yK, check_finite=False)
-        w = np.matmul(Ls, xK.reshape(nl, nb * nc, 1))           # E L E^T x_K
-        W = np.zeros_like(V)
-        W[:, R] = w.reshape(nl, nb, nc).transpose(2, 1, 0).reshape(nc, nR)
-        return (Y - self._harmonic_solve(W)).ravel()
+        w = np.matmul(Ls, xK.reshape(nl, nb * nc, 1))           # L x_K on the R rows
+        # P^-1 E (L x_K): only the R columns of P_h^-1 (n_r x nR per harmonic, not
+        # n_r x n_r: the same nonzero terms, a fraction of the memory traffic)
+        Xw = jac._to_complex(w.reshape(nl, nb, nc).transpose(2, 1, 0).reshape(nc, nR))
+        Yw = np.matmul(self.PinvR, Xw[:, :, None])[:, :, 0]
+        out = np.empty_like(V)
+        jac._from_complex(Yw, out)
+        return (Y - out).ravel()

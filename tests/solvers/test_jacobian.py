@@ -112,6 +112,70 @@ def test_gmres_solves_a_nonsymmetric_system():
     assert np.abs(x - np.linalg.solve(A, b)).max() <= 1e-10 * np.abs(x).max()
 
 
+def test_gmres_goes_on_from_a_start():
+    """GMRES from ``x0`` (the result of an attempt that ran out of iterations) reaches
+    the dense solution; from the solution itself it takes no iteration."""
+    rng = np.random.default_rng(6)
+    A = np.eye(120) * 4 + rng.normal(size=(120, 120)) / 10
+    b = rng.normal(size=120)
+    xd = np.linalg.solve(A, b)
+    x5, it5, rel5 = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-12, maxiter=5)
+    assert it5 == 5 and rel5 > 1e-6
+    x, it, rel = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-12, x0=x5)
+    assert rel <= 1e-12 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
+    _x, it0, _rel = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-8, x0=xd)
+    assert it0 == 0
+
+
+@pytest.mark.parametrize("law,normal", [("jenkins", "coupled"), ("jenkins", "fixed")])
+def test_frequency_cache_is_bit_identical(law, normal):
+    """The blocks and S_h kept per frequency (HBMSystem.harmonic_blocks): a second
+    evaluation at the same frequency gives the same residual, products and
+    reconstruction bit for bit as a system that forms everything afresh, shares the
+    formed S_h, and at most OMEGA_CACHE frequencies are kept."""
+    from jointsim.solvers import hbm as hbm_mod
+    model = build_model(four_dof(law, "anchor", normal))
+    _sd, sk = _pair(model)
+    _sd2, fresh = _pair(model)
+    F = sk.force_coefficients(0.3)
+    rng = np.random.default_rng(7)
+    z1, z2 = rng.normal(size=sk.n_z) * 0.4, rng.normal(size=sk.n_z) * 0.4
+    e1 = sk.evaluate(z1, 1.1, F, xi=0.05, wrt=("omega", "xi"))
+    e1.J.form_schur()
+    e2 = sk.evaluate(z2, 1.1, F, xi=0.05, wrt=("omega", "xi"))
+    assert e2.J._S is e1.J._S and all(S is not None for S in e2.J._S)
+    f2 = fresh.evaluate(z2, 1.1, F, xi=0.05, wrt=("omega", "xi"))
+    assert np.array_equal(e2.R, f2.R)
+    assert all(np.array_equal(e2.dR[p], f2.dR[p]) for p in ("omega", "xi"))
+    v = rng.normal(size=sk.n_z)
+    f2.J.form_schur()
+    assert np.array_equal(e2.J.matvec(v), f2.J.matvec(v))
+    fresh.omega_cache.clear()          # reconstruct from blocks formed afresh
+    assert np.array_equal(sk.reconstruct(z2, 1.1, F, xi=0.05),
+                          fresh.reconstruct(z2, 1.1, F, xi=0.05))
+    for w in (1.2, 1.3, 1.4):
+        sk.evaluate(z1, w, F)
+    assert len(sk.omega_cache) == hbm_mod.OMEGA_CACHE
+
+
+def test_frequency_cache_reconstructs_bit_identically_on_the_lap_joint():
+    """With the low-rank damping condensation of the coarse lap joint, the
+    reconstruction from the kept blocks equals one from blocks formed afresh bit for
+    bit (and so does a second residual at that frequency)."""
+    model = build_model(lap_scene(ROOT / "models" / "lap_joint.toml"))
+    sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    assert sk.lin.kind == "lowrank"
+    F = sk.force_coefficients(1.0)
+    z = sk.static_coordinates() + np.random.default_rng(8).normal(size=sk.n_z) * 1e-7
+    w = 2 * np.pi * 150.0
+    e1 = sk.evaluate(z, w, F)
+    X = sk.reconstruct(z, w, F)
+    assert (w, 0.0) in sk.omega_cache
+    sk.omega_cache.clear()
+    assert np.array_equal(X, sk.reconstruct(z, w, F))
+    assert np.array_equal(e1.R, sk.evaluate(z, w, F).R)
+
+
 def _run(tmp_path, path, solver):
     scene = load_scene(path, [f"analysis.{'epmc' if 'epmc' in path.name else 'hbm'}"
                               f".linear_solver='{solver}'"])
