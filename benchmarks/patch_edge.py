@@ -50,9 +50,10 @@ def main(argv=None) -> int:
     K0, M = _dense(m.K), _dense(m.M)
     Tt, Tn = _dense(c.Tt), _dense(c.Tn)
 
-    def stiffness(sel):
-        s = sel.astype(float)
-        return K0 + Tt.T @ (Tt * (kt * s)[:, None]) + Tn.T @ (Tn * (kn * s)[:, None])
+    def stiffness(sel_t, sel_n=None):
+        st = np.asarray(sel_t, dtype=float)
+        sn = st if sel_n is None else np.asarray(sel_n, dtype=float)
+        return K0 + Tt.T @ (Tt * (kt * st)[:, None]) + Tn.T @ (Tn * (kn * sn)[:, None])
 
     err = np.abs(stiffness(closed) - _dense(m.linearisation.K)).max()
     f_ref = elastic_mode(m, 1).frequency_hz
@@ -63,9 +64,23 @@ def main(argv=None) -> int:
           f"{np.abs(x[~closed]).min() * 1e3:.3f} mm; outermost N0 = "
           f"{c.N0[edge & closed].max():.4g} N (peak {c.N0.max():.4g} N); "
           f"|K_lin - rebuilt| = {err:.1e}")
-    for name, sel in (("closed set", closed), ("outermost closed nodes opened", closed & ~edge),
-                      ("next open nodes closed", closed | nxt)):
-        w2 = sla.eigh(stiffness(sel), M, eigvals_only=True)
+    inner, outer = closed & ~edge, closed | nxt
+    # pressure weights: p0 / p_ref with the nominal pressure p_ref = sum N0 / sum A
+    p0 = c.N0 / c.area
+    p_ref = c.N0.sum() / c.area.sum()
+    w = p0 / p_ref
+    print(f"  p_ref = {p_ref:.6g} Pa; outermost closed p0/p_ref = {w[edge & closed].max():.4f}")
+    cases = (("closed set", closed, closed),
+             ("outermost closed nodes opened", inner, inner),
+             ("  only their tangential kt A", inner, closed),
+             ("  only their normal kn A", closed, inner),
+             ("next open nodes closed", outer, outer),
+             ("  only their tangential kt A", outer, closed),
+             ("  only their normal kn A", closed, outer),
+             ("kt A p0/p_ref on the closed set (kt_pressure)", w, closed),
+             ("kt A and kn A times p0/p_ref", w, w))
+    for name, sel_t, sel_n in cases:
+        w2 = sla.eigh(stiffness(sel_t, sel_n), M, eigvals_only=True)
         f = np.sqrt(np.abs(w2)) / (2 * np.pi)
         f1 = f[np.argmin(np.abs(f - f_ref))]
         print(f"  {name}: f1 = {f1:.3f} Hz ({100 * (f1 / f_ref - 1):+.2f} %)")
