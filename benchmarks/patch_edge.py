@@ -5,9 +5,15 @@ dx_lap``, ``ny_half = 0.02 / dx_lap``; washer bolts by default) and computes
 the first elastic frequency of the stuck linearisation
 ``K + Tt^T diag(kt A) Tt + Tn^T diag(kn A) Tn`` over three contact sets: the
 preload's closed set (this reproduces ``elastic_mode``), the same without its
-two outermost nodes, and the same plus the two nearest open nodes.
+two outermost nodes, and the same plus the two nearest open nodes; each
+toggle also for the tangential stiffness alone and the normal one alone.
+Then the closed set with the stiffnesses proportional to the preload
+pressure, ``p0 / p_ref`` with the nominal ``p_ref = sum N0 / sum A``
+(``joint.kt_pressure``, then with ``joint.kn_pressure`` too: the same
+linearisation as the model built with those keys, whose preload ``x0`` and
+``N0`` are those of this model).
 
-    python benchmarks/patch_edge.py 0.005 [--washer 0.01]
+    python benchmarks/patch_edge.py 0.005 [--washer 0.01] [--gauss 3]
 
 docs/fe.md ("Washer bolts and the resolution study") quotes the output.
 """
@@ -35,12 +41,17 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("dx_lap", type=float)
     p.add_argument("--washer", type=float, default=0.01, help="0: point bolts")
+    p.add_argument("--gauss", type=int, default=0,
+                   help="contact at this many Gauss points per interface edge "
+                        "(model.contact_points = 'gauss'); 0: node pairs")
     a = p.parse_args(argv)
     dx = a.dx_lap
     sets = ["model.mesh=''", f"model.dx_lap={dx:g}", f"model.dx_full={2 * dx:g}",
             f"model.ny_half={max(1, round(0.02 / dx))}"]
     if a.washer:
         sets.append(f"model.bolt_washer_radius={a.washer:g}")
+    if a.gauss:
+        sets += ["model.contact_points='gauss'", f"model.contact_gauss={a.gauss}"]
     m = build_model(load_scene(ROOT / "models" / "lap_joint.toml", sets))
     c = m.contacts
     x = c.position[:, 0]

@@ -9,8 +9,9 @@ linearisation equals an independent assembly ``K + Tt^T diag(kt_e) Tt +
 Tn^T diag(kn_e) Tn`` over the closed set; with ``p_ref`` the nominal pressure
 ``sum N0 / sum A`` the summed stiffness equals ``k`` times the whole lap area;
 coupled and fixed normal loads share their linearisation; bad values are
-SceneErrors naming the key.  The slow test: the stuck f1 converges
-monotonically on 10, 5 and 2.5 mm (docs/fe.md has the four-mesh table).
+SceneErrors naming the key.  The slow test: with contact at Gauss points the
+stuck f1 converges monotonically on 10, 5 and 2.5 mm (docs/fe.md has the
+four-mesh table).
 """
 from __future__ import annotations
 
@@ -117,17 +118,20 @@ def test_bad_pressure_names_the_key(key):
 
 @pytest.mark.slow
 def test_stuck_f1_converges_monotonically_with_pressure_stiffness():
-    """10, 5, 2.5 mm with kt and kn proportional to the preload pressure (3-4 min):
-    f1 falls monotonically with shrinking increments, towards its Richardson
-    limit, and 5 mm is within 0.3 % of it (uniform kt, kn: 0.7 %).  The fourth
-    mesh (1.25 mm, a 15-minute build under load) is in docs/fe.md."""
+    """10, 5, 2.5 mm, 3 Gauss points per interface edge, kt and kn proportional to
+    the preload pressure (3-5 min): f1 falls monotonically with shrinking
+    increments at an order near 2, and 2.5 mm is within 0.15 % of the Richardson
+    limit.  Measured (docs/fe.md): 165.956, 164.214, 163.721 and, at 1.25 mm,
+    163.591 Hz (still monotone; limit 163.55 Hz).  With uniform kt, kn the same
+    meshes give 168.893, 166.750, 165.206, 165.397 Hz (turns back)."""
     from jointsim.model import build_model
     from jointsim.solvers.modes import elastic_mode
-    f = np.array([elastic_mode(build_model(load_scene(SCENE, _sets(dx, *_keys()))), 1)
+    gauss = ("model.contact_points='gauss'", "model.contact_gauss=3")
+    f = np.array([elastic_mode(build_model(load_scene(SCENE, _sets(dx, *_keys(), *gauss))), 1)
                   .frequency_hz for dx in (0.01, 0.005, 0.0025)])
     d = np.diff(f)
     assert np.all(d < 0) and abs(d[1]) < abs(d[0]), f
     order = np.log2(d[0] / d[1])
     limit = f[2] - d[1] / (2 ** order - 1)
-    assert 1.0 < order < 4.0, (f, order)
-    assert abs(f[1] / limit - 1) < 3e-3 and abs(f[2] / limit - 1) < 1e-3, (f, limit)
+    assert 1.5 < order < 3.0, (f, order)
+    assert abs(f[2] / limit - 1) < 1.5e-3, (f, limit)
