@@ -13,7 +13,7 @@ pressure, ``p0 / p_ref`` with the nominal ``p_ref = sum N0 / sum A``
 linearisation as the model built with those keys, whose preload ``x0`` and
 ``N0`` are those of this model).
 
-    python benchmarks/patch_edge.py 0.005 [--washer 0.01] [--gauss 3]
+    python benchmarks/patch_edge.py 0.005 [--washer 0.01] [--gauss 3] [--ramp 0.045 0.047]
 
 docs/fe.md ("Washer bolts and the resolution study") quotes the output.
 """
@@ -41,6 +41,10 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("dx_lap", type=float)
     p.add_argument("--washer", type=float, default=0.01, help="0: point bolts")
+    p.add_argument("--ramp", type=float, nargs="*", default=[],
+                   help="also f1 with kt A and kn A times a fixed ramp, 1 inside and 0 "
+                        "beyond |x| = RAMP [m], linear over the 6 mm before it (a "
+                        "mesh-independent stiffness field: the quadrature's own error)")
     p.add_argument("--gauss", type=int, default=0,
                    help="contact at this many Gauss points per interface edge "
                         "(model.contact_points = 'gauss'); 0: node pairs")
@@ -89,7 +93,10 @@ def main(argv=None) -> int:
              ("  only their tangential kt A", outer, closed),
              ("  only their normal kn A", closed, outer),
              ("kt A p0/p_ref on the closed set (kt_pressure)", w, closed),
-             ("kt A and kn A times p0/p_ref", w, w))
+             ("kt A and kn A times p0/p_ref", w, w),
+             *((f"kt A and kn A times a ramp ending at {1e3 * e:g} mm",
+                np.clip((e - np.abs(x)) / 0.006, 0.0, 1.0),
+                np.clip((e - np.abs(x)) / 0.006, 0.0, 1.0)) for e in a.ramp))
     for name, sel_t, sel_n in cases:
         w2 = sla.eigh(stiffness(sel_t, sel_n), M, eigvals_only=True)
         f = np.sqrt(np.abs(w2)) / (2 * np.pi)

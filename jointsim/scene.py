@@ -387,7 +387,7 @@ class Joint:
                   "pressure, kt A p0 / kt_pressure per element (kt is the stiffness per unit "
                   "area at the pressure kt_pressure), so that the stuck stiffness vanishes "
                   "continuously at the edge of the contact patch; p0 = N0 / A from the "
-                  "model's own preload (docs/fe.md, 'Pressure-dependent kt'); default: "
+                  "model's own preload (docs/fe.md, 'Pressure-dependent contact stiffness'); default: "
                   "uniform kt A", unit="Pa", gt=0)
     kn_pressure: Optional[float] = spec(
         None, doc="FE and ROM models: normal stiffness proportional to the preload pressure, "
