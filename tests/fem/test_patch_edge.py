@@ -132,6 +132,6 @@ def test_stuck_f1_converges_monotonically_with_pressure_stiffness():
     d = np.diff(f)
     assert np.all(d < 0) and abs(d[1]) < abs(d[0]), f
     order = np.log2(d[0] / d[1])
-    limit = f[2] - d[1] / (2 ** order - 1)
+    limit = f[2] + d[1] / (2 ** order - 1)      # Richardson: f_h + (f_h - f_2h) / (2^p - 1)
     assert 1.5 < order < 3.0, (f, order)
     assert abs(f[2] / limit - 1) < 1.5e-3, (f, limit)
