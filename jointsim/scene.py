@@ -382,6 +382,20 @@ class Joint:
                                  "'uniform' (equal width in slip displacement)")
     iwan_rtol: float = spec(0.01, doc="Iwan dissipation accuracy that sets the default slider "
                                       "count (geometric spacing)", gt=0, lt=1)
+    kt_pressure: Optional[float] = spec(
+        None, doc="FE and ROM models: tangential stiffness proportional to the preload "
+                  "pressure, kt A p0 / kt_pressure per element (kt is the stiffness per unit "
+                  "area at the pressure kt_pressure), so that the stuck stiffness vanishes "
+                  "continuously at the edge of the contact patch; p0 = N0 / A from the "
+                  "model's own preload (docs/fe.md, 'Pressure-dependent contact stiffness'); default: "
+                  "uniform kt A", unit="Pa", gt=0)
+    kn_pressure: Optional[float] = spec(
+        None, doc="FE and ROM models: normal stiffness proportional to the preload pressure, "
+                  "kn A p0 / kn_pressure per element (the tangent at the preload of a rough "
+                  "interface whose stiffness is proportional to its pressure), with the "
+                  "initial gap that keeps N0 at the preload: the stuck normal stiffness "
+                  "vanishes continuously at the patch edge (docs/fe.md, 'Pressure-dependent "
+                  "kt'); default: uniform kn A", unit="Pa", gt=0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -600,6 +614,12 @@ def _check_cross(scene: Scene, ctx: Context) -> None:
                         "'jenkins' or 'iwan4', joint.reversal = 'anchor') with friction and "
                         "a coupled, separating contact (effects.normal = 'coupled', "
                         "effects.separation = true); this scene has none of those contacts")
+    for key in ("kt_pressure", "kn_pressure"):
+        if getattr(j, key) is not None and not isinstance(m, (FEModel, ROMModel)):
+            raise ctx.error(f"joint.{key}",
+                            "applies to models with a bolt preload (model.kind 'fe' or "
+                            f"'rom'), whose preload pressure N0 / A sets each element's "
+                            f"{key[:2]}")
     a = scene.analysis
     for name in ("hbm", "epmc"):
         sec = getattr(a, name)
