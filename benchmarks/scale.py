@@ -23,6 +23,12 @@ Usage::
     python benchmarks/scale.py                      # all sizes (long)
     python benchmarks/scale.py --elements 25 57 121 --points 6
     python benchmarks/scale.py --quick              # 25, 57, 121 elements, 3 points
+    python benchmarks/scale.py --elements 25 57 121 241 481 --points 4 4 4 4 2 \
+        --numba-cache 121                           # 481 pairs: about 4.4 GB, minutes
+
+``--numba-cache N`` first runs the Krylov case of N elements twice with its own
+NUMBA_CACHE_DIR, empty (cold: every kernel compiled) and then filled (warm), and
+prints the process wall time of both.
 """
 from __future__ import annotations
 
@@ -96,22 +102,48 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str) -> dict:
                     rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
 
 
-def _run_child(mesh, analysis, solver, points, tmp) -> dict:
+def _run_child(mesh, analysis, solver, points, tmp, numba_cache=None) -> dict:
+    """Run one case in a fresh process; ``process`` is its wall time [s] (imports, numba
+    loading or compiling, model build, analysis).  ``numba_cache``: a NUMBA_CACHE_DIR
+    for the child (an empty one: a cold cache)."""
     out = Path(tmp) / f"{Path(mesh).stem}_{analysis}_{solver}.h5"
     out.unlink(missing_ok=True)
     cmd = [sys.executable, __file__, "--child", str(mesh), analysis, solver, str(points),
            str(out)]
-    res = subprocess.run(cmd, check=True, capture_output=True, text=True,
-                         env={**os.environ, "PYTHONPATH": str(ROOT)})
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    if numba_cache is not None:
+        env["NUMBA_CACHE_DIR"] = str(numba_cache)
+    t0 = time.perf_counter()
+    res = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env)
+    r = json.loads(res.stdout.strip().splitlines()[-1])
+    r["process"] = time.perf_counter() - t0
+    return r
+
+
+def _numba_cache_case(mesh, analysis, points, tmp) -> None:
+    """The same Krylov case with an empty numba cache (cold: every kernel compiled),
+    then again with that cache filled (warm)."""
+    cache = Path(tmp) / "numba_cache"
+    cache.mkdir(exist_ok=True)
+    cold = _run_child(mesh, analysis, "krylov", points, tmp, numba_cache=cache)
+    warm = _run_child(mesh, analysis, "krylov", points, tmp, numba_cache=cache)
+    print(f"numba cache, {analysis.upper()} on {Path(mesh).stem} ({cold['n_z']} unknowns, "
+          f"{cold['points']} points): process wall cold {cold['process']:.1f} s, warm "
+          f"{warm['process']:.1f} s; analysis time cold {cold['time']:.1f} s, warm "
+          f"{warm['time']:.1f} s", flush=True)
 
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--elements", type=int, nargs="+", default=[25, 57, 121, 241, 481])
-    p.add_argument("--points", type=int, default=6)
+    p.add_argument("--points", type=int, nargs="+", default=[6],
+                   help="points per branch: one number, or one per size of --elements")
     p.add_argument("--dense-limit", type=float, default=120.0,
-                   help="run the dense path while its estimated time is below this [s]")
+                   help="run the dense path while its estimated time is below this [s] "
+                        "(0: never)")
+    p.add_argument("--numba-cache", type=int, default=None, metavar="N",
+                   help="also run the Krylov case of N elements with a cold and then a warm "
+                        "numba cache (an empty NUMBA_CACHE_DIR) and print both times")
     p.add_argument("--analyses", nargs="+", default=["hbm", "epmc"])
     p.add_argument("--quick", action="store_true",
                    help="25, 57 and 121 elements, 3 points per branch (a few minutes)")
@@ -119,18 +151,26 @@ def main(argv=None) -> None:
     a = p.parse_args(argv)
     if a.quick and not a.child:
         a.elements = [n for n in a.elements if n <= 121]
-        a.points = min(a.points, 3)
+        a.points = [min(a.points[0], 3)]
     if a.child:
         mesh, analysis, solver, points, out = a.child
         r = _case(mesh, analysis, solver, int(points), out)
         print(json.dumps(r))
         return
+    if len(a.points) not in (1, len(a.elements)):
+        p.error("--points takes one number or one per size of --elements")
+    points = dict(zip(a.elements, a.points * len(a.elements) if len(a.points) == 1
+                      else a.points))
     print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     cache = Path(tempfile.gettempdir()) / "jointsim_scale_meshes"
     cache.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
+        if a.numba_cache is not None:
+            _numba_cache_case(_mesh(a.numba_cache, cache), a.analyses[0],
+                              points.get(a.numba_cache, a.points[0]), tmp)
         for analysis in a.analyses:
-            print(f"\n{analysis.upper()}: {a.points} points per branch")
+            print(f"\n{analysis.upper()}: points per branch "
+                  f"{', '.join(f'{n}: {k}' for n, k in points.items())}")
             print(f"{'n_e':>5} {'n_z':>6} {'pts':>4} {'Newton':>6} {'GMRES':>6} {'builds':>6} "
                   f"{'krylov s/pt':>11} {'dense s/pt':>10} {'ratio':>6} {'max dX':>8} "
                   f"{'MB krylov':>9} {'MB dense':>8}", flush=True)
@@ -138,10 +178,10 @@ def main(argv=None) -> None:
             dense_est = None
             for n in a.elements:
                 mesh = _mesh(n, cache)
-                k = _run_child(mesh, analysis, "krylov", a.points, tmp)
+                k = _run_child(mesh, analysis, "krylov", points[n], tmp)
                 d = None
-                if dense_est is None or dense_est < a.dense_limit:
-                    d = _run_child(mesh, analysis, "direct", a.points, tmp)
+                if a.dense_limit > 0 and (dense_est is None or dense_est < a.dense_limit):
+                    d = _run_child(mesh, analysis, "direct", points[n], tmp)
                     dense_est = d["time"] * 10.0      # next size: about n^3, x 2^3
                 kt = k["time"] / max(k["points"], 1)
                 dt = d["time"] / max(d["points"], 1) if d else np.nan
@@ -168,6 +208,10 @@ def main(argv=None) -> None:
                                   np.log([tpp[i] for i in sel]), 1)[0]
                 print(f"growth of Krylov time per point from {sizes[sel[0]]} to "
                       f"{sizes[sel[-1]]} elements: n^{pfit:.2f}")
+                steps = [f"{sizes[i]}->{sizes[j]}: n^"
+                         f"{np.log(tpp[j] / tpp[i]) / np.log(sizes[j] / sizes[i]):.2f}"
+                         for i, j in zip(sel[:-1], sel[1:])]
+                print(f"  between consecutive sizes: {', '.join(steps)}")
     print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 

@@ -144,3 +144,54 @@ def test_coupled_fe_joint_march_agrees_with_converged_hbm_at_refined_settings():
     print("coupled FE joint, 2048 steps vs HBM 0..63:", cc.verdict, cc.rel_diff[:3])
     assert cc.agree, cc.verdict
     assert cc.rel_diff[1] < 1e-3
+
+
+# The 121-pair lap mesh of benchmarks/scale.py (issue 10), generated from the scene
+GEN_121 = ["model.mesh=''", "model.dx_lap=0.002", "model.dx_full=0.01", "model.ny_half=2"]
+OMEGA_121 = 986.32   # rad/s, the 20 N peak of that mesh at H = 0..7 (fixed N; 985/986/987 parabola)
+
+
+@pytest.mark.slow
+def test_121_pair_fixed_n_march_agrees_with_converged_hbm():
+    """Issue 10: time marching of the fixed-N joint on 121 contact pairs (524 DOFs, 512
+    undamped modes from 6.48 kHz damped at 1 % in both methods), 20 N at its peak, 1,024
+    steps, linear start, steady_tol 1e-7, reaches its steady state and agrees with HBM
+    converged in H (0..7 / 128 samples, 0..15 / 256, 0..31 / 1,024, 0..63 / 4,096, each
+    Newton started from the one before; 15,367 unknowns at H = 0..63, GMRES) on the first
+    harmonic within 1e-3; the built-in cross-check says agree."""
+    sc = load_scene(SCENE, [*GEN_121, f"analysis.transient.omega={OMEGA_121}",
+                            "analysis.transient.force_scale=2.0",
+                            "analysis.transient.start='linear'",
+                            "analysis.transient.steady_tol=1e-7",
+                            "analysis.transient.max_periods=4000",
+                            "analysis.transient.steps_per_period=1024"])
+    model = _damped_model(sc)
+    assert model.contacts.n_elements == 121
+    res = march_steady(model, sc.analysis.transient, scene=sc, progress=False)
+    assert res.convergence.success, res.convergence.message
+    print(f"\n121 pairs, march 1024 steps: {res.convergence.message}; "
+          f"error_step {res.step_error.value:.3g}")
+    n = sc.analysis.transient.steps_per_period
+    X0, prev, ladder = res.X, None, {}
+    for H, nt in ((7, 128), (15, 256), (31, 1024), (63, 4096)):
+        hs = tuple(range(H + 1))
+        Xs = np.zeros((2 * H + 1, model.n_dof))
+        m = min(Xs.shape[0], X0.shape[0])
+        Xs[:m] = X0[:m]
+        system = HBMSystem(model, hs, nt)
+        sol = solve_point(system, OMEGA_121, system.force_coefficients(2.0),
+                          z0=system.contact_coordinates(Xs), tol=1e-10, max_iter=40)
+        assert sol.convergence.success, (H, sol.convergence.message)
+        cc = cross_check(res.X, sc.analysis.transient.harmonics, sol.X, hs, model=model,
+                         loops=(res.last.f[:, :n], res.last.N[:, :n]), tol=1e-3,
+                         step_error=res.step_error)
+        dH = np.nan if prev is None else cross_check(
+            prev[0], prev[1], sol.X, hs, model=model).rel_diff[1]
+        ladder[H] = (cc, dH)
+        print(f"HBM 0..{H} ({nt} samples, {system.n_z} unknowns): march - HBM first harmonic "
+              f"{cc.rel_diff[1]:.3g}; change from the previous H {dH:.3g}; {cc.verdict}")
+        X0, prev = sol.X, (sol.X, hs)
+    cc, dH = ladder[63]
+    assert dH < 5e-4                 # HBM converged in H: 0..31 -> 0..63 below half the tolerance
+    assert cc.agree, cc.verdict
+    assert cc.rel_diff[1] < 1e-3
