@@ -22,6 +22,9 @@ from .._scenes import MODELS
 
 SDOF = MODELS / "hbm" / "sdof_jenkins_epmc.toml"
 ONSET = np.log10(0.2 / 0.25)
+#: quick SDOF settings (loops at one amplitude only: the file writes dominate)
+QUICK = ["analysis.epmc.harmonics=[0, 1, 3]", "analysis.epmc.n_samples=32",
+         "analysis.epmc.error_indicators=false", "analysis.epmc.loop_amplitudes=[3.0]"]
 
 
 def _sdof(overrides=()):
@@ -49,8 +52,7 @@ def test_stuck_onset_of_a_jenkins_oscillator_is_the_slip_amplitude():
 
 
 def test_backbone_has_a_point_at_the_onset_and_continues_from_it(tmp_path):
-    sc = load_scene(SDOF, ["analysis.epmc.harmonics=[0, 1, 2, 3]",
-                           "analysis.epmc.n_samples=64"])
+    sc = load_scene(SDOF, QUICK)
     with h5py.File(run_scene(sc, tmp_path / "sdof.h5"), "r") as h5:
         g = h5["epmc"]
         assert g.attrs["branch_status"] == "complete", g.attrs["message"]
@@ -66,3 +68,52 @@ def test_backbone_has_a_point_at_the_onset_and_continues_from_it(tmp_path):
         # ... slipping beyond: softer and damped
         assert omega[i + 1] < np.sqrt(1.25) and zeta[i + 1] > 1e-4
         assert "stuck onset" in g.attrs["message"]
+
+
+def _interrupted_after(scene, path, n_points, monkeypatch):
+    """Run a scene and press Ctrl-C when the file holds ``n_points`` EPMC points."""
+    from jointsim.io import hdf5
+    original = hdf5.ResultWriter.append
+
+    def interrupting(self, name, row, unit, doc=""):
+        if name == "epmc/amplitude" and self.rows("epmc/amplitude") >= n_points:
+            raise KeyboardInterrupt
+        return original(self, name, row, unit, doc)
+
+    monkeypatch.setattr(hdf5.ResultWriter, "append", interrupting)
+    with pytest.raises(KeyboardInterrupt):
+        run_scene(scene, path)
+    monkeypatch.setattr(hdf5.ResultWriter, "append", original)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    sc = load_scene(SDOF, QUICK)
+    full = tmp_path_factory.mktemp("full") / "full.h5"
+    run_scene(sc, full)
+    with h5py.File(full, "r") as h5:
+        ref = h5["epmc/y"][()]
+    k_onset = int(np.argmin(np.abs(ref[:, -1] - ONSET)))
+    assert 2 < k_onset < len(ref) - 4
+    return sc, ref, k_onset
+
+
+@pytest.mark.parametrize("after", [pytest.param(-1, marks=pytest.mark.slow), 1,
+                                   pytest.param(4, marks=pytest.mark.slow)],
+                         ids=["stuck piece", "onset point", "second leg"])
+def test_a_branch_interrupted_in_either_leg_resumes_to_the_same_points(
+        uninterrupted, after, tmp_path, monkeypatch):
+    """Interrupted on the stuck piece, right after the onset point (the second leg not
+    begun) or in the second leg, ``--resume`` retraces the uninterrupted branch."""
+    sc, ref, k_onset = uninterrupted
+    n = k_onset + after
+    part = tmp_path / "part.h5"
+    _interrupted_after(sc, part, n, monkeypatch)
+    with h5py.File(part, "r") as h5:
+        assert h5.attrs["status"] == "interrupted" and h5["epmc/y"].shape[0] == n
+    run_scene(sc, part, resume=True)
+    with h5py.File(part, "r") as h5:
+        assert h5.attrs["status"] == "complete"
+        y = h5["epmc/y"][()]
+    assert y.shape == ref.shape
+    assert np.abs(y - ref).max() <= 1e-8 * np.abs(ref).max()
