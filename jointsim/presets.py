@@ -19,7 +19,10 @@ committed lap-joint scenes (README, "What accuracy costs"):
 Measured on both study scenes (README, "Presets"): on the coupled joint the
 damping converges slowly in H (H = 7 is 16 % off H = 23), so ``balanced`` is
 not within 1e-2 there and ``reference`` is not converged to 1e-4 on either
-joint.
+joint.  The coupled joint's ``reference`` EPMC (H = 0..15, Nt = 512, tolerance
+1e-10) used to give up at log10 a = -4.25 (a step over the stuck onset, README
+"EPMC hard cases"); since the EPMC runner ends the continuation's first leg at
+the onset (:func:`jointsim.analyses.epmc.stuck_onset`) it completes.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Nothing lost (issue 11) for EPMC: a real process killed, its file resumed.
 
-Runs ``python -m jointsim.cli`` on ``models/hbm/sdof_jenkins_epmc.toml`` (57
+Runs ``python -m jointsim.cli`` on ``models/hbm/sdof_jenkins_epmc.toml`` (52
 points, a few seconds) as a subprocess (helpers in :mod:`tests._safety`),
 kills it with SIGKILL, SIGTERM or SIGINT, and checks: no process outlives it
 by 2 s, the file opens and ``info`` reads it, its extendable datasets hold

@@ -11,6 +11,10 @@ indicators ``/epmc/error_*`` (:mod:`jointsim.solvers.indicators`); once:
 ``/epmc/harmonics``, ``/epmc/mode_shape``.  Loops and Masing checks go to
 ``/epmc/loops`` and ``/epmc/masing``.
 
+The branch is continued in two legs when it starts on the stuck (linear) piece:
+up to the stuck onset exactly, then on (:func:`stuck_onset`, :func:`_continue`);
+the attribute ``log10_stuck_onset`` holds it (NaN: none).
+
 With ``analysis.epmc.amplitudes`` the mode is also solved exactly at those
 modal amplitudes (:func:`solve_at_amplitudes`), in ``/epmc/at_amplitudes/``:
 ``amplitude``, ``omega``, ``frequency_hz``, ``damping_ratio``, ``xi``, ``X``,
@@ -112,12 +116,11 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     if system.n_z == 0:
         br = _linear_branch(a, ep, em, xi0, on_point, writer.rows("epmc/omega"))
     else:
-        br = continue_branch(ep.fun, y0, a.log10_amplitude_end, scale=scale, rscale=rscale,
-                             step=h0, step_min=a.step_min, step_max=a.step_max,
-                             max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
-                             solve_first=solve_first, tangent0=t0, on_point=on_point,
-                             desc=f"epmc mode {a.mode}", monitor=step_monitor(a, system.n_z),
-                             lam_start=a.log10_amplitude_start)
+        onset = stuck_onset(ep, _linear_start(a, system, em, xi0), a.log10_amplitude_start,
+                            a.log10_amplitude_end, rscale, a.tol)
+        g.attrs["log10_stuck_onset"] = np.nan if onset is None else onset
+        br = _continue(a, ep, y0, t0, h0, solve_first, max_pts, scale, rscale, on_point,
+                       onset, system.n_z)
     conv = br.convergence
     if not conv.success:
         conv = _explain(conv, model, system, ep, writer, scale)
@@ -138,6 +141,151 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     write_control(writer, "epmc", model.contacts.law, scene.analysis.masing.tol, model.units)
     if not conv.success:
         raise RuntimeError(f"epmc: {conv.message}")
+
+
+#: Stuck onset (:func:`stuck_onset`): scan step [log10 a] and bisection width.
+ONSET_SCAN = 0.05
+ONSET_WIDTH = 1e-6
+#: Stuck onset: the linear mode has stopped solving the equations once its residual
+#: moved by this multiple of the Newton tolerance (relative to the residual scale).
+#: Not much less: on the stuck piece ``R / a`` still drifts with the static residual
+#: ``R(z0) / a`` (the coupled lap joint at H = 0..15, Nt = 512: by 4.8e-12 over
+#: log10 a = -5 .. -4.155, against a jump of 7.6e-5 within 0.005 past the onset), and
+#: 0.01 tol = 1e-12 put the onset at -4.91 instead of -4.154.
+ONSET_TOL = 1.0
+
+
+def stuck_onset(ep, y_lin, lam_start: float, lam_end: float, rscale: float, tol: float):
+    """``log10 a`` at which the stuck (linear) piece of the backbone ends, or None.
+
+    While every contact stays stuck (and no gap opens or closes) the mode is the
+    linear one: in the amplitude-normalised unknowns the branch is the straight
+    line ``y(lam) = (zh_lin, omega_0, xi_0, lam)``, along which the residual
+    ``R / a`` does not change (``R`` is linear in ``z - z0``; up to the drift of the
+    static residual ``R(z0) / a``, see :data:`ONSET_TOL`).  The first contact
+    event (an element that starts to slip, a gap that opens or closes) makes it
+    change: the backbone has a corner there.  Left to itself the continuation
+    grows its step to ``step_max`` on the straight piece (one Newton iteration per
+    point) and jumps the corner, landing on the nonlinear piece with the piece
+    between the corner and the landing point untraced; a corner remedy can then
+    send it back down that piece, which no retrace check sees (the coupled lap
+    joint at H = 0..15, Nt = 512: a step of 0.2 from log10 a = -4.25 to -4.05 over
+    the onset at -4.154; the branch ran back to the onset and down the stuck
+    piece, and gave up).  The runner therefore ends the first continuation
+    exactly at the onset (:func:`_continue`).
+
+    The onset is the first ``lam`` (scanned from ``lam_start`` towards ``lam_end``
+    every :data:`ONSET_SCAN`, then bisected to :data:`ONSET_WIDTH`) at which
+    ``max|R(y(lam)) / a - R(y(lam_start)) / a| / rscale`` exceeds
+    ``ONSET_TOL * tol``.
+
+    Parameters
+    ----------
+    ep : jointsim.solvers.epmc.EPMCSystem
+    y_lin : ndarray, shape (n_z + 3,)
+        The linear mode's point (:func:`_linear_start`; its ``lam`` is replaced).
+    lam_start, lam_end : float
+        The scene's range of ``log10 a``.
+    rscale : float
+        Residual scale of the continuation.
+    tol : float
+        Newton tolerance (on ``max|R| / rscale``).
+
+    Returns
+    -------
+    float or None
+        The last ``lam`` (to :data:`ONSET_WIDTH`) at which the linear mode still
+        solves the equations to the tolerance: at or a little past the first
+        contact event (on the SDOF Jenkins oracle 7e-7 past it); None when the mode
+        is not linear at the start (or the onset lies within :data:`ONSET_SCAN` of
+        it), stays linear over the whole range, or its residual is not finite.
+    """
+    y = np.array(y_lin, dtype=float)
+
+    def residual(lam):
+        y[-1] = lam
+        return ep.fun(y)[0]
+
+    R0 = residual(lam_start)
+    if not np.all(np.isfinite(R0)):
+        return None
+    thr = ONSET_TOL * tol
+
+    def moved(lam) -> bool:
+        d = float(np.abs(residual(lam) - R0).max(initial=0.0)) / rscale
+        return not d <= thr   # NaN counts as moved
+
+    sign = 1.0 if lam_end >= lam_start else -1.0
+    span = abs(lam_end - lam_start)
+    lo = hi = lam_start
+    for k in range(1, int(np.ceil(span / ONSET_SCAN)) + 1):
+        hi = lam_start + sign * min(k * ONSET_SCAN, span)
+        if moved(hi):
+            break
+        lo = hi
+    else:
+        return None   # linear over the whole range
+    if lo == lam_start:
+        return None   # not linear at the start, or the onset is within one scan step
+    while abs(hi - lo) > ONSET_WIDTH:
+        mid = 0.5 * (lo + hi)
+        if moved(mid):
+            hi = mid
+        else:
+            lo = mid
+    return float(lo)
+
+
+def _continue(a, ep, y0, t0, h0, solve_first, max_pts, scale, rscale, on_point, onset, nz):
+    """The continuation of the backbone from ``y0``; in two legs when it starts on the
+    stuck piece: up to the stuck onset exactly (:func:`stuck_onset`; the stepper's
+    end-of-range rule closes the leg there by a Newton solve at that ``lam``), then
+    from there to the end of the range, with first step ``analysis.epmc.step`` (as at
+    the start of a branch).  A resumed branch goes on in the leg its last point is in.
+
+    Returns
+    -------
+    Branch
+        The last leg's branch; its ``convergence`` says how the whole branch ended
+        (``iterations``: the points of both legs).
+    """
+    lam_start, lam_end = a.log10_amplitude_start, a.log10_amplitude_end
+    direction = 1.0 if lam_end >= lam_start else -1.0
+    common = dict(scale=scale, rscale=rscale, step_min=a.step_min, step_max=a.step_max,
+                  tol=a.tol, max_iter=a.max_iter, desc=f"epmc mode {a.mode}",
+                  monitor=step_monitor(a, nz), lam_start=lam_start)
+    n_before = 0
+    if onset is not None:
+        ahead = (onset - float(y0[-1])) * direction
+        if ahead > 1e-12:
+            leg = continue_branch(ep.fun, y0, onset, step=h0, max_points=max_pts,
+                                  solve_first=solve_first, tangent0=t0, on_point=on_point,
+                                  **common)
+            if not leg.convergence.success:
+                return leg
+            n_before = len(leg.y) - 1
+            max_pts -= n_before
+            y0, t0, h0, solve_first = leg.y[-1], leg.tangents[-1], a.step, False
+            log.info("epmc mode %d: the stuck piece ends at log10 a = %.6f; continued "
+                     "from there", a.mode, onset)
+        elif abs(ahead) <= 1e-12 and not solve_first:
+            h0 = a.step   # resumed at the onset point: the second leg's first step
+    offset = n_before
+
+    def on_leg(i, y, info):
+        if offset and i == 0:
+            return   # the onset point, written by the first leg
+        on_point(i + offset, y, info)
+
+    br = continue_branch(ep.fun, y0, lam_end, step=h0, max_points=max_pts,
+                         solve_first=solve_first, tangent0=t0, on_point=on_leg, **common)
+    if n_before:
+        conv = br.convergence
+        br = dataclasses.replace(br, convergence=dataclasses.replace(
+            conv, iterations=conv.iterations + n_before,
+            message=f"{conv.message} (continued from the stuck onset at log10 a = "
+                    f"{onset:.6f}, point {n_before + 1})"))
+    return br
 
 
 #: Points per decade of amplitude of the branch of a joint without contact unknowns.

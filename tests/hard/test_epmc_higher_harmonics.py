@@ -24,6 +24,12 @@ harmonic's norm to two digits; no second sheet, so no fold of a tongue).  A
 tangent that nearly perpendicular to its secant is now oriented like the previous
 tangent (:meth:`Continuation._new_tangent`, ``AMBIGUOUS_COS``); the rule fires
 once on the branch, at that point, and the branch completes.
+
+At H = 0..15 with Nt = 512 (the ``reference`` preset) it gave up at log10 a = -4.25,
+before the resonance: a step of 0.2 from the stuck (linear) piece jumped the stuck
+onset (-4.1535) and a corner remedy then sent the branch back down the piece it had
+jumped.  The runner now ends the first leg of the continuation exactly at the onset
+(:func:`jointsim.analyses.epmc.stuck_onset`), and the branch completes.
 """
 import h5py
 import numpy as np
@@ -113,27 +119,28 @@ def test_epmc_at_amplitudes_on_the_krylov_path(tmp_path):
 
 
 @pytest.mark.slow
-def test_coupled_lap_joint_epmc_at_h15_nt512_stops_with_its_cause(tmp_path):
-    """Open hard case (README "EPMC hard cases"): at H = 0..15 with Nt = 512 (the
-    ``reference`` preset's sampling) the branch gives up near log10 a = -4.25, where
-    H = 0..15 at Nt = 256 completes.  Until it is fixed, what must hold: no NaN or Inf
-    in the file, the points up to there kept, and a message that says the branch ran
-    back along itself.  If it completes, the test asks for the whole range."""
+def test_coupled_lap_joint_epmc_at_h15_nt512_completes(tmp_path):
+    """The ``reference`` preset's EPMC (H = 0..15, Nt = 512, tolerance 1e-10) over the
+    scene's whole range.  It used to give up at log10 a = -4.25: from the stuck
+    (linear) piece a step of 0.2 jumped the stuck onset at -4.1535 and landed at -4.05
+    on the nonlinear piece; the next steps stalled there (the 1:10 internal resonance
+    makes the piece rough) and a corner remedy landed behind, on the untraced piece
+    between the onset and -4.05, which the branch then ran down, back to the onset and
+    along the stuck piece onto its own points.  The runner now ends the first leg of
+    the continuation exactly at the onset (:func:`jointsim.analyses.epmc.stuck_onset`)."""
     harmonics = ",".join(str(h) for h in range(16))
     scene = lap_scene(COUPLED, ("epmc",), [DEFAULT_MESH, f"analysis.epmc.harmonics=[{harmonics}]",
-                                           "analysis.epmc.n_samples=512"])
-    out = tmp_path / "h15_512.h5"
-    try:
-        run_scene(scene, out)
-    except RuntimeError as exc:
-        assert "back along itself" in str(exc) or "zig-zags" in str(exc), str(exc)
+                                           "analysis.epmc.n_samples=512",
+                                           "analysis.epmc.tol=1e-10"])
+    out = run_scene(scene, tmp_path / "h15_512.h5")
     with h5py.File(out, "r") as h5:
         g = h5["epmc"]
+        assert g.attrs["branch_status"] == "complete", g.attrs["message"]
         for k in ("omega", "damping_ratio", "X", "amplitude"):
             assert np.all(np.isfinite(g[k][()]))
         lam = np.log10(g["amplitude"][()])
-        if g.attrs["branch_status"] == "complete":
-            assert lam[-1] == pytest.approx(scene.analysis.epmc.log10_amplitude_end)
-        else:
-            assert "back along itself" in g.attrs["message"], g.attrs["message"]
-            assert len(lam) >= 20 and lam[-1] > -4.5
+        assert lam[0] == pytest.approx(scene.analysis.epmc.log10_amplitude_start)
+        assert lam[-1] == pytest.approx(scene.analysis.epmc.log10_amplitude_end)
+        onset = g.attrs["log10_stuck_onset"]
+        assert -4.16 < onset < -4.15
+        assert np.min(np.abs(lam - onset)) < 1e-9   # a point at the onset
