@@ -686,49 +686,6 @@ def _check_cross(scene: Scene, ctx: Context) -> None:
                                 "use output_dofs")
 
 
-def _memory_limit() -> float:
-    """Bytes a run may plan to hold: half of the machine's physical memory (8 GB if unknown)."""
-    import os
-    try:
-        return 0.5 * os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return 8e9
-
-
-def memory_estimates(scene: Scene) -> list[tuple[str, float]]:
-    """Lower estimates of the largest arrays a scene's sample counts ask for.
-
-    Returns
-    -------
-    list of (key, bytes)
-        The key whose value sets each estimate: AFT samples (states, forces
-        and the DFT matrices of every contact element: about four arrays of
-        ``n_samples x n_coeff`` per element), the prescribed march
-        (``n_samples x n_periods``, about eight arrays) and the stored time
-        history of time marching (displacement, velocity, acceleration of
-        each output DOF).
-    """
-    m, a = scene.model, scene.analysis
-    n_el = max(len(getattr(m, "contacts", ())), 1)
-    out = []
-    for name in ("hbm", "epmc"):
-        sec = getattr(a, name)
-        if sec is not None:
-            n_coeff = sum(1 if h == 0 else 2 for h in set(sec.harmonics))
-            out.append((f"analysis.{name}.n_samples",
-                        8.0 * 4 * sec.n_samples * (n_coeff + 2) * n_el))
-    if isinstance(m, PrescribedModel):
-        out.append(("model.n_samples", 8.0 * 8 * m.n_samples * m.n_periods))
-    tr = a.transient
-    if tr is not None and not isinstance(m, PrescribedModel):
-        periods = tr.max_periods if tr.history_periods == 0 else min(tr.history_periods,
-                                                                      tr.max_periods)
-        n_out = max(len(tr.output_dofs) + len(tr.output_points), 1)
-        out.append(("analysis.transient.steps_per_period",
-                    8.0 * 3 * n_out * tr.steps_per_period * periods / tr.decimate))
-    return out
-
-
 def _check_inputs(scene: Scene, ctx: Context) -> None:
     """Signal files readable, sampled forces only where supported, memory within reach."""
     from .signals import read_signal_file
@@ -752,7 +709,8 @@ def _check_inputs(scene: Scene, ctx: Context) -> None:
                             "and the static state need its harmonic coefficients): give the "
                             "force as constant and harmonics; file and clipped signals are "
                             "for the prescribed model's u_t and N")
-    limit = _memory_limit()
+    from .memory import memory_estimates, memory_limit
+    limit = memory_limit()
     for key, nbytes in memory_estimates(scene):
         if nbytes > limit:
             raise ctx.error(key, f"asks for about {nbytes / 1e9:.3g} GB of memory (more than "
