@@ -12,6 +12,18 @@ branches serial), ``sdof_epmc`` (``models/hbm/sdof_jenkins_epmc.toml``),
 FRC branch at 200 N over 150-160 Hz), ``lap_epmc`` (the coupled-N lap joint on
 the coarse mesh, EPMC from a = 1e-5 to 1e-3).
 
+``lap121_hbm`` and ``lap121_epmc`` are the default scene (``models/lap_joint.toml``,
+coupled N) on the 121-pair lap mesh of ``benchmarks/scale.py`` (generated once and
+cached in the temporary directory), Krylov path, one process: the FRC at force
+scale 2 (first 20 points) and the EPMC (first 10 points, no loop amplitudes), the
+cases of issues 10 and 12.  Their runs stop at ``max_points`` (reported as a
+failed branch: the points are kept).  The last column is the indicators' share of
+the run, ``(with - without) / with``.
+
+``--root`` measures another checkout (e.g. ``git archive HEAD | tar -x -C /tmp/old``)
+with its own scenes; run both checkouts one after the other and compare at the
+same load.
+
 EPMC cases also run a third variant, ``linear``: the indicators from the first
 Newton step of the extended system only (``analysis.epmc.error_newton_steps = 1``,
 the estimate before the extended Newton solve), so that the cost of that solve is
@@ -26,17 +38,32 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+if "--root" in sys.argv:         # the checkout to measure, before jointsim is imported
+    ROOT = Path(sys.argv[sys.argv.index("--root") + 1]).resolve()
 sys.path.insert(0, str(ROOT))
 
 from jointsim.run import run_scene  # noqa: E402
 from jointsim.scene import load_scene  # noqa: E402
 
+
+def _mesh121() -> str:
+    """The 121-pair lap mesh (``benchmarks/scale.py``'s, cached)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from scale import _mesh
+    cache = Path(tempfile.gettempdir()) / "jointsim_scale_meshes"
+    cache.mkdir(exist_ok=True)
+    return str(_mesh(121, cache))
+
+
+LAP121 = ["analysis.modes.full_model=false", "analysis.modes.monolithic=false"]
 CASES = {
     "chain2": ("hbm", ROOT / "models/hbm/chain2_jenkins.toml", ["analysis.hbm.workers=1"]),
     "sdof_epmc": ("epmc", ROOT / "models/hbm/sdof_jenkins_epmc.toml", []),
@@ -48,6 +75,14 @@ CASES = {
                  ["model.mesh='../meshes/lap_joint_coarse.msh'",
                   "analysis.epmc.log10_amplitude_end=-3.0",
                   "analysis.modes.full_model=false", "analysis.modes.monolithic=false"]),
+    "lap121_hbm": ("hbm", ROOT / "models/lap_joint.toml",
+                   LAP121 + ["analysis.hbm.force_scale=[2.0]", "analysis.hbm.refine_peak=false",
+                             "analysis.hbm.workers=1", "analysis.hbm.linear_solver='krylov'",
+                             "analysis.hbm.max_points=20"]),
+    "lap121_epmc": ("epmc", ROOT / "models/lap_joint.toml",
+                    LAP121 + ["analysis.epmc.loop_amplitudes=[]",
+                              "analysis.epmc.linear_solver='krylov'",
+                              "analysis.epmc.max_points=10"]),
 }
 
 
@@ -72,7 +107,11 @@ def run_once(kind, path, overrides, on, out: Path) -> tuple[float, int]:
     sc = load_scene(path, [*overrides, *extra,
                            f"analysis.{kind}.error_indicators={str(bool(on)).lower()}"])
     t = time.perf_counter()
-    run_scene(sc, out, overwrite=True)
+    try:
+        run_scene(sc, out, overwrite=True)
+    except RuntimeError as exc:         # max_points reached: the points are written
+        if "max_points" not in str(exc):
+            raise
     dt = time.perf_counter() - t
     import h5py
     with h5py.File(out, "r") as h5:
@@ -84,11 +123,18 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", nargs="*", default=list(CASES))
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--root", default=str(ROOT), help="jointsim checkout to measure")
     args = ap.parse_args()
-    logging.basicConfig(level=logging.WARNING)
-    print(f"{'case':10s} {'points':>6s} {'with [s]':>9s} {'without [s]':>11s} {'ratio':>6s}")
+    logging.basicConfig(level=logging.ERROR)
+    import jointsim
+    print(f"jointsim from {Path(jointsim.__file__).parent}; load average "
+          f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    print(f"{'case':11s} {'points':>6s} {'with [s]':>9s} {'without [s]':>11s} {'ratio':>6s} "
+          f"{'share':>6s}")
     for name in args.cases:
         kind, path, ov = CASES[name]
+        if name.startswith("lap121"):
+            ov = [f"model.mesh='{_mesh121()}'", *ov]
         scene_path = _drop_others(path, kind)
         try:
             with tempfile.TemporaryDirectory() as d:
@@ -103,8 +149,9 @@ def main():
                         best[on] = min(best[on], dt)
             lin = (f"   linear step only {best['linear']:.2f} s "
                    f"(x{best['linear'] / best[False]:.2f})" if "linear" in best else "")
-            print(f"{name:10s} {n:6d} {best[True]:9.2f} {best[False]:11.2f} "
-                  f"{best[True] / best[False]:6.2f}{lin}", flush=True)
+            print(f"{name:11s} {n:6d} {best[True]:9.2f} {best[False]:11.2f} "
+                  f"{best[True] / best[False]:6.2f} {1 - best[False] / best[True]:6.1%}{lin}",
+                  flush=True)
         finally:
             scene_path.unlink(missing_ok=True)
 

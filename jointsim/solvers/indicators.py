@@ -55,6 +55,22 @@ damping estimates are unchanged to four digits, and the state estimate is the
 norm of the whole change rather than the sum of the norms of its two parts
 (smaller by up to 2.5x where they partly cancel).
 
+**What does not make them cheaper (measured, round 8).**  Solves of the extended
+system that neglect a part of it break the validation: one block Gauss-Seidel
+sweep for the truncation step (missing harmonics alone with their ``S_h`` plus the
+harmonic projection of the contact tangent, then ``J_RR`` with the coupling) moved
+the truncation indicator of the coarse FE joint by factors 0.18 to 12 against the
+full solve (fixed and coupled N, H = 0..3, 0..5, 0..7); with the exact missing
+block 0.07 to 2.2, and four sweeps still 0.25 to 1.8: the slipping elements'
+tangent couples the missing harmonics back to the kept ones strongly.  The
+block-Jacobi aliasing step (``J_RR`` alone) moved the aliasing indicator by 0.41 to
+1.35.  A chord or Broyden iteration of the extended EPMC solve (the first step's
+Jacobian kept) diverges on the coupled joint, and a warm start from the previous
+point's extended solution (log10 a 0.05 apart) needed as many Newton steps (5
+evaluations) as the start from the first step.  What remains cheaper without
+changing a digit: the kept harmonics of the corrections are rebuilt by the main
+system (they depend on the kept rows only), half the extended reconstruction.
+
 The aliasing step measures the change ``N_t -> 4 N_t``, taken as the error of
 ``N_t`` itself: the convergence in ``N_t`` of a stick-slip march (a slip
 onset falls between samples) is erratic, and the error of ``4 N_t`` is
@@ -233,9 +249,11 @@ class ErrorEstimator:
         ev = ext.evaluate(ze, omega, Fe, xi=xi, wrt=())
         n_rows = s.n_c * s.n_r
         da, dt = self._split_solve(ev.J, ev.R, n_rows)
-        zero = np.zeros_like(Fe)
-        dXa = ext.reconstruct(da, omega, zero, xi)
-        dXt = ext.reconstruct(dt, omega, zero, xi)
+        # the kept rows of X depend on the kept rows of z only: the main system
+        # rebuilds them (half the harmonics of the extended reconstruction)
+        zero = np.zeros_like(F)
+        dXa = s.reconstruct(da[:n_rows], omega, zero, xi)
+        dXt = s.reconstruct(dt[:n_rows], omega, zero, xi)
         ea = ALIAS_RICHARDSON * self._rel(dXa, X)
         et = self._rel(dXt, X)
         return ErrorIndicators(truncation=et, aliasing=ea, estimate=et + ea,
@@ -295,12 +313,15 @@ class ErrorEstimator:
             d = solve(A, -np.column_stack([r_alias, r_tail]))
             da, dt = d[:, 0], d[:, 1]
         # X is affine in zh, but omega and xi move the condensed part too: take the
-        # difference of the reconstructions
-        X0 = epx.coefficients(yx)
+        # difference of the reconstructions (of the kept harmonics: they depend on the
+        # kept rows of zh only, so the main system rebuilds them)
+        def kept_X(x):
+            return ep.coefficients(np.concatenate([x[:n_rows], x[nzx:nzx + 2], [lam]]))
+        X0 = kept_X(yx)
         out = []
         for d in (da, dt):
-            yd = np.concatenate([zh + d[:nzx], [omega + d[nzx], xi + d[nzx + 1], lam]])
-            out.append((epx.coefficients(yd) - X0, d[nzx], d[nzx + 1]))
+            yd = np.concatenate([zh + d[:nzx], [omega + d[nzx], xi + d[nzx + 1]]])
+            out.append((kept_X(yd) - X0, d[nzx], d[nzx + 1]))
         (dXa, dwa, dxa), (dXt, dwt, dxt) = out
         ea = ALIAS_RICHARDSON * self._rel(dXa, X)
         et = self._rel(dXt, X)
@@ -324,7 +345,7 @@ class ErrorEstimator:
         if sol is not None:
             # the nonlinear changes; the state's split into truncation and aliasing
             # in the proportion of the linear step
-            e = self._rel(epx.coefficients(np.append(sol, lam)) - X0, X)
+            e = self._rel(kept_X(sol) - X0, X)
             share = et / (et + ea) if et + ea > 0 else 1.0
             et, ea = share * e, (1.0 - share) * e
             fw = abs(sol[nzx] - omega) / abs(omega)
