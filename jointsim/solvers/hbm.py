@@ -82,10 +82,15 @@ class HBMSystem:
         solved by preconditioned GMRES, no ``n_z x n_z`` matrix formed;
         ``"auto"``: Krylov from ``KRYLOV_MIN_UNKNOWNS`` unknowns on.  The
         choice is ``self.linear_solver``; ``self.stats`` counts the solves.
+    lin : ReducedLinear, optional
+        The condensation of the same model onto the same contact coordinates, to
+        share (it does not depend on the harmonics; the error indicators'
+        extended system shares the point's); built when not given.
     """
 
     def __init__(self, model, harmonics, n_samples: int, min_periods: int = 2,
-                 max_periods: int = 50, parallel: bool = True, linear_solver: str = "auto"):
+                 max_periods: int = 50, parallel: bool = True, linear_solver: str = "auto",
+                 lin: ReducedLinear | None = None):
         self.model = model
         self.basis = HarmonicBasis(harmonics, n_samples)
         c = model.contacts
@@ -109,7 +114,10 @@ class HBMSystem:
             nr += ne
         T = np.vstack(rows) if rows else np.zeros((0, model.n_dof))
         self.T = T
-        self.lin = ReducedLinear(model.M, model.K, model.C, T)
+        if lin is not None and (lin.n != model.n_dof or lin.n_r != nr):
+            raise ValueError(f"lin condenses {lin.n} DOFs onto {lin.n_r} coordinates, the "
+                             f"model needs {model.n_dof} onto {nr}")
+        self.lin = lin if lin is not None else ReducedLinear(model.M, model.K, model.C, T)
         self.n_r = nr
         self.n_c = self.basis.n_coeff
         self.n_z = self.n_c * nr

@@ -172,7 +172,8 @@ class ErrorEstimator:
         # without contact unknowns the joint is linear: every indicator is 0, no extension
         self.ext = HBMSystem(system.model, self.harmonics, nx, aft.min_periods,
                              aft.max_periods, parallel=parallel,
-                             linear_solver="krylov" if system.krylov else "direct") \
+                             linear_solver="krylov" if system.krylov else "direct",
+                             lin=system.lin) \
             if system.n_z else None
         if self.ext is not None:
             # an estimate needs a few digits, not 1e-11: GMRES stops at INDICATOR_RTOL

@@ -156,6 +156,26 @@ def test_krylov_path_gives_the_direct_indicators():
         assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-5)
 
 
+def test_extended_system_shares_the_condensation_of_the_point():
+    """The extended system reuses the point's ``ReducedLinear`` (it does not depend on the
+    harmonics; at 481 pairs a second one cost 9 s and a GB) and gives the indicators of
+    one built afresh; a condensation of other coordinates is refused."""
+    m = build_model(load_scene(FOLD))
+    s, F, p = _point(m, 5, 64, 0.1, 1.2)
+    est = ErrorEstimator(s)
+    assert est.ext.lin is s.lin
+    shared = est.hbm(p.z, 1.2, F, p.X)
+    est.ext = HBMSystem(m, est.harmonics, est.n_samples, linear_solver="direct")
+    assert est.ext.lin is not s.lin
+    fresh = est.hbm(p.z, 1.2, F, p.X)
+    for name in ("truncation", "aliasing", "force_tail"):
+        assert getattr(shared, name) == pytest.approx(getattr(fresh, name), rel=1e-12)
+    other = HBMSystem(build_model(load_scene(CHAIN2)), (0, 1), 16)   # 1 contact coordinate
+    assert other.lin.n_r != s.lin.n_r
+    with pytest.raises(ValueError, match="condenses"):
+        HBMSystem(m, (0, 1), 16, lin=other.lin)
+
+
 # -- EPMC ---------------------------------------------------------------------------
 def _mode_point(model, H, nt, amp, y0=None):
     """EPMC solution at modal amplitude ``amp`` (Newton at fixed amplitude)."""
