@@ -283,8 +283,9 @@ def _continue(a, ep, y0, t0, h0, solve_first, max_pts, scale, rscale, on_point, 
         conv = br.convergence
         br = dataclasses.replace(br, convergence=dataclasses.replace(
             conv, iterations=conv.iterations + n_before,
-            message=f"{conv.message} (continued from the stuck onset at log10 a = "
-                    f"{onset:.6f}, point {n_before + 1})"))
+            message=f"{conv.message} in its second leg, continued from the stuck onset at "
+                    f"log10 a = {onset:.6f} (point {n_before + 1}); {n_before + len(br.y)} "
+                    "points in all"))
     return br
 
 
