@@ -193,6 +193,22 @@ def _amplitudes(scene, section) -> np.ndarray:
     return 10.0 ** np.linspace(lo + 0.15 * (hi - lo), hi - 0.15 * (hi - lo), 4)
 
 
+def _exact_where_solved(g, amps, key, vals) -> np.ndarray:
+    """``vals`` with the values the file solved exactly at an amplitude of ``amps``
+    (``/epmc/at_amplitudes``, :func:`jointsim.analyses.epmc.exact_amplitudes`): they do
+    not depend on where the branch placed its points, interpolation between them
+    does."""
+    out = np.array(vals, dtype=float)
+    solved = g["amplitude"][()]
+    ok = g["converged"][()]
+    values = g[key][()]
+    for i, am in enumerate(amps):
+        hit = np.flatnonzero(np.isclose(solved, am, rtol=1e-9, atol=0.0) & ok)
+        if hit.size:
+            out[i] = float(values[hit[0]])
+    return out
+
+
 def quantities(path, scene) -> list[Quantity]:
     """The quantities of one result file, in a fixed order for a given scene.
 
@@ -236,6 +252,8 @@ def quantities(path, scene) -> list[Quantity]:
                                  ("damping_ratio", "damping", "1")):
                 vals = (_interp_log(amps, g["amplitude"][()], g[key][()])
                         if g is not None and key in g else np.full(amps.shape, np.nan))
+                if name == "epmc" and g is not None and "at_amplitudes" in g:
+                    vals = _exact_where_solved(g["at_amplitudes"], amps, key, vals)
                 for am, v in zip(amps, vals):
                     out.append(Quantity(f"{label} {what} at a = {am:.3g}", float(v), u))
         tr = getattr(a, "transient", None)

@@ -183,9 +183,9 @@ def test_converge_recommendation_reproduces_the_reference(scene_file, tmp_path):
 
 def test_preset_fills_only_keys_that_are_not_explicit(scene_file, tmp_path):
     ov = preset_overrides(scene_file, "fast")
-    assert "analysis.hbm.n_samples=32" in ov
+    assert "analysis.hbm.n_samples=64" in ov
     assert not any(o.startswith("analysis.transient") for o in ov)  # no such analysis
-    ov = preset_overrides(scene_file, "fast", ["analysis.hbm.n_samples=64"])
+    ov = preset_overrides(scene_file, "fast", ["analysis.hbm.n_samples=96"])
     assert not any(o.startswith("analysis.hbm.n_samples") for o in ov)
     explicit = tmp_path / "explicit.toml"
     explicit.write_text(SCENE.replace("[analysis.epmc]\n", "[analysis.epmc]\nn_samples = 96\n"))
@@ -200,7 +200,7 @@ def test_preset_fills_only_keys_that_are_not_explicit(scene_file, tmp_path):
                  "--set", "analysis.hbm.harmonics=[0,1,2,3,4,5]"]) == 0
     with h5py.File(out, "r") as h5:
         assert h5["hbm/harmonics"][()].tolist() == [0, 1, 2, 3, 4, 5]
-        assert h5["hbm"].attrs["n_samples"] == 32
+        assert h5["hbm"].attrs["n_samples"] == 64
         assert h5["epmc/X"].shape[1] == 2 * 3 + 1  # fast: harmonics 0..3
 
 
@@ -255,3 +255,31 @@ def test_a_failed_run_of_the_same_scene_is_kept_not_rerun(scene_file, tmp_path):
     q = {x.name: x.value for x in quantities(f, load_scene(scene_file))}
     assert np.isfinite(q["FRC peak amplitude, force x 1"])
     assert np.isnan(q["EPMC damping at a = 2"])
+
+
+def test_epmc_quantities_are_solved_at_the_loop_amplitudes(scene_file, tmp_path):
+    """The EPMC values converge compares at the loop amplitudes are the mode solved
+    exactly there (/epmc/at_amplitudes), so they do not move with the branch's points:
+    two runs that place their points differently agree to the Newton tolerance, where
+    interpolating between their points differs by far more."""
+    runs = []
+    for k, step_max in enumerate((0.3, 0.07)):
+        f = tmp_path / f"r{k}.h5"
+        run_scene(load_scene(scene_file, [f"analysis.epmc.step_max={step_max}",
+                                          "analysis.epmc.tol=1e-11"]), f)
+        runs.append(f)
+    scene = load_scene(scene_file)
+    exact, interp = [], []
+    for f in runs:
+        with h5py.File(f, "r") as h5:
+            g = h5["epmc"]
+            assert g["at_amplitudes/amplitude"][()].tolist() == [0.5, 2.0]
+            assert g["at_amplitudes/converged"][()].all()
+            interp.append(np.interp(np.log([0.5, 2.0]), np.log(g["amplitude"][()]),
+                                    g["damping_ratio"][()]))
+            q = {x.name: x.value for x in quantities(f, scene)}
+            got = [q["EPMC damping at a = 0.5"], q["EPMC damping at a = 2"]]
+            np.testing.assert_array_equal(got, g["at_amplitudes/damping_ratio"][()])
+            exact.append(np.array(got))
+    assert np.abs(exact[0] - exact[1]).max() < 1e-8 * np.abs(exact[0]).max()
+    assert np.abs(interp[0] - interp[1]).max() > 1e3 * np.abs(exact[0] - exact[1]).max()
