@@ -143,7 +143,8 @@ class EPMCAnalysis:
                                    ge=1)
     loop_amplitudes: tuple[float, ...] = spec(
         (), doc="modal amplitudes at which the element loops and Masing checks are kept "
-                "(the first point at or past each); empty: the points of "
+                "(the first point at or past each; the mode is also solved exactly there, "
+                "as for analysis.epmc.amplitudes); empty: the points of "
                 "analysis.masing.points (every point when that is empty too)", gt=0)
     amplitudes: tuple[float, ...] = spec(
         (), doc="modal amplitudes at which the mode is also solved exactly (Newton at fixed "
