@@ -19,6 +19,7 @@ from jointsim.solvers.hbm import HBMSystem
 from jointsim.solvers.modes import elastic_mode
 
 from .._scenes import MODELS
+from .test_hbm import run_interrupted_after
 
 SDOF = MODELS / "hbm" / "sdof_jenkins_epmc.toml"
 ONSET = np.log10(0.2 / 0.25)
@@ -71,22 +72,6 @@ def test_backbone_has_a_point_at_the_onset_and_continues_from_it(tmp_path):
         assert "stuck onset" in g.attrs["message"]
 
 
-def _interrupted_after(scene, path, n_points, monkeypatch):
-    """Run a scene and press Ctrl-C when the file holds ``n_points`` EPMC points."""
-    from jointsim.io import hdf5
-    original = hdf5.ResultWriter.append
-
-    def interrupting(self, name, row, unit, doc=""):
-        if name == "epmc/amplitude" and self.rows("epmc/amplitude") >= n_points:
-            raise KeyboardInterrupt
-        return original(self, name, row, unit, doc)
-
-    monkeypatch.setattr(hdf5.ResultWriter, "append", interrupting)
-    with pytest.raises(KeyboardInterrupt):
-        run_scene(scene, path)
-    monkeypatch.setattr(hdf5.ResultWriter, "append", original)
-
-
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
     sc = load_scene(SDOF, QUICK)
@@ -109,7 +94,7 @@ def test_a_branch_interrupted_in_either_leg_resumes_to_the_same_points(
     sc, ref, k_onset = uninterrupted
     n = k_onset + after
     part = tmp_path / "part.h5"
-    _interrupted_after(sc, part, n, monkeypatch)
+    run_interrupted_after(sc, part, n, monkeypatch, dataset="epmc/amplitude")
     with h5py.File(part, "r") as h5:
         assert h5.attrs["status"] == "interrupted" and h5["epmc/y"].shape[0] == n
     run_scene(sc, part, resume=True)

@@ -341,13 +341,14 @@ def test_continuation_stops_exactly_at_the_end():
     assert np.all(np.diff(br.y[:, 1]) > 0)
 
 
-def run_interrupted_after(scene, path, n_points, monkeypatch):
-    """Run a scene and press Ctrl-C when the file holds ``n_points`` HBM points."""
+def run_interrupted_after(scene, path, n_points, monkeypatch, dataset="hbm/omega"):
+    """Run a scene and press Ctrl-C when the file holds ``n_points`` rows of ``dataset``
+    (HBM points by default)."""
     from jointsim.io import hdf5
     original = hdf5.ResultWriter.append
 
     def interrupting(self, name, row, unit, doc=""):
-        if name == "hbm/omega" and self.rows("hbm/omega") >= n_points:
+        if name == dataset and self.rows(dataset) >= n_points:
             raise KeyboardInterrupt
         return original(self, name, row, unit, doc)
 
