@@ -6,7 +6,7 @@
 For each FILE (e.g. the runs of ``jointsim run SCENE --preset fast|balanced``):
 its wall time (result attribute ``wall_time_s``), its status, and its largest
 error against REFERENCE over all quantities of SCENE
-(:func:`jointsim.converge.quantities`: FRC peaks, EPMC and QSMA frequency and
+(:func:`jointsim.quantities.quantities`: FRC peaks, EPMC and QSMA frequency and
 damping at the loop amplitudes, loop-set shares), and per kind (frequency,
 damping, amplitude, share), with the quantity that is worst.  A quantity the
 file did not reach counts as ``not reached``.
@@ -19,7 +19,7 @@ import sys
 import h5py
 import numpy as np
 
-from jointsim.converge import errors, kind_errors, quantities
+from jointsim.quantities import errors, kind_errors, quantities
 from jointsim.scene import load_scene
 
 

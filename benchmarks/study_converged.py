@@ -31,7 +31,7 @@ reference of (a) the EPMC frequency and damping solved at the four loop
 amplitudes, (b) the EPMC and QSMA frequency and damping interpolated along the
 branches at the loop amplitudes and the area-weighted on-manifold and
 on-Masing shares of the four loop sets (absolute), as ``jointsim converge``
-measures them (:func:`jointsim.converge.quantities`), then names the least
+measures them (:func:`jointsim.quantities.quantities`), then names the least
 refined setting within 1 % in every frequency and 5 % in every damping ratio
 and prints its rows of the README study table
 (:func:`jointsim.post.study_tables.results_rows`), its element counts, the
@@ -56,7 +56,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from jointsim.converge import errors, quantities  # noqa: E402
+from jointsim.quantities import errors, quantities  # noqa: E402
 from jointsim.post.study import fraction_weights, loop_points, weighted_fractions  # noqa: E402
 from jointsim.post.study_tables import (confusion_table, control_table, headline,  # noqa: E402
                                         results_rows)

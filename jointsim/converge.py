@@ -44,6 +44,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from .quantities import errors, kind_errors, quantities
 from .scene import SceneError, load_scene
 
 log = logging.getLogger(__name__)
@@ -171,149 +172,6 @@ def dials_for(scene, ladders: dict | None = None) -> list[Dial]:
 
 
 # ---------------------------------------------------------------- quantities
-
-@dataclass(frozen=True)
-class Quantity:
-    """A number a run produces, how its error is measured, and its unit."""
-
-    name: str
-    value: float
-    unit: str
-    absolute: bool = False  # fractions: absolute error
-
-
-def _amplitudes(scene, section) -> np.ndarray:
-    """Modal amplitudes where backbones are compared [sqrt(kg) m]: the scene's loop
-    amplitudes (or solved amplitudes), else four inside its range."""
-    amps = tuple(section.loop_amplitudes) if hasattr(section, "loop_amplitudes") else ()
-    amps = amps or tuple(getattr(section, "amplitudes", ()))
-    if amps:
-        return np.asarray(amps, dtype=float)
-    lo, hi = section.log10_amplitude_start, section.log10_amplitude_end
-    return 10.0 ** np.linspace(lo + 0.15 * (hi - lo), hi - 0.15 * (hi - lo), 4)
-
-
-def _exact_where_solved(g, amps, key, vals) -> np.ndarray:
-    """``vals`` with the values the file solved exactly at an amplitude of ``amps``
-    (``/epmc/at_amplitudes``, :func:`jointsim.analyses.epmc.exact_amplitudes`): they do
-    not depend on where the branch placed its points, interpolation between them
-    does."""
-    out = np.array(vals, dtype=float)
-    solved = g["amplitude"][()]
-    ok = g["converged"][()]
-    values = g[key][()]
-    for i, am in enumerate(amps):
-        hit = np.flatnonzero(np.isclose(solved, am, rtol=1e-9, atol=0.0) & ok)
-        if hit.size:
-            out[i] = float(values[hit[0]])
-    return out
-
-
-def quantities(path, scene) -> list[Quantity]:
-    """The quantities of one result file, in a fixed order for a given scene.
-
-    Parameters
-    ----------
-    path : str or Path
-        A complete result file of ``scene`` (at any setting of the dials).
-    scene : jointsim.scene.Scene
-        The user's scene (its sections and amplitudes fix the list).
-
-    Returns
-    -------
-    list of Quantity
-        NaN for a value the run did not reach (a branch that stopped early).
-    """
-    from .post.study import (_interp_log, fraction_weights, loop_groups, loop_points,
-                             weighted_fractions)
-    out: list[Quantity] = []
-    a = scene.analysis
-    hz = "Hz" if scene.model.units == "SI" else "1/time"
-    with h5py.File(path, "r") as h5:
-        if a.hbm is not None:
-            g = h5["hbm"]
-            pa = g["peak_amplitude"][()] if "peak_amplitude" in g else np.array([])
-            po = g["peak_omega"][()] if "peak_omega" in g else np.array([])
-            for b, fs in enumerate(a.hbm.force_scale):
-                amp = float(pa[b]) if b < pa.size else np.nan
-                om = float(po[b]) if b < po.size else np.nan
-                out.append(Quantity(f"FRC peak amplitude, force x {fs:g}", amp,
-                                    "m" if scene.model.units == "SI" else "length"))
-                out.append(Quantity(f"FRC peak frequency, force x {fs:g}",
-                                    om / (2 * np.pi), hz))
-        for name, label in (("epmc", "EPMC"), ("qsma", "QSMA")):
-            sec = getattr(a, name, None)
-            if sec is None:
-                continue
-            amps = _amplitudes(scene, a.epmc if name == "qsma" and a.epmc is not None
-                               else sec)
-            g = h5[name] if name in h5 else None
-            for key, what, u in (("frequency_hz", "frequency", hz),
-                                 ("damping_ratio", "damping", "1")):
-                vals = (_interp_log(amps, g["amplitude"][()], g[key][()])
-                        if g is not None and key in g else np.full(amps.shape, np.nan))
-                if name == "epmc" and g is not None and "at_amplitudes" in g:
-                    vals = _exact_where_solved(g["at_amplitudes"], amps, key, vals)
-                for am, v in zip(amps, vals):
-                    out.append(Quantity(f"{label} {what} at a = {am:.3g}", float(v), u))
-        tr = getattr(a, "transient", None)
-        if tr is not None:
-            g = h5["transient"] if "transient" in h5 else None
-            if tr.omega > 0:
-                X = g["harmonics"][()] if g is not None and "harmonics" in g else None
-                v = float(np.linalg.norm(X)) if X is not None else np.nan
-                out.append(Quantity("transient steady harmonics (norm)", v,
-                                    "m" if scene.model.units == "SI" else "length"))
-            else:
-                amps = 10.0 ** np.linspace(np.log10(tr.amplitude) - 1.0,
-                                           np.log10(tr.amplitude) - 0.2, 3)
-                for key, what, u in (("frequency_hz", "frequency", hz),
-                                     ("damping_ratio", "damping", "1")):
-                    vals = (_interp_log(amps, g["amplitude"][()], g[key][()])
-                            if g is not None and key in g else np.full(3, np.nan))
-                    for am, v in zip(amps, vals):
-                        out.append(Quantity(f"free decay {what} at a = {am:.3g}",
-                                            float(v), u))
-        for prefix in loop_groups(h5):
-            sets = loop_points(h5, prefix)
-            w = fraction_weights(h5, sets.loaded.shape[1]).get(
-                "area", np.ones(sets.loaded.shape[1]))
-            man, mas, _ = weighted_fractions(sets, w)
-            for k in range(man.size):
-                out.append(Quantity(f"{prefix or 'loops'} set {k}: on-manifold share",
-                                    float(man[k]), "1", absolute=True))
-                out.append(Quantity(f"{prefix or 'loops'} set {k}: on-Masing share",
-                                    float(mas[k]), "1", absolute=True))
-    return out
-
-
-def errors(q: list[Quantity], ref: list[Quantity]) -> np.ndarray:
-    """Error of each quantity against the reference's of the same name.
-
-    Relative ``|q - q_ref| / |q_ref|`` (absolute for fractions); ``inf`` when
-    a value is missing in ``q`` but not in the reference, ``NaN`` when the
-    reference has none either.
-
-    Returns
-    -------
-    ndarray, shape (len(ref),)
-    """
-    by_name = {x.name: x.value for x in q}
-    out = np.empty(len(ref))
-    for i, r in enumerate(ref):
-        v = by_name.get(r.name, np.nan)
-        if not np.isfinite(r.value):
-            out[i] = np.nan
-        elif not np.isfinite(v):
-            out[i] = np.inf
-        elif r.absolute:
-            out[i] = abs(v - r.value)
-        else:
-            out[i] = abs(v - r.value) / abs(r.value) if r.value != 0 else abs(v)
-    return out
-
-
-# ---------------------------------------------------------------- the study
 
 @dataclass
 class Ladder:
@@ -622,35 +480,6 @@ def _converge(scene, scene_path, rtol, ladders, variants, by_text, ref_file, out
 # ---------------------------------------------------------------- output
 
 #: quantity kinds of :func:`kind_errors`, by a word of the quantity name
-KINDS = (("frequency", "frequency"), ("damping", "damping"), ("amplitude", "amplitude"),
-         ("share", "share"))
-
-
-def kind_errors(names, err) -> dict[str, float]:
-    """Largest error per kind of quantity (frequency, damping, amplitude, share).
-
-    Parameters
-    ----------
-    names : list of str
-        Quantity names (:func:`quantities`).
-    err : ndarray, shape (len(names),)
-        Their errors (NaN: no reference value; inf: not reached).
-
-    Returns
-    -------
-    dict
-        ``{kind: largest error}``, NaN for a kind without quantities.
-    """
-    out = {}
-    err = np.asarray(err, dtype=float)
-    for kind, word in KINDS:
-        sel = np.array([word in n for n in names], bool)
-        e = err[sel] if sel.size else np.zeros(0)
-        e = e[~np.isnan(e)]
-        out[kind] = float(e.max()) if e.size else np.nan
-    return out
-
-
 def _e(v: float) -> str:
     return "-" if np.isnan(v) else ("not reached" if np.isinf(v) else f"{v:.2e}")
 

@@ -283,3 +283,23 @@ def test_epmc_quantities_are_solved_at_the_loop_amplitudes(scene_file, tmp_path)
             exact.append(np.array(got))
     assert np.abs(exact[0] - exact[1]).max() < 1e-8 * np.abs(exact[0]).max()
     assert np.abs(interp[0] - interp[1]).max() > 1e3 * np.abs(exact[0] - exact[1]).max()
+
+
+def test_frc_loop_sets_are_named_by_their_force_scale(tmp_path):
+    """FRC branches on worker processes store their peak loops in the order they finish
+    (largest force first since issue 10): converge names an FRC set by its branch's force
+    scale, so two files with the sets in another order compare the same sets."""
+    from jointsim.quantities import _set_labels
+    f = tmp_path / "sets.h5"
+    with h5py.File(f, "w") as h5:
+        h5["hbm/force_scale"] = [0.02, 2.0, 20.0]
+        h5["hbm/branch"] = [0, 0, 1, 1, 2, 2, 2]        # branch of each point
+    with h5py.File(f, "r") as h5:
+        a = dict((k, name) for k, name in _set_labels(h5, "hbm", np.array([5, 3, 0])))
+        b = dict((k, name) for k, name in _set_labels(h5, "hbm", np.array([0, 3, 6, 4])))
+        e = _set_labels(h5, "epmc", np.array([4, 9]))
+    assert a == {0: "hbm loops 0 at force x 20", 1: "hbm loops 0 at force x 2",
+                 2: "hbm loops 0 at force x 0.02"}
+    assert b == {0: "hbm loops 0 at force x 0.02", 1: "hbm loops 0 at force x 2",
+                 2: "hbm loops 1 at force x 20", 3: "hbm loops 0 at force x 20"}
+    assert e == [(0, "epmc set 0"), (1, "epmc set 1")]
