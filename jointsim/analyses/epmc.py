@@ -206,7 +206,7 @@ def stuck_onset(ep, y_lin, lam_start: float, lam_end: float, rscale: float, tol:
 
     def residual(lam):
         y[-1] = lam
-        return ep.fun(y)[0]
+        return ep.residual(y)   # the amplitude and phase rows do not change with lam
 
     R0 = residual(lam_start)
     if not np.all(np.isfinite(R0)):

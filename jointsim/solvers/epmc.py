@@ -142,6 +142,16 @@ class EPMCSystem:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             return self._fun(y)
 
+    def residual(self, y) -> np.ndarray:
+        """The structural rows of :meth:`fun`'s residual, ``R(z0 + a zh) / a`` (n_z,),
+        without the Jacobian (the amplitude and phase rows depend on ``zh`` only)."""
+        s = self.s
+        nz = s.n_z
+        a = 10.0 ** float(y[nz + 2])
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return s.evaluate(self.z0 + a * np.asarray(y[:nz]), float(y[nz]), self.F,
+                              xi=float(y[nz + 1]), jacobian=False, wrt=()).R / a
+
     def _fun(self, y):
         """:meth:`fun` without the floating-point error state."""
         s = self.s

@@ -374,10 +374,7 @@ class ErrorEstimator:
         x = np.array(x1, dtype=float)
         if max_iter < 2:
             return None
-        s, a = epx.s, 10.0 ** lam
-        with np.errstate(over="ignore", invalid="ignore"):
-            r1 = s.evaluate(epx.z0 + a * x[:nzx], x[nzx], epx.F, xi=x[nzx + 1],
-                            jacobian=False, wrt=()).R / a
+        r1 = epx.residual(np.append(x, lam))
         if np.all(np.isfinite(r1)) and np.abs(r1).max(initial=0.0) <= EPMC_CHANGE_TOL * r0:
             return x
         R, J, _ = epx.fun(np.append(x, lam))
