@@ -98,10 +98,12 @@ LOOP_AMPLITUDES = (1e-4, 3e-4, 1e-3, 3e-3)   # the scenes' analysis.epmc.loop_am
 def numbers(h5_path: Path) -> dict:
     """The study's numbers of one run, at the nominal loop amplitudes.
 
-    EPMC and QSMA frequency and damping are interpolated (log amplitude) at
-    :data:`LOOP_AMPLITUDES`, so that runs whose branch points differ compare
-    at the same amplitude; the area-weighted fractions are those of the
-    stored loop sets (the branch points nearest those amplitudes).
+    EPMC frequency and damping at :data:`LOOP_AMPLITUDES` are the run's exact
+    solutions there (``/epmc/at_amplitudes``; interpolated in log amplitude in a
+    file without them), QSMA's are interpolated, so that runs whose branch
+    points differ compare at the same amplitude; the area-weighted fractions
+    are those of the stored loop sets (the branch points nearest those
+    amplitudes).
     """
     from jointsim.post import study
     with h5py.File(h5_path, "r") as h5:

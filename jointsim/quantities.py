@@ -37,22 +37,6 @@ def _amplitudes(scene, section) -> np.ndarray:
     return 10.0 ** np.linspace(lo + 0.15 * (hi - lo), hi - 0.15 * (hi - lo), 4)
 
 
-def _exact_where_solved(g, amps, key, vals) -> np.ndarray:
-    """``vals`` with the values the file solved exactly at an amplitude of ``amps``
-    (``/epmc/at_amplitudes``, :func:`jointsim.analyses.epmc.exact_amplitudes`): they do
-    not depend on where the branch placed its points, interpolation between them
-    does."""
-    out = np.array(vals, dtype=float)
-    solved = g["amplitude"][()]
-    ok = g["converged"][()]
-    values = g[key][()]
-    for i, am in enumerate(amps):
-        hit = np.flatnonzero(np.isclose(solved, am, rtol=1e-9, atol=0.0) & ok)
-        if hit.size:
-            out[i] = float(values[hit[0]])
-    return out
-
-
 def _set_labels(h5, prefix: str, point) -> list[tuple[int, str]]:
     """``(index, name)`` of the loop sets of ``prefix`` in a fixed order.
 
@@ -87,8 +71,8 @@ def quantities(path, scene) -> list[Quantity]:
     list of Quantity
         NaN for a value the run did not reach (a branch that stopped early).
     """
-    from .post.study import (_interp_log, fraction_weights, loop_groups, loop_points,
-                             weighted_fractions)
+    from .post.study import (_interp_log, exact_where_solved, fraction_weights,
+                             loop_groups, loop_points, weighted_fractions)
     out: list[Quantity] = []
     a = scene.analysis
     hz = "Hz" if scene.model.units == "SI" else "1/time"
@@ -116,7 +100,7 @@ def quantities(path, scene) -> list[Quantity]:
                 vals = (_interp_log(amps, g["amplitude"][()], g[key][()])
                         if g is not None and key in g else np.full(amps.shape, np.nan))
                 if name == "epmc" and g is not None and "at_amplitudes" in g:
-                    vals = _exact_where_solved(g["at_amplitudes"], amps, key, vals)
+                    vals = exact_where_solved(g["at_amplitudes"], amps, key, vals)
                 for am, v in zip(amps, vals):
                     out.append(Quantity(f"{label} {what} at a = {am:.3g}", float(v), u))
         tr = getattr(a, "transient", None)

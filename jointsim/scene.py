@@ -257,10 +257,12 @@ class FEModel:
         doc="contact elements: 'nodes' (node-to-node pairs, consistent nodal areas) or "
             "'gauss' (model.contact_gauss Gauss points per interface edge, displacements "
             "interpolated with the edge shape functions; docs/fe.md)")
-    contact_gauss: int = spec(3, doc="Gauss points per interface edge with "
-                                     "contact_points = 'gauss' (3 and more integrate the stuck "
-                                     "interface stiffness of the quadratic edges exactly)",
-                              ge=1, le=6)
+    contact_gauss: int = spec(2, doc="Gauss points per interface edge with "
+                                     "contact_points = 'gauss' (2: every analysis runs; 3 and "
+                                     "more integrate the stuck interface stiffness of the "
+                                     "quadratic edges exactly, but their contact coordinates "
+                                     "are linearly dependent, which harmonic balance and EPMC "
+                                     "refuse)", ge=1, le=6)
     E: float = spec(200e9, doc="Young's modulus", unit="Pa", gt=0)
     nu: float = spec(0.29, doc="Poisson's ratio", ge=0, lt=0.5)
     rho: float = spec(7800.0, doc="density", unit="kg/m^3", gt=0)

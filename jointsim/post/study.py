@@ -76,11 +76,39 @@ class BackboneRow:
         return (self.zeta_qsma - self.zeta_epmc) / self.zeta_epmc
 
 
+def exact_where_solved(g, amps, key, vals) -> np.ndarray:
+    """``vals`` with the values the file solved exactly at an amplitude of ``amps``.
+
+    Parameters
+    ----------
+    g : h5py.Group
+        ``/epmc/at_amplitudes`` (:func:`jointsim.analyses.epmc.exact_amplitudes`):
+        ``amplitude``, ``converged`` and ``key``.
+    amps : ndarray, shape (n,)
+        Modal amplitudes [sqrt(kg) m].
+    key : str
+        ``frequency_hz`` or ``damping_ratio``.
+    vals : ndarray, shape (n,)
+        Values interpolated between branch points, replaced where solved exactly:
+        those do not depend on where the branch placed its points.
+    """
+    out = np.array(vals, dtype=float)
+    solved = g["amplitude"][()]
+    ok = g["converged"][()]
+    values = g[key][()]
+    for i, am in enumerate(amps):
+        hit = np.flatnonzero(np.isclose(solved, am, rtol=1e-9, atol=0.0) & ok)
+        if hit.size:
+            out[i] = float(values[hit[0]])
+    return out
+
+
 def backbone_comparison(h5: h5py.File, amplitudes) -> list[BackboneRow]:
     """EPMC and QSMA frequency and damping at the given modal amplitudes.
 
-    Both are interpolated in log(amplitude) along their computed curves; an
-    amplitude outside a curve gives NaN for it.
+    Both are interpolated in log(amplitude) along their computed curves (an
+    amplitude outside a curve gives NaN for it), except the EPMC values at an
+    amplitude the run solved exactly (``/epmc/at_amplitudes``).
 
     Parameters
     ----------
@@ -93,6 +121,9 @@ def backbone_comparison(h5: h5py.File, amplitudes) -> list[BackboneRow]:
     amps = np.atleast_1d(np.asarray(amplitudes, dtype=float))
     fe = _interp_log(amps, e["amplitude"][()], e["frequency_hz"][()])
     ze = _interp_log(amps, e["amplitude"][()], e["damping_ratio"][()])
+    if "at_amplitudes" in e:
+        fe = exact_where_solved(e["at_amplitudes"], amps, "frequency_hz", fe)
+        ze = exact_where_solved(e["at_amplitudes"], amps, "damping_ratio", ze)
     fq = _interp_log(amps, q["amplitude"][()], q["frequency_hz"][()])
     zq = _interp_log(amps, q["amplitude"][()], q["damping_ratio"][()])
     return [BackboneRow(float(a), float(f1), float(f2), float(z1), float(z2))
