@@ -102,15 +102,16 @@ def numbers(h5_path: Path) -> dict:
     solutions there (``/epmc/at_amplitudes``; interpolated in log amplitude in a
     file without them), QSMA's are interpolated, so that runs whose branch
     points differ compare at the same amplitude; the area-weighted fractions
-    are those of the stored loop sets (the branch points nearest those
-    amplitudes).
+    are those of the loop sets solved at those amplitudes
+    (``/epmc/at_amplitudes/loops``; in an older file, of the branch points
+    nearest them).
     """
     from jointsim.post import study
     with h5py.File(h5_path, "r") as h5:
         f = h5["modes/frequency_hz"][()]
         f1 = float(f[h5["modes/elastic"][()].astype(bool)][0])
         rows = study.backbone_comparison(h5, LOOP_AMPLITUDES)
-        sets = study.loop_points(h5, "epmc")
+        sets = study.loop_points(h5, study.exact_loop_group(h5, "epmc"))
         w = study.fraction_weights(h5, sets.loaded.shape[1])["area"]
         wm, ws, _ = study.weighted_fractions(sets, w)
     return {"f1": f1, "f_epmc": np.array([r.f_epmc for r in rows]),

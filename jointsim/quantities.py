@@ -45,6 +45,9 @@ def _set_labels(h5, prefix: str, point) -> list[tuple[int, str]]:
     its rank on that branch), not by its row; other sets by their row.
     """
     name = prefix or "loops"
+    if prefix.endswith("at_amplitudes"):          # exact EPMC sets: named by amplitude
+        amp = h5[f"{prefix}/amplitude"][()][point]
+        return [(k, f"epmc loops at a = {amp[k]:.3g}") for k in range(len(point))]
     if prefix != "hbm" or "hbm/branch" not in h5 or "hbm/force_scale" not in h5:
         return [(k, f"{name} set {k}") for k in range(len(point))]
     fs = h5["hbm/force_scale"][()][h5["hbm/branch"][()][point]]   # per branch, per point
@@ -71,8 +74,8 @@ def quantities(path, scene) -> list[Quantity]:
     list of Quantity
         NaN for a value the run did not reach (a branch that stopped early).
     """
-    from .post.study import (_interp_log, exact_where_solved, fraction_weights,
-                             loop_groups, loop_points, weighted_fractions)
+    from .post.study import (_interp_log, exact_loop_group, exact_where_solved,
+                             fraction_weights, loop_groups, loop_points, weighted_fractions)
     out: list[Quantity] = []
     a = scene.analysis
     hz = "Hz" if scene.model.units == "SI" else "1/time"
@@ -122,6 +125,7 @@ def quantities(path, scene) -> list[Quantity]:
                         out.append(Quantity(f"free decay {what} at a = {am:.3g}",
                                             float(v), u))
         for prefix in loop_groups(h5):
+            prefix = exact_loop_group(h5, prefix)
             sets = loop_points(h5, prefix)
             w = fraction_weights(h5, sets.loaded.shape[1]).get(
                 "area", np.ones(sets.loaded.shape[1]))

@@ -269,7 +269,7 @@ def test_epmc_quantities_are_solved_at_the_loop_amplitudes(scene_file, tmp_path)
                                           "analysis.epmc.tol=1e-11"]), f)
         runs.append(f)
     scene = load_scene(scene_file)
-    exact, interp = [], []
+    exact, interp, loops = [], [], []
     for f in runs:
         with h5py.File(f, "r") as h5:
             g = h5["epmc"]
@@ -281,8 +281,19 @@ def test_epmc_quantities_are_solved_at_the_loop_amplitudes(scene_file, tmp_path)
             got = [q["EPMC damping at a = 0.5"], q["EPMC damping at a = 2"]]
             np.testing.assert_array_equal(got, g["at_amplitudes/damping_ratio"][()])
             exact.append(np.array(got))
+            # the loop sets too are kept at the loop amplitudes themselves: the slip's
+            # first harmonic (m = 1: the modal amplitude) is the amplitude asked for,
+            # where the branch's own sets are at the first point past it
+            u = g["at_amplitudes/loops/u"][()][:, 0, :]             # (set, sample)
+            c1 = 2.0 * np.abs(np.fft.rfft(u, axis=1)[:, 1]) / u.shape[1]
+            np.testing.assert_allclose(c1, [0.5, 2.0], rtol=1e-8)
+            branch = g["amplitude"][()][g["loops/point"][()]]
+            assert np.abs(branch / [0.5, 2.0] - 1).max() > 1e-4
+            assert "epmc loops at a = 0.5: on-manifold share" in q
+            loops.append(g["at_amplitudes/loops/f"][()])
     assert np.abs(exact[0] - exact[1]).max() < 1e-8 * np.abs(exact[0]).max()
     assert np.abs(interp[0] - interp[1]).max() > 1e3 * np.abs(exact[0] - exact[1]).max()
+    assert np.abs(loops[0] - loops[1]).max() < 1e-6 * np.abs(loops[0]).max()
 
 
 def test_frc_loop_sets_are_named_by_their_force_scale(tmp_path):

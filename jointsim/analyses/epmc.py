@@ -19,7 +19,8 @@ With ``analysis.epmc.amplitudes`` or ``loop_amplitudes`` the mode is also solved
 exactly at those modal amplitudes (:func:`exact_amplitudes`,
 :func:`solve_at_amplitudes`), in ``/epmc/at_amplitudes/``:
 ``amplitude``, ``omega``, ``frequency_hz``, ``damping_ratio``, ``xi``, ``X``,
-``converged``, ``iterations``, ``residual``.
+``converged``, ``iterations``, ``residual``; at the ``loop_amplitudes`` also the
+element loops and Masing checks of those solutions (``loops/``, ``masing/``).
 """
 from __future__ import annotations
 
@@ -138,7 +139,8 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     log.info("epmc mode %d: %s", a.mode, conv.message)
     exact = exact_amplitudes(a)
     if exact:
-        solve_at_amplitudes(writer, a, system, ep, F, scale, rscale, exact)
+        solve_at_amplitudes(writer, a, system, ep, F, scale, rscale, exact,
+                            loops=(model.contacts.law, scene.analysis.masing.tol))
     from .study import write_control   # the study's third column (issue 14)
     write_control(writer, "epmc", model.contacts.law, scene.analysis.masing.tol, model.units)
     if not conv.success:
@@ -606,7 +608,8 @@ def exact_amplitudes(a) -> tuple[float, ...]:
     return tuple(sorted(set(a.amplitudes) | set(loops)))
 
 
-def solve_at_amplitudes(writer, a, system, ep, F, scale, rscale, amplitudes=None) -> dict:
+def solve_at_amplitudes(writer, a, system, ep, F, scale, rscale, amplitudes=None,
+                        loops=None) -> dict:
     """Solve the nonlinear mode exactly at given modal amplitudes (default ``a.amplitudes``).
 
     For each amplitude the stored branch (``/epmc/y``) is interpolated linearly
@@ -629,6 +632,13 @@ def solve_at_amplitudes(writer, a, system, ep, F, scale, rscale, amplitudes=None
         Residual scale.
     amplitudes : sequence of float, optional
         Modal amplitudes [m kg^0.5] (:func:`exact_amplitudes`).
+    loops : tuple (law, tol), optional
+        Also keep the element loops and Masing checks (contact law, tolerance of
+        ``analysis.masing``) of the solutions at the ``a.loop_amplitudes``, in
+        ``/epmc/at_amplitudes/loops`` and ``/masing`` (``point``: the index of the
+        amplitude): loop sets at the loop amplitudes themselves, whose shares do not
+        depend on where the branch placed its points (the branch's own sets are at
+        the first point at or past each).
 
     Returns
     -------
@@ -649,6 +659,7 @@ def solve_at_amplitudes(writer, a, system, ep, F, scale, rscale, amplitudes=None
                converged=np.zeros(n_amp, dtype=bool), iterations=np.zeros(n_amp, np.int64),
                residual=np.full(n_amp, np.nan))
     sz = scale[:nz + 2]
+    sets = []                    # (index, y) of the converged loop amplitudes
     for k, amp in enumerate(amplitudes):
         lt = float(np.log10(amp))
         seg = np.flatnonzero((lam[:-1] - lt) * (lam[1:] - lt) <= 0.0)
@@ -677,8 +688,11 @@ def solve_at_amplitudes(writer, a, system, ep, F, scale, rscale, amplitudes=None
         omega, xi = float(y[nz]), float(y[nz + 1])
         out["omega"][k], out["xi"][k], out["converged"][k] = omega, xi, True
         out["X"][k] = system.reconstruct(ep.z0 + amp * y[:nz], omega, F, xi=xi)
+        if loops is not None and amp in a.loop_amplitudes:
+            sets.append((k, y))
     out["damping_ratio"] = out["xi"] / (2.0 * out["omega"])
     units = system.model.units
+    _write_exact_loops(writer, system, ep, F, out, sets, loops)
     amp_unit = "m kg^0.5" if units == "SI" else "length mass^0.5"
     g = "epmc/at_amplitudes"
     writer.write(f"{g}/amplitude", out["amplitude"], amp_unit,
@@ -699,3 +713,26 @@ def solve_at_amplitudes(writer, a, system, ep, F, scale, rscale, amplitudes=None
     log.info("epmc: solved at %d of %d given modal amplitudes", int(out["converged"].sum()),
              n_amp)
     return out
+
+
+def _write_exact_loops(writer, system, ep, F, out, sets, loops) -> None:
+    """The element loops and Masing checks of the exact solutions ``sets``
+    (``(index, y)``) in ``/epmc/at_amplitudes/{loops,masing}`` (see
+    :func:`solve_at_amplitudes`); rewritten whole on every run (resume)."""
+    g = "epmc/at_amplitudes"
+    for name in ("loops", "masing"):
+        if f"{g}/{name}" in writer.h5:
+            del writer.h5[f"{g}/{name}"]
+    if loops is None or not sets or not system.n_z:
+        return
+    law, tol = loops
+    nz = system.n_z
+    for k, y in sets:
+        amp = float(out["amplitude"][k])
+        ev = system.evaluate(ep.z0 + amp * y[:nz], float(out["omega"][k]), F,
+                             xi=float(out["xi"][k]), jacobian=False, wrt=())
+        if ev.aft is None:
+            continue
+        u = system.slips(out["X"][k])
+        report = check_loops(u, ev.aft.f, ev.aft.N, law, tol)
+        write_loops(writer, k, u, ev.aft.f, ev.aft.N, report, system.model.units, prefix=g)

@@ -188,6 +188,21 @@ def loop_groups(h5: h5py.File) -> list[str]:
     return found
 
 
+#: Where the EPMC keeps the loop sets of its exact solutions at the loop amplitudes
+#: (:func:`jointsim.analyses.epmc.solve_at_amplitudes`).
+EXACT_LOOPS = "epmc/at_amplitudes"
+
+
+def exact_loop_group(h5: h5py.File, prefix: str) -> str:
+    """``prefix``, or for ``"epmc"`` the group of the loop sets solved exactly at the
+    loop amplitudes when the file has them (their shares do not move with where the
+    branch placed its points)."""
+    if prefix == "epmc" and f"{EXACT_LOOPS}/loops/u" in h5 \
+            and f"{EXACT_LOOPS}/masing/dev_manifold" in h5:
+        return EXACT_LOOPS
+    return prefix
+
+
 def loop_points(h5: h5py.File, prefix: str = "epmc") -> LoopSets:
     """Read the loop sets stored under ``prefix`` (``""``: the root ``/loops``)."""
     p = f"{prefix}/" if prefix else ""
@@ -197,6 +212,8 @@ def loop_points(h5: h5py.File, prefix: str = "epmc") -> LoopSets:
     owner = prefix or str(L.attrs.get("analysis", ""))
     if owner == "epmc" and "epmc/amplitude" in h5:
         param, name = h5["epmc/amplitude"][()][point], "modal amplitude"
+    elif owner == EXACT_LOOPS:
+        param, name = h5[f"{EXACT_LOOPS}/amplitude"][()][point], "modal amplitude"
     elif owner == "hbm" and "hbm/omega" in h5:
         param, name = h5["hbm/omega"][()][point], "omega"
     N = L["N"][()]
