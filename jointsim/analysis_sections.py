@@ -141,6 +141,10 @@ class EPMCAnalysis:
                                           "behind the indicators; 1: its first step only (about "
                                           "2.4x cheaper, but on the FE joint up to 18x too high)",
                                    ge=1)
+    workers: int = spec(0, doc="worker processes computing the error indicators beside the "
+                               "continuation (each point's are written when they come back); "
+                               "0: one per core; 1: each point's at once, in this process",
+                        ge=0)
     loop_amplitudes: tuple[float, ...] = spec(
         (), doc="modal amplitudes at which the element loops and Masing checks are kept "
                 "(the first point at or past each; the mode is also solved exactly there, "
