@@ -30,7 +30,8 @@ import time
 import numpy as np
 
 from ..io.hbm_points import write_error_indicators
-from ..io.hdf5 import unit, write_loops
+from ..io.hdf5 import unit
+from ..io.loops import write_loops
 from ..masing import check_loops
 from ..results import SUCCESS, Convergence
 from ..solvers.branch_record import Branch, PointInfo

@@ -18,7 +18,7 @@ as it comes back (:func:`jointsim.io.hbm_points.set_error_indicators`).
 * A worker that dies loses the row it was computing (its row stays NaN; the runner
   warns, and ``--resume`` computes it); the rows queued behind it go to the others.
   When no worker is left the remaining rows are lost the same way.
-* Workers die with the parent (:func:`jointsim.analyses.hbm.die_with_parent`).
+* Workers die with the parent (:func:`jointsim.analyses.forking.die_with_parent`).
 """
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ def pool_workers(setting: int, n_rows_hint: int | None = None) -> int:
 
     1 (serial, in the calling process) when the platform cannot fork or the caller
     is itself a daemonic worker (dask, multiprocessing), exactly as the FRC branches
-    (:func:`jointsim.analyses.hbm._can_fork`, :func:`~jointsim.analyses.hbm._in_daemon`).
+    (:func:`jointsim.analyses.forking._can_fork`, :func:`~jointsim.analyses.forking._in_daemon`).
 
     Parameters
     ----------
@@ -51,7 +51,7 @@ def pool_workers(setting: int, n_rows_hint: int | None = None) -> int:
     n_rows_hint : int, optional
         Rows known to be computed (a bound on useful workers).
     """
-    from .hbm import _can_fork, _in_daemon
+    from .forking import _can_fork, _in_daemon
 
     n = int(setting) or (os.cpu_count() or 1)
     if n_rows_hint is not None:
@@ -63,7 +63,7 @@ def pool_workers(setting: int, n_rows_hint: int | None = None) -> int:
 
 def _worker(tasks, conn, fn, parent_pid) -> None:
     """Body of a worker: ``(row, args)`` from ``tasks`` -> ``(row, fn(*args))`` on ``conn``."""
-    from .hbm import die_with_parent
+    from .forking import die_with_parent
 
     die_with_parent(parent_pid)
     while True:

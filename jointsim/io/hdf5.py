@@ -746,6 +746,3 @@ def read_attrs(path) -> dict:
     with open_result(path) as h5:
         return {k: (v.item() if hasattr(v, "item") else v) for k, v in h5.attrs.items()}
 
-
-# moved to .loops (room for the writer); imported from here as before
-from .loops import write_loops  # noqa: E402,F401

@@ -73,7 +73,7 @@ def test_pool_gives_the_serial_indicators_on_the_sdof_epmc(tmp_path):
 
 @pytest.mark.slow
 def test_pool_gives_the_serial_indicators_on_the_coarse_fe_joint(tmp_path):
-    """Coupled N, through the stuck onset into microslip (29 points, 60 s serial)."""
+    """Coupled N, through the stuck onset into microslip."""
     ov = NO_FULL + ["analysis.epmc.log10_amplitude_start=-4.5",
                     "analysis.epmc.log10_amplitude_end=-3.3"]
     run_scene(lap_scene(COUPLED, ("modes", "epmc"), ov + ["analysis.epmc.workers=1"]),
@@ -197,3 +197,65 @@ def test_the_tolerance_warning_names_the_first_point_in_row_order(tmp_path, capl
     assert len(warned) == 1 and "at point 1 (row 1)" in warned[0]
     with h5py.File(tmp_path / "w.h5", "r") as h5:
         assert np.allclose(h5["epmc/error_estimate"][()], [0.0, 0.1, 0.2, 0.3])
+
+
+# -- FRC: one branch in this process, its indicators on the pool ---------------------
+CHAIN = MODELS / "hbm" / "chain2_jenkins.toml"
+CHAIN_QUICK = ["analysis.hbm.force_scale=[0.2]", "analysis.hbm.harmonics=[0, 1, 3]",
+               "analysis.hbm.n_samples=32"]
+
+
+def _frc_same(pooled, serial):
+    a, attrs = _datasets(pooled, "hbm")
+    b, _ = _datasets(serial, "hbm")
+    assert sorted(a) == sorted(b)
+    for k in b:
+        if k.startswith("error_"):
+            assert not np.isnan(a[k]).any(), k
+            assert np.allclose(a[k], b[k], rtol=1e-9, atol=0), k
+        else:
+            assert np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f"), k
+    return attrs
+
+
+def test_frc_pool_gives_the_serial_indicators(tmp_path):
+    run_scene(load_scene(CHAIN, CHAIN_QUICK + ["analysis.hbm.workers=1"]), tmp_path / "s.h5")
+    run_scene(load_scene(CHAIN, CHAIN_QUICK + ["analysis.hbm.workers=2"]), tmp_path / "p.h5")
+    attrs = _frc_same(tmp_path / "p.h5", tmp_path / "s.h5")
+    assert attrs["indicator_workers"] == 2
+    with h5py.File(tmp_path / "p.h5", "r") as h5:
+        assert h5["hbm/omega"].shape[0] > 50
+
+
+def test_frc_interrupted_with_indicators_pending_resumes_to_the_same_file(tmp_path,
+                                                                          monkeypatch):
+    sc = load_scene(CHAIN, CHAIN_QUICK + ["analysis.hbm.workers=2"])
+    run_scene(sc, tmp_path / "full.h5")
+    part = tmp_path / "part.h5"
+    run_interrupted_after(sc, part, 30, monkeypatch)
+    run_scene(sc, part, resume=True)
+    with h5py.File(part, "r") as h5:
+        assert h5.attrs["status"] == "complete"
+    a, _ = _datasets(part, "hbm")
+    b, _ = _datasets(tmp_path / "full.h5", "hbm")
+    for k in b:
+        if k.startswith("error_"):   # the points before the interrupt as they were,
+            # those after it retrace the branch to round-off (1e-9 of ||q||), and so do
+            # their indicators (some are round-off themselves, 1e-17)
+            assert np.allclose(a[k][:30], b[k][:30], rtol=1e-9, atol=0), k
+            assert not np.isnan(a[k]).any(), k
+            assert np.abs(a[k] - b[k]).max() <= 1e-6 * np.abs(b[k]).max(), k
+        elif k in ("omega", "q", "X"):
+            assert np.abs(a[k] - b[k]).max() <= 1e-8 * np.abs(b[k]).max(), k
+
+
+@pytest.mark.slow
+def test_frc_pool_gives_the_serial_indicators_on_the_coarse_fe_joint(tmp_path):
+    """One coupled-N branch at force scale 20 around the resonance."""
+    ov = NO_FULL + ["analysis.hbm.force_scale=[20.0]", "analysis.hbm.omega_start=960",
+                    "analysis.hbm.omega_end=1000"]
+    run_scene(lap_scene(COUPLED, ("modes", "hbm"), ov + ["analysis.hbm.workers=1"]),
+              tmp_path / "s.h5")
+    run_scene(lap_scene(COUPLED, ("modes", "hbm"), ov + ["analysis.hbm.workers=2"]),
+              tmp_path / "p.h5")
+    _frc_same(tmp_path / "p.h5", tmp_path / "s.h5")
