@@ -645,12 +645,14 @@ def _indicator_pool(writer, a, system, workers):
         return PointIndicators(writer, "hbm", None, ToleranceWatch(a.error_tol, "hbm"), 1)
     missing = missing_error_indicators(writer.h5, "hbm")
     n = pool_workers(workers) if workers != 1 else 1
+    writer.h5["hbm"].attrs["indicator_workers"] = n
+    if n == 1 and not missing.size:   # serial: each branch computes its own
+        return PointIndicators(writer, "hbm", None, ToleranceWatch(a.error_tol, "hbm"), 1)
     estimator = ErrorEstimator(system, parallel=n == 1 and system.aft.parallel)
     forces = {ib: system.force_coefficients(fs) for ib, fs in enumerate(a.force_scale)}
     inds = PointIndicators(
         writer, "hbm", lambda z, w, ib: safe_indicators(estimator.hbm, z, w, forces[ib]),
         ToleranceWatch(a.error_tol, "hbm"), n)
-    writer.h5["hbm"].attrs["indicator_workers"] = n
     if missing.size:
         log.info("hbm: computing the error indicators of %d stored point(s)", missing.size)
         with writer.commit():
