@@ -7,7 +7,9 @@ The formulation is in :mod:`jointsim.solvers.epmc`.  Datasets (per point):
 normalised), ``/epmc/iterations``, ``/epmc/residual``, ``/epmc/step``,
 ``/epmc/y`` and ``/epmc/tangent`` (for ``--resume``), ``/epmc/outside_range``
 (the point's damping ratio is above :data:`MAX_DAMPING_RATIO`), the error
-indicators ``/epmc/error_*`` (:mod:`jointsim.solvers.indicators`); once:
+indicators ``/epmc/error_*`` (:mod:`jointsim.solvers.indicators`; computed beside the
+continuation on ``analysis.epmc.workers`` forked workers, :mod:`.indicator_pool`: a
+point's rows are NaN until they come back, and ``--resume`` computes rows left NaN); once:
 ``/epmc/harmonics``, ``/epmc/mode_shape``.  Loops and Masing checks go to
 ``/epmc/loops`` and ``/epmc/masing``.
 

@@ -29,7 +29,9 @@ File layout (all per solution point unless said otherwise):
 ``amplitude_measure`` and in ``amplitude_definition``.
 
 Branches run in forked worker processes when there are several (the parent
-writes every point as it arrives).  The runner returns the solution points
+writes every point as it arrives); a branch computed in the parent itself sends
+its error indicators to forked workers instead (:mod:`.indicator_pool`; the rows
+are NaN until they come back, ``--resume`` computes rows left NaN).  The runner returns the solution points
 (:class:`~jointsim.solvers.crosscheck.HBMSolutions`) for later analyses.
 """
 from __future__ import annotations
