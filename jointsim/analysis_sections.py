@@ -65,7 +65,9 @@ class HBMAnalysis:
                                        "maximising over frequency (single-valued peaks)")
     workers: int = spec(0, doc="branches (force levels) computed at once in worker "
                                "processes; 0: one per core, up to the number of branches; "
-                               "1: one after the other in this process", ge=0)
+                               "1: one after the other in this process; when the branches "
+                               "run in this process (one branch), their error indicators "
+                               "go to that many workers beside the continuation", ge=0)
     loops: str = spec("auto", choices=("auto", "peaks", "all", "masing.points"),
                       doc="points whose element loops and Masing checks are kept: 'auto' "
                           "(default): those of analysis.masing.points when it is set, else "
@@ -141,6 +143,10 @@ class EPMCAnalysis:
                                           "behind the indicators; 1: its first step only (about "
                                           "2.4x cheaper, but on the FE joint up to 18x too high)",
                                    ge=1)
+    workers: int = spec(0, doc="worker processes computing the error indicators beside the "
+                               "continuation (each point's are written when they come back); "
+                               "0: one per core; 1: each point's at once, in this process",
+                        ge=0)
     loop_amplitudes: tuple[float, ...] = spec(
         (), doc="modal amplitudes at which the element loops and Masing checks are kept "
                 "(the first point at or past each; the mode is also solved exactly there, "

@@ -7,7 +7,9 @@ The formulation is in :mod:`jointsim.solvers.epmc`.  Datasets (per point):
 normalised), ``/epmc/iterations``, ``/epmc/residual``, ``/epmc/step``,
 ``/epmc/y`` and ``/epmc/tangent`` (for ``--resume``), ``/epmc/outside_range``
 (the point's damping ratio is above :data:`MAX_DAMPING_RATIO`), the error
-indicators ``/epmc/error_*`` (:mod:`jointsim.solvers.indicators`); once:
+indicators ``/epmc/error_*`` (:mod:`jointsim.solvers.indicators`; computed beside the
+continuation on ``analysis.epmc.workers`` forked workers, :mod:`.indicator_pool`: a
+point's rows are NaN until they come back, and ``--resume`` computes rows left NaN); once:
 ``/epmc/harmonics``, ``/epmc/mode_shape``.  Loops and Masing checks go to
 ``/epmc/loops`` and ``/epmc/masing``.
 
@@ -31,7 +33,8 @@ import time
 import numpy as np
 
 from ..io.hbm_points import write_error_indicators
-from ..io.hdf5 import unit, write_loops
+from ..io.hdf5 import unit
+from ..io.loops import write_loops
 from ..masing import check_loops
 from ..results import SUCCESS, Convergence
 from ..solvers.branch_record import Branch, PointInfo
@@ -105,7 +108,45 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     ep = EPMCSystem(system, em.phi, F)
     xi0 = float(em.phi @ dense_array(model.C) @ em.phi)
     g = _write_header(writer, a, model, em, xi0)
+    with _indicators(writer, a, system, ep) as inds:
+        _run(writer, scene, model, a, system, ep, em, F, xi0, g, inds, t_start)
+
+
+def _indicators(writer, a, system, ep):
+    """The error indicators of the branch's points (:mod:`.indicator_pool`): on
+    ``analysis.epmc.workers`` forked workers, or serially; stored rows left NaN
+    (a run killed or a worker lost before they were computed) are computed first."""
+    from ..io.hbm_points import missing_error_indicators, pad_error_indicators
+    from .indicator_pool import PointIndicators, pool_workers
+
+    if not a.error_indicators:
+        return PointIndicators(writer, "epmc", None, None, 1)
+    missing = missing_error_indicators(writer.h5, "epmc") if writer.rows("epmc/y") \
+        else np.zeros(0, dtype=np.int64)
+    done = writer.h5["epmc"].attrs.get("branch_status", "") in ("complete", "gave up")
+    n = pool_workers(a.workers, len(missing) if done else None) if system.n_z else 1
+    # the workers never start numba threads (a forked process must not): parallel=False
+    estimator = ErrorEstimator(system, parallel=n == 1)
+    steps = a.error_newton_steps
+    inds = PointIndicators(writer, "epmc",
+                           lambda y: safe_indicators(estimator.epmc, ep, y, steps),
+                           ToleranceWatch(a.error_tol, "epmc"), n)
+    writer.h5["epmc"].attrs["indicator_workers"] = n
+    if missing.size:
+        log.info("epmc: computing the error indicators of %d stored point(s)", missing.size)
+        with writer.commit():   # rows of a file from before the indicators: NaN first
+            pad_error_indicators(writer, "epmc")
+        amps = writer.h5["epmc/amplitude"][()]
+        for p in missing:
+            inds.submit(int(p), (writer.h5["epmc/y"][int(p)],),
+                        f"modal amplitude {amps[p]:.3g}")
+    return inds
+
+
+def _run(writer, scene, model, a, system, ep, em, F, xi0, g, inds, t_start) -> None:
+    """The branch (:func:`run_epmc_analysis`), its indicators on ``inds``."""
     if g.attrs.get("branch_status", "") in ("complete", "gave up"):
+        inds.finish()
         log.info("epmc already %s; skipped", g.attrs["branch_status"])
         return
     y0, t0, h0, solve_first, max_pts = _start(writer, a, system, em, xi0)
@@ -114,7 +155,7 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     system.stats.take()
     writer.h5["epmc"].attrs["linear_solver"] = system.linear_solver
     writer.h5["epmc"].attrs["n_unknowns"] = system.n_z
-    on_point = _point_writer(writer, scene, model, system, ep, F, solve_first)
+    on_point = _point_writer(writer, scene, model, system, ep, F, solve_first, inds)
     if system.n_z == 0:
         br = _linear_branch(a, ep, em, xi0, on_point, writer.rows("epmc/omega"))
     else:
@@ -123,6 +164,7 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
         g.attrs["log10_stuck_onset"] = np.nan if onset is None else onset
         br = _continue(a, ep, y0, t0, h0, solve_first, max_pts, scale, rscale, on_point,
                        onset, system.n_z)
+    inds.finish()   # every point's indicators in the file before the branch is marked
     conv = br.convergence
     if not conv.success:
         conv = _explain(conv, model, system, ep, writer, scale)
@@ -470,8 +512,10 @@ def _scales(ep, y0, w0):
     return scale, rscale
 
 
-def _point_writer(writer, scene, model, system, ep, F, solve_first):
-    """``on_point(i, y, info)`` of the continuation: append one point (and its loops)."""
+def _point_writer(writer, scene, model, system, ep, F, solve_first, inds):
+    """``on_point(i, y, info)`` of the continuation: append one point (and its loops);
+    its error indicators computed by ``inds`` (:class:`.indicator_pool.PointIndicators`)
+    before it is written (serial), or written NaN and handed to its pool."""
     a = scene.analysis.epmc
     units = model.units
     nz = system.n_z
@@ -483,8 +527,6 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
     d_u = unit("displacement", units)
     amp_unit = "m kg^0.5" if units == "SI" else "length mass^0.5"
     law = model.contacts.law
-    estimator = ErrorEstimator(system) if a.error_indicators else None
-    watch = ToleranceWatch(a.error_tol, "epmc")
 
     def on_point(i, y, info):
         if not solve_first and i == 0:
@@ -492,8 +534,7 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
         omega, xi, lam = float(y[nz]), float(y[nz + 1]), float(y[nz + 2])
         amp = 10.0 ** lam
         X = ep.coefficients(y)
-        errors = safe_indicators(estimator.epmc, ep, y, a.error_newton_steps) \
-            if estimator is not None else None
+        errors = inds.compute(y) if a.error_indicators and inds.serial else None
         with writer.commit():  # the point and its loops: all or nothing
             p = writer.rows("epmc/omega")
             writer.append("epmc/amplitude", amp, amp_unit, "modal amplitude of the fundamental")
@@ -521,13 +562,16 @@ def _point_writer(writer, scene, model, system, ep, F, solve_first):
                           "harmonic preconditioners factorised since the previous point")
             if a.error_indicators:
                 write_error_indicators(writer, "epmc", p, errors)
-                watch.check(0, errors, p, f"modal amplitude {amp:.3g}")
+                if inds.serial:
+                    inds.watch.check(0, errors, p, f"modal amplitude {amp:.3g}")
             ev = info.extra
             if ev is not None and ev.aft is not None and keep(p, amp):
                 u = system.slips(X)
                 report = check_loops(u, ev.aft.f, ev.aft.N, law, masing.tol)
                 write_loops(writer, p, u, ev.aft.f, ev.aft.N, report, units, prefix="epmc")
                 writer.h5["epmc/loops"].attrs["analysis"] = "epmc"
+        if a.error_indicators and not inds.serial:
+            inds.submit(p, (y,), f"modal amplitude {amp:.3g}")
 
     return on_point
 

@@ -29,7 +29,9 @@ File layout (all per solution point unless said otherwise):
 ``amplitude_measure`` and in ``amplitude_definition``.
 
 Branches run in forked worker processes when there are several (the parent
-writes every point as it arrives).  The runner returns the solution points
+writes every point as it arrives); a branch computed in the parent itself sends
+its error indicators to forked workers instead (:mod:`.indicator_pool`; the rows
+are NaN until they come back, ``--resume`` computes rows left NaN).  The runner returns the solution points
 (:class:`~jointsim.solvers.crosscheck.HBMSolutions`) for later analyses.
 """
 from __future__ import annotations
@@ -42,8 +44,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._schema import SceneError
-from ..io.hbm_points import write_error_indicators
-from ..io.hdf5 import unit, write_loops
+from ..io.hbm_points import missing_error_indicators, write_error_indicators
+from ..io.hdf5 import unit
+from ..io.loops import write_loops
 from ..masing import check_loops
 from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
 from ..solvers.crosscheck import HBMSolutions
@@ -54,6 +57,7 @@ from ..solvers.frc_diagnosis import (closing_advice, diagnose_failure, sampled_r
 from ..solvers.hbm import HBMSystem, first_point, frc_scales, refine_peak
 from ..solvers.indicators import ErrorEstimator, ToleranceWatch, safe_indicators
 from ..solvers.jacobian import BorderedJacobian
+from .forking import _can_fork, _in_daemon, die_with_parent
 
 log = logging.getLogger(__name__)
 
@@ -97,15 +101,23 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
     if not (n_workers > 1 and len(todo) > 1 and _can_fork() and not _in_daemon()):
         n_workers = 1
     if n_workers > 1:
+        if a.error_indicators and missing_error_indicators(writer.h5, "hbm").size:
+            with _indicator_pool(writer, a, system, 1):
+                pass   # rows a killed run left NaN: computed here, serially, first
         failures = _run_branches_forked(todo, job_args, min(n_workers, len(todo)),
                                         out.write_point, out.finish_branch)
     else:
         failures = []
-        for job in todo:
-            conv = _run_branch(job, on_record=out.write_point, progress=True, **job_args)
-            fail = out.finish_branch(job.ib, job.fs, conv.success, conv.message)
-            if fail:
-                failures.append(fail)
+        # the branches run here: their indicators on a pool of forked workers
+        # (issue 10; every core when workers = 0, none when workers = 1)
+        with _indicator_pool(writer, a, system, a.workers) as out.inds:
+            for job in todo:
+                conv = _run_branch(job, on_record=out.write_point, progress=True,
+                                   pooled=not out.inds.serial, **job_args)
+                fail = out.finish_branch(job.ib, job.fs, conv.success, conv.message)
+                if fail:
+                    failures.append(fail)
+            out.inds.finish()
     g.attrs["workers"] = n_workers if len(todo) > 1 else 1
     g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
     g.attrs["n_points"] = writer.rows("hbm/omega")
@@ -238,6 +250,8 @@ class _Output:
         self.peaks = {k: np.full(n_br, np.nan) for k in ("omega", "amplitude")}
         self.refined = np.zeros(n_br, dtype=bool)
         self.watch = ToleranceWatch(a.error_tol, "hbm")
+        #: the indicator pool of the points computed in this process (set by the runner)
+        self.inds = None
         h5 = writer.h5
         for name in ("omega", "amplitude"):
             if f"hbm/peak_{name}" in h5:
@@ -282,14 +296,20 @@ class _Output:
                           "GMRES iterations summed over those solves (0: direct solver)")
             writer.append("hbm/preconditioners", np.int64(rec["preconditioners"]), "1",
                           "harmonic preconditioners factorised since the previous point")
+            pooled = self.a.error_indicators and self.inds is not None \
+                and not self.inds.serial
             if self.a.error_indicators:
                 write_error_indicators(writer, "hbm", p, rec.get("errors"))
-                self.watch.check(rec["branch"], rec.get("errors"), p,
-                                 f"omega = {rec['omega']:.6g}")
+                if not pooled:
+                    self.watch.check(rec["branch"], rec.get("errors"), p,
+                                     f"omega = {rec['omega']:.6g}")
             for k in self.points:
                 self.points[k].append(rec[k])
             if rec.get("f") is not None and (not self.masing_points or p in self.masing_points):
                 self._write_loops(p, rec["X"], rec["f"], rec["N"])
+        if pooled:
+            self.inds.submit(p, (rec["q"], rec["omega"], rec["branch"]),
+                             f"omega = {rec['omega']:.6g}", branch=rec["branch"])
 
     def _has_loops(self, p: int) -> bool:
         """Whether the file already holds the element loops of point ``p``."""
@@ -531,8 +551,9 @@ def _point_record(system, F, y, info, ib, dof, want_aft, measure="fundamental",
 
 
 def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progress,
-                keep_orientation=False):
-    """Follow one FRC branch; every accepted point goes to ``on_record(record)``.
+                keep_orientation=False, pooled=False):
+    """Follow one FRC branch; every accepted point goes to ``on_record(record)``
+    (with its error indicators, unless ``pooled``: the caller's pool computes them).
 
     Returns
     -------
@@ -559,7 +580,7 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         t0, h0, solve_first, max_pts, n_stored = None, a.step, False, a.max_points, 0
     nz = system.n_z
     estimator = ErrorEstimator(system, parallel=system.aft.parallel) \
-        if a.error_indicators else None
+        if a.error_indicators and not pooled else None
 
     def fun(y):
         if system.krylov:
@@ -614,53 +635,36 @@ def _explain_failure(conv, system, F, a, lam):
     return Convergence(False, conv.status, f"{conv.message}; {r.describe()}", conv.iterations)
 
 
-def _in_daemon() -> bool:
-    """In a daemonic process (a dask or multiprocessing worker), which may not fork workers."""
-    import multiprocessing as mp
-    if mp.current_process().daemon:
-        log.info("hbm: in a daemonic worker process; branches run serially")
-        return True
-    return False
+def _indicator_pool(writer, a, system, workers):
+    """The error indicators of the FRC points computed in this process
+    (:class:`~jointsim.analyses.indicator_pool.PointIndicators`): on ``workers``
+    forked workers (:func:`~jointsim.analyses.indicator_pool.pool_workers`), or
+    serially when that is 1.  Stored rows left NaN (a killed run) are submitted first."""
+    from ..io.hbm_points import pad_error_indicators
+    from .indicator_pool import PointIndicators, pool_workers
 
-
-def _can_fork() -> bool:
-    import multiprocessing as mp
-    return "fork" in mp.get_all_start_methods()
-
-
-def die_with_parent(parent_pid: int) -> None:
-    """In a forked worker: be killed (SIGKILL) when the parent dies, however it dies.
-
-    Linux: ``prctl(PR_SET_PDEATHSIG, SIGKILL)``; elsewhere a thread that
-    polls the parent pid every 0.5 s.  Also closes the descriptors of the
-    parent's result writers (:func:`jointsim.io.hdf5.release_inherited`), so a
-    worker never holds the file lock, and leaves SIGINT to the parent (which
-    stops the workers and marks the file).
-    """
-    import signal
-    import sys
-    import threading
-
-    from ..io.hdf5 import release_inherited
-    release_inherited()
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    armed = False
-    if sys.platform.startswith("linux"):
-        import ctypes
-        try:
-            libc = ctypes.CDLL(None, use_errno=True)
-            armed = libc.prctl(1, int(signal.SIGKILL), 0, 0, 0) == 0  # PR_SET_PDEATHSIG
-        except (OSError, AttributeError):
-            armed = False
-    if os.getppid() != parent_pid:  # the parent died before the signal was armed
-        os._exit(1)
-    if not armed:
-        def watch():
-            while os.getppid() == parent_pid:
-                time.sleep(0.5)
-            os._exit(1)
-        threading.Thread(target=watch, daemon=True).start()
+    if not a.error_indicators or not system.n_z:
+        return PointIndicators(writer, "hbm", None, ToleranceWatch(a.error_tol, "hbm"), 1)
+    missing = missing_error_indicators(writer.h5, "hbm")
+    n = pool_workers(workers) if workers != 1 else 1
+    writer.h5["hbm"].attrs["indicator_workers"] = n
+    if n == 1 and not missing.size:   # serial: each branch computes its own
+        return PointIndicators(writer, "hbm", None, ToleranceWatch(a.error_tol, "hbm"), 1)
+    estimator = ErrorEstimator(system, parallel=n == 1 and system.aft.parallel)
+    forces = {ib: system.force_coefficients(fs) for ib, fs in enumerate(a.force_scale)}
+    inds = PointIndicators(
+        writer, "hbm", lambda z, w, ib: safe_indicators(estimator.hbm, z, w, forces[ib]),
+        ToleranceWatch(a.error_tol, "hbm"), n)
+    if missing.size:
+        log.info("hbm: computing the error indicators of %d stored point(s)", missing.size)
+        with writer.commit():
+            pad_error_indicators(writer, "hbm")
+        h5 = writer.h5
+        om, br = h5["hbm/omega"][()], h5["hbm/branch"][()]
+        for p in missing:
+            inds.submit(int(p), (h5["hbm/q"][int(p)], float(om[p]), int(br[p])),
+                        f"omega = {om[p]:.6g}", branch=int(br[p]))
+    return inds
 
 
 def _branch_process(job, job_args, queue, parent_pid) -> None:

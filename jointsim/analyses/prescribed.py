@@ -5,7 +5,8 @@ import logging
 
 import numpy as np
 
-from ..io.hdf5 import ResultWriter, unit, write_loops
+from ..io.hdf5 import ResultWriter, unit
+from ..io.loops import write_loops
 from ..masing import check_loops
 
 log = logging.getLogger(__name__)

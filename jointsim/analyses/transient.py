@@ -26,7 +26,8 @@ import logging
 
 import numpy as np
 
-from ..io.hdf5 import unit, write_loops
+from ..io.hdf5 import unit
+from ..io.loops import write_loops
 from ..masing import check_loops
 from ..results import INTERRUPTED, Convergence
 from ..solvers.contact_map import ContactEval

@@ -106,3 +106,56 @@ def read_error_indicators(h5, prefix: str) -> dict:
         return {}
     return {k: h5[prefix][k][()] for k in h5[prefix] if k.startswith("error_")
             and hasattr(h5[prefix][k], "shape") and len(h5[prefix][k].shape) == 1}
+
+
+def pad_error_indicators(writer, prefix: str) -> None:
+    """Pad ``/<prefix>/error_*`` with NaN up to the points stored (a file from before
+    the indicators), so that every stored point has its rows.  Call inside a commit."""
+    n = writer.rows(f"{prefix}/omega")
+    for name, (_, doc, where) in ERROR_DATASETS.items():
+        have = writer.rows(f"{prefix}/{name}")
+        if prefix in where and have < n:
+            writer.append_rows(f"{prefix}/{name}", np.full(n - have, np.nan), "1", doc)
+
+
+def set_error_indicators(writer, prefix: str, point: int, ind) -> None:
+    """Write the error indicators of stored point ``point`` into its rows of
+    ``/<prefix>/error_*`` (computed after the point was written, e.g. on a worker:
+    :mod:`jointsim.analyses.indicator_pool`).  Call inside a ``writer.commit()``.
+
+    Parameters
+    ----------
+    writer : jointsim.io.hdf5.ResultWriter
+    prefix : {'hbm', 'epmc'}
+    point : int
+        Row of the point; its ``error_*`` rows exist (written NaN with the point).
+    ind : jointsim.solvers.indicators.ErrorIndicators or None
+        None (not computed) writes NaN.
+    """
+    for name, (attr, doc, where) in ERROR_DATASETS.items():
+        if prefix in where:
+            value = np.nan if ind is None else float(getattr(ind, attr))
+            writer.set_row(f"{prefix}/{name}", int(point), value)
+
+
+def missing_error_indicators(h5, prefix: str) -> np.ndarray:
+    """Rows of ``/<prefix>`` points whose error indicators are not computed (NaN
+    ``error_estimate``, or rows it lacks), in row order.
+
+    A point whose estimate failed (:func:`~jointsim.solvers.indicators.safe_indicators`)
+    is NaN as well: it is counted here too.
+
+    Parameters
+    ----------
+    h5 : h5py.File or h5py.Group
+    prefix : {'hbm', 'epmc'}
+
+    Returns
+    -------
+    ndarray of int64
+    """
+    n = h5[f"{prefix}/omega"].shape[0] if f"{prefix}/omega" in h5 else 0
+    path = f"{prefix}/error_estimate"
+    est = h5[path][()] if path in h5 else np.zeros(0)
+    est = np.concatenate([est[:n], np.full(max(n - est.shape[0], 0), np.nan)])
+    return np.flatnonzero(np.isnan(est)).astype(np.int64)

@@ -135,7 +135,8 @@ def test_loops_resumed_from_a_file_without_the_excess_stay_aligned(tmp_path):
     import dataclasses
 
     from jointsim.contact.select import tangential_law
-    from jointsim.io.hdf5 import open_result, write_loops
+    from jointsim.io.hdf5 import open_result
+    from jointsim.io.loops import write_loops
     from jointsim.masing import check_loops
     from jointsim.scene import Joint
 

@@ -1,0 +1,356 @@
+"""Error indicators of solution points computed on forked worker processes (issue 10).
+
+The indicators of a point (:mod:`jointsim.solvers.indicators`) depend on that
+point only, and they cost several times the point itself (EPMC on the 121-pair lap
+joint: 212 of 245 s).  :class:`IndicatorPool` computes them beside the
+continuation: the runner writes each point with its ``error_*`` rows NaN ("not
+computed yet"), hands ``(row, y)`` to the pool, and writes each result into its row
+as it comes back (:func:`jointsim.io.hbm_points.set_error_indicators`).
+
+* The workers are forked once, when the pool is made, after everything they need
+  exists (the system, the estimator built with ``parallel=False``: a forked process
+  never starts numba threads); they build nothing, receive ``(row, args)`` and send
+  back ``(row, fn(*args))``.
+* Each worker has its own task queue and its own result pipe (no lock is shared
+  between workers, so a worker killed at any moment blocks no other).  At most
+  :data:`DEPTH` rows are assigned to a worker at once, first in first out: the oldest
+  is the one being computed.
+* A worker that dies loses the row it was computing (its row stays NaN; the runner
+  warns, and ``--resume`` computes it); the rows queued behind it go to the others.
+  When no worker is left the remaining rows are lost the same way.
+* Workers die with the parent (:func:`jointsim.analyses.forking.die_with_parent`).
+
+Same numbers as serial on the direct path (bit for bit); on the Krylov path a worker's
+extended solves reuse their preconditioner over a different sequence of points, and
+GMRES stops at ``INDICATOR_RTOL``: the indicators then differ by up to about 1e-6
+relative.  Measured side by side (2 cores, load 0.6 to 1.9; README, "How accurate is
+a point?"): the EPMC of the 121-pair joint 191.8 -> 104.0 s, one FRC branch of it
+103.8 -> 62.8 s, the main job 53.8 -> 41.0 s.
+"""
+from __future__ import annotations
+
+import logging
+import multiprocessing.connection as mpc
+import os
+from collections import deque
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: Rows assigned to one worker at once (one computed, one waiting: no idle gap while
+#: the parent is busy with the continuation and does not dispatch).
+DEPTH = 2
+
+
+def pool_workers(setting: int, n_rows_hint: int | None = None) -> int:
+    """Number of indicator workers for a ``workers`` setting (0: one per core).
+
+    1 (serial, in the calling process) when the platform cannot fork or the caller
+    is itself a daemonic worker (dask, multiprocessing), exactly as the FRC branches
+    (:func:`jointsim.analyses.forking._can_fork`, :func:`~jointsim.analyses.forking._in_daemon`).
+
+    Parameters
+    ----------
+    setting : int
+        The scene's ``workers`` key (``analysis.epmc.workers``).
+    n_rows_hint : int, optional
+        Rows known to be computed (a bound on useful workers).
+    """
+    from .forking import _can_fork, _in_daemon
+
+    n = int(setting) or (os.cpu_count() or 1)
+    if n_rows_hint is not None:
+        n = min(n, max(int(n_rows_hint), 1))
+    if n > 1 and _can_fork() and not _in_daemon():
+        return n
+    return 1
+
+
+def _worker(tasks, conn, fn, parent_pid) -> None:
+    """Body of a worker: ``(row, args)`` from ``tasks`` -> ``(row, fn(*args))`` on ``conn``."""
+    from .forking import die_with_parent
+
+    die_with_parent(parent_pid)
+    while True:
+        msg = tasks.get()
+        if msg is None:
+            break
+        row, args = msg
+        try:
+            out = ("ok", row, fn(*args))
+        except Exception as exc:   # fn's own failures are its business; report, go on
+            out = ("error", row, f"{type(exc).__name__}: {exc}")
+        conn.send(out)
+    conn.close()
+
+
+class IndicatorPool:
+    """Forked workers that compute ``fn(*args)`` for rows and hand the results back.
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(*args) -> result`` (picklable result), run in the workers.  Everything it
+        uses must exist before the pool is made (the workers are forked then).
+    n_workers : int
+        Worker processes (>= 1).
+    what : str
+        Name for messages (``"epmc"``).
+
+    Attributes
+    ----------
+    lost : list of int
+        Rows whose worker died while computing them (their results never come).
+    """
+
+    def __init__(self, fn, n_workers: int, what: str = "epmc"):
+        import multiprocessing as mp
+
+        ctx = mp.get_context("fork")
+        self.what = what
+        self.lost: list[int] = []
+        self._lost_out: list[tuple[int, None]] = []
+        self.errors: list[tuple[int, str]] = []
+        self.backlog: deque = deque()
+        self.workers: list[dict] = []
+        parent = os.getpid()
+        for _ in range(int(n_workers)):
+            tasks = ctx.Queue()
+            recv, send = ctx.Pipe(duplex=False)
+            proc = ctx.Process(target=_worker, args=(tasks, send, fn, parent), daemon=True)
+            proc.start()
+            send.close()
+            self.workers.append(dict(proc=proc, tasks=tasks, conn=recv, rows=deque(),
+                                     alive=True))
+        log.info("%s: error indicators on %d worker processes", what, len(self.workers))
+
+    # -- state ---------------------------------------------------------------------
+    @property
+    def n_workers(self) -> int:
+        return len(self.workers)
+
+    @property
+    def pending(self) -> int:
+        """Rows submitted whose result has not come back (and is not lost)."""
+        return len(self.backlog) + len(self._lost_out) + sum(
+            len(w["rows"]) for w in self.workers if w["alive"])
+
+    # -- use ---------------------------------------------------------------------------
+    def submit(self, row: int, *args) -> None:
+        """Queue ``fn(*args)`` for ``row`` (never blocks)."""
+        # copies: the queue pickles later, on its feeder thread
+        args = tuple(np.array(v) if isinstance(v, np.ndarray) else v for v in args)
+        self.backlog.append((int(row), args))
+        self._dispatch()
+
+    def _dispatch(self) -> None:
+        live = [w for w in self.workers if w["alive"]]
+        if not live:
+            while self.backlog:
+                self._lose(self.backlog.popleft()[0], "no indicator worker is left")
+            return
+        while self.backlog:
+            w = min(live, key=lambda w: len(w["rows"]))
+            if len(w["rows"]) >= DEPTH:
+                return
+            row, args = self.backlog.popleft()
+            w["rows"].append((row, args))
+            w["tasks"].put((row, args))
+
+    def _lose(self, row: int, why: str) -> None:
+        self.lost.append(row)
+        self._lost_out.append((row, None))
+        log.warning("%s: the error indicators of point %d were not computed (%s); they stay "
+                    "NaN, --resume computes them", self.what, row, why)
+
+    def poll(self, timeout: float | None = 0.0) -> list[tuple[int, object]]:
+        """Results that have come back, as ``(row, result)``; waits up to ``timeout`` [s]
+        for the first one (None: until one comes or a worker dies).
+
+        A result of ``fn`` that raised, and a lost row (:attr:`lost`), are reported
+        as ``(row, None)`` (logged).
+        """
+        live = [w for w in self.workers if w["alive"]]
+        if live and not self._lost_out:
+            mpc.wait([w["conn"] for w in live] + [w["proc"].sentinel for w in live], timeout)
+        out = []
+        for w in live:
+            # checked before reading: a worker that has ended sent its last results before
+            dead = not w["proc"].is_alive()
+            while True:
+                try:
+                    if not w["conn"].poll():
+                        break
+                    kind, row, res = w["conn"].recv()
+                except (EOFError, OSError):
+                    break
+                done = [i for i, (r, _) in enumerate(w["rows"]) if r == row]
+                if done:
+                    del w["rows"][done[0]]
+                if kind == "error":
+                    log.warning("%s: error indicators of point %d failed in a worker: %s",
+                                self.what, row, res)
+                    self.errors.append((row, res))
+                    res = None
+                out.append((row, res))
+            if dead:
+                self._died(w)
+        self._dispatch()
+        out += self._lost_out
+        self._lost_out = []
+        return out
+
+    def _died(self, w) -> None:
+        """A worker has ended: its first row (being computed) is lost, the rest re-queued."""
+        w["alive"] = False
+        w["tasks"].cancel_join_thread()
+        rows = list(w["rows"])
+        w["rows"].clear()
+        if rows:
+            self._lose(rows[0][0], f"its worker process ended, exit code {w['proc'].exitcode}")
+            self.backlog.extendleft(reversed(rows[1:]))
+
+    def drain(self, on_result, desc: str = "indicators") -> None:
+        """Wait for every pending row; ``on_result(row, result)`` for each (progress bar)."""
+        from tqdm import tqdm
+
+        if not self.pending:
+            return
+        with tqdm(total=self.pending, desc=f"{desc} ({self.n_workers} workers)", unit="pt",
+                  disable=None, leave=False) as bar:
+            while self.pending:
+                for row, res in self.poll(timeout=1.0):
+                    on_result(row, res)
+                    bar.update(1)
+
+    def close(self) -> None:
+        """Stop the workers (rows still pending are abandoned: they stay NaN)."""
+        for w in self.workers:
+            if w["alive"] and w["proc"].is_alive():
+                try:
+                    w["tasks"].put(None)
+                except (OSError, ValueError):
+                    pass
+        for w in self.workers:
+            w["proc"].join(timeout=0.5 if not w["rows"] else 0.0)
+            if w["proc"].is_alive():
+                w["proc"].terminate()
+                # a forked worker shares the result file's descriptor until it is gone
+                w["proc"].join(timeout=10)
+            w["tasks"].cancel_join_thread()
+            w["tasks"].close()
+            w["conn"].close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+class InOrder:
+    """Releases results in the order their rows were registered (for a warning that
+    names the first point in branch order, whatever order the workers finish in)."""
+
+    def __init__(self):
+        self.order: deque = deque()
+        self.done: dict = {}
+
+    def expect(self, row: int) -> None:
+        """Register a row (in branch order)."""
+        self.order.append(int(row))
+
+    def add(self, row: int, value) -> list[tuple[int, object]]:
+        """Record ``value`` for ``row``; the ``(row, value)`` now releasable, in order."""
+        self.done[int(row)] = value
+        out = []
+        while self.order and self.order[0] in self.done:
+            r = self.order.popleft()
+            out.append((r, self.done.pop(r)))
+        return out
+
+
+class PointIndicators:
+    """The error indicators of a runner's points: computed at once (serial) or on an
+    :class:`IndicatorPool`, written into the points' rows, checked in row order.
+
+    Serial (``n_workers == 1``): the runner calls :meth:`compute` before it writes
+    the point and writes the result with it, as without a pool.  Pooled: the runner
+    writes the point with NaN indicators and calls :meth:`submit` after its commit;
+    :meth:`collect` writes the results that have come back (each in its own commit)
+    and :meth:`finish` waits for the rest.  The tolerance watch sees the points in
+    row order either way.
+
+    Parameters
+    ----------
+    writer : jointsim.io.hdf5.ResultWriter
+    prefix : {'hbm', 'epmc'}
+    fn : callable
+        ``fn(*args) -> ErrorIndicators or None`` (None: not computed).
+    watch : jointsim.solvers.indicators.ToleranceWatch
+    n_workers : int
+        1: serial; more: forked workers (:func:`pool_workers`).
+    """
+
+    def __init__(self, writer, prefix: str, fn, watch, n_workers: int):
+        self.writer, self.prefix, self.fn, self.watch = writer, prefix, fn, watch
+        self.pool = IndicatorPool(fn, n_workers, prefix) if n_workers > 1 else None
+        self.order = InOrder()
+        self.where: dict[int, tuple] = {}
+
+    @property
+    def serial(self) -> bool:
+        return self.pool is None
+
+    def compute(self, *args):
+        """``fn(*args)`` here and now (the serial path)."""
+        return self.fn(*args)
+
+    def submit(self, row: int, args: tuple, where: str, branch=0) -> None:
+        """Row ``row`` (already written, indicators NaN) goes to the pool; serially it is
+        computed and written at once."""
+        self.order.expect(row)
+        self.where[int(row)] = (branch, where)
+        if self.pool is None:
+            self._write(row, self.fn(*args))
+        else:
+            self.pool.submit(row, *args)
+            self.collect()
+
+    def collect(self) -> None:
+        """Write the results that have come back (does not wait)."""
+        if self.pool is not None:
+            for row, res in self.pool.poll(0.0):
+                self._write(row, res)
+
+    def finish(self) -> None:
+        """Wait for every submitted row and write it; warn about rows lost with a worker."""
+        if self.pool is None:
+            return
+        self.pool.drain(self._write, desc=f"{self.prefix} error indicators")
+        if self.pool.lost:
+            log.warning("%s: the error indicators of %d point(s) were not computed (a worker "
+                        "process died): rows %s stay NaN; run again with --resume to compute "
+                        "them", self.prefix, len(self.pool.lost), sorted(self.pool.lost))
+
+    def _write(self, row: int, ind) -> None:
+        from ..io.hbm_points import set_error_indicators
+
+        with self.writer.commit():
+            set_error_indicators(self.writer, self.prefix, row, ind)
+        for r, v in self.order.add(row, ind):
+            branch, where = self.where.pop(r)
+            self.watch.check(branch, v, r, where)
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False

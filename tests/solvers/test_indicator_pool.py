@@ -1,0 +1,261 @@
+"""Error indicators computed on forked workers (:mod:`jointsim.analyses.indicator_pool`).
+
+Oracle: the serial run (``analysis.epmc.workers = 1``, each point's indicators computed
+in the continuation's process, as before the pool).  The pool must give the same
+``error_*`` rows (to 1e-9 relative: numba-parallel and serial AFT kernels may differ in
+the last digits) and every other dataset bit for bit; an interrupted run resumed must
+give the same indicators as an uninterrupted one; a worker that dies loses only the
+row it was computing.
+"""
+import os
+
+import h5py
+import numpy as np
+import pytest
+
+from jointsim.analyses.indicator_pool import InOrder, IndicatorPool, PointIndicators
+from jointsim.io.hbm_points import missing_error_indicators
+from jointsim.io.hdf5 import ResultWriter
+from jointsim.run import run_scene
+from jointsim.scene import load_scene
+from jointsim.solvers.indicators import ToleranceWatch
+
+from .._scenes import COUPLED, MODELS, NO_FULL, lap_scene
+from .test_hbm import run_interrupted_after
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="the pool forks")
+
+SDOF = MODELS / "hbm" / "sdof_jenkins_epmc.toml"
+#: the SDOF Jenkins EPMC, cheaper harmonics (the indicators on)
+QUICK = ["analysis.epmc.harmonics=[0, 1, 3, 5]", "analysis.epmc.n_samples=64",
+         "analysis.epmc.loop_amplitudes=[3.0]"]
+
+
+def _datasets(path, prefix="epmc"):
+    out = {}
+    with h5py.File(path, "r") as h5:
+        h5[prefix].visititems(lambda n, o: out.__setitem__(n, o[()])
+                              if isinstance(o, h5py.Dataset) else None)
+        attrs = dict(h5[prefix].attrs)
+    return out, attrs
+
+
+def assert_same_run(pooled, serial, rtol=1e-9):
+    """Every ``error_*`` row equal to ``rtol`` (none NaN), every other dataset bit-identical."""
+    a, attrs = _datasets(pooled)
+    b, _ = _datasets(serial)
+    assert sorted(a) == sorted(b)
+    n_err = 0
+    for k in b:
+        if k.startswith("error_"):
+            n_err += 1
+            assert not np.isnan(a[k]).any() and not np.isnan(b[k]).any(), k
+            scale = np.maximum(np.abs(b[k]), 1e-300)
+            assert np.all(np.abs(a[k] - b[k]) <= rtol * scale), (k, a[k], b[k])
+        else:
+            assert a[k].shape == b[k].shape and a[k].dtype == b[k].dtype, k
+            assert np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f"), k
+    assert n_err == 6
+    return attrs
+
+
+def test_pool_gives_the_serial_indicators_on_the_sdof_epmc(tmp_path):
+    sc1 = load_scene(SDOF, QUICK + ["analysis.epmc.workers=1"])
+    sc2 = load_scene(SDOF, QUICK + ["analysis.epmc.workers=2"])
+    run_scene(sc1, tmp_path / "serial.h5")
+    run_scene(sc2, tmp_path / "pool.h5")
+    attrs = assert_same_run(tmp_path / "pool.h5", tmp_path / "serial.h5")
+    assert attrs["indicator_workers"] == 2
+    with h5py.File(tmp_path / "serial.h5", "r") as h5:
+        assert h5["epmc"].attrs["indicator_workers"] == 1
+        assert h5["epmc/omega"].shape[0] > 30
+
+
+@pytest.mark.slow
+def test_pool_gives_the_serial_indicators_on_the_coarse_fe_joint(tmp_path):
+    """Coupled N, through the stuck onset into microslip."""
+    ov = NO_FULL + ["analysis.epmc.log10_amplitude_start=-4.5",
+                    "analysis.epmc.log10_amplitude_end=-3.3"]
+    run_scene(lap_scene(COUPLED, ("modes", "epmc"), ov + ["analysis.epmc.workers=1"]),
+              tmp_path / "serial.h5")
+    run_scene(lap_scene(COUPLED, ("modes", "epmc"), ov + ["analysis.epmc.workers=2"]),
+              tmp_path / "pool.h5")
+    assert_same_run(tmp_path / "pool.h5", tmp_path / "serial.h5")
+
+
+@pytest.mark.parametrize("workers", [2, pytest.param(1, marks=pytest.mark.slow)])
+def test_interrupted_run_resumes_to_the_same_indicators(tmp_path, monkeypatch, workers):
+    """Ctrl-C after 20 points (indicators of the last ones still on the workers: NaN
+    in the file); --resume computes them and continues: every row as uninterrupted."""
+    sc = load_scene(SDOF, QUICK + [f"analysis.epmc.workers={workers}"])
+    full = tmp_path / "full.h5"
+    run_scene(sc, full)
+    part = tmp_path / "part.h5"
+    run_interrupted_after(sc, part, 20, monkeypatch, dataset="epmc/amplitude")
+    with h5py.File(part, "r") as h5:
+        assert h5.attrs["status"] == "interrupted" and h5["epmc/omega"].shape[0] == 20
+        assert h5["epmc/error_estimate"].shape[0] == 20
+    run_scene(sc, part, resume=True)
+    with h5py.File(part, "r") as h5:
+        assert h5.attrs["status"] == "complete"
+        assert missing_error_indicators(h5, "epmc").size == 0
+    a, _ = _datasets(part)
+    b, _ = _datasets(full)
+    for k in b:
+        if k.startswith("error_"):
+            assert np.allclose(a[k], b[k], rtol=1e-9, atol=0), (k, np.abs(a[k] / b[k] - 1).max())
+        elif k in ("y", "omega", "xi", "X"):
+            assert np.abs(a[k] - b[k]).max() <= 1e-8 * np.abs(b[k]).max(), k
+
+
+def test_nan_rows_of_a_complete_file_are_computed_on_resume(tmp_path):
+    """A complete file whose indicator rows 3 and 7 are NaN (a worker died there)
+    gets them on --resume, equal to the stored run's, nothing else recomputed."""
+    sc = load_scene(SDOF, QUICK + ["analysis.epmc.workers=2"])
+    out = tmp_path / "e.h5"
+    run_scene(sc, out)
+    ref, _ = _datasets(out)
+    with h5py.File(out, "a") as h5:
+        for name in h5["epmc"]:
+            if name.startswith("error_"):
+                h5["epmc"][name][[3, 7]] = np.nan
+        assert list(missing_error_indicators(h5, "epmc")) == [3, 7]
+    run_scene(sc, out, resume=True)
+    got, _ = _datasets(out)
+    for k in ref:
+        if k.startswith("error_"):
+            assert np.allclose(got[k], ref[k], rtol=1e-9, atol=0), k
+        else:
+            assert np.array_equal(got[k], ref[k], equal_nan=True), k
+
+
+def _square_or_die(x, die_at):
+    if x == die_at:
+        os._exit(3)
+    return x * x
+
+
+def test_a_dying_worker_loses_only_its_row():
+    """Rows queued behind the one a worker died on go to the other worker."""
+    with IndicatorPool(lambda x: _square_or_die(x, 5), 2, "test") as pool:
+        for r in range(12):
+            pool.submit(r, r)
+        got = {}
+        pool.drain(got.__setitem__)
+    assert pool.lost == [5]
+    assert got == {r: (None if r == 5 else r * r) for r in range(12)}
+
+
+def test_every_worker_dead_loses_the_rest_without_hanging():
+    with IndicatorPool(lambda x: os._exit(1), 2, "test") as pool:
+        for r in range(6):
+            pool.submit(r, r)
+        got = {}
+        pool.drain(got.__setitem__)
+    assert sorted(pool.lost) == list(range(6)) and set(got.values()) == {None}
+
+
+def test_in_order_releases_rows_in_registration_order():
+    o = InOrder()
+    for r in (2, 5, 9):
+        o.expect(r)
+    assert o.add(9, "c") == [] and o.add(5, "b") == []
+    assert o.add(2, "a") == [(2, "a"), (5, "b"), (9, "c")]
+
+
+def test_set_row_overwrites_a_committed_row(tmp_path):
+    sc = load_scene(SDOF, QUICK)
+    with ResultWriter(tmp_path / "w.h5", sc) as w:
+        with w.commit():
+            w.append_rows("epmc/omega", np.arange(3.0), "rad/s")
+        with w.commit():
+            w.set_row("epmc/omega", 1, 7.0)
+        with pytest.raises(IndexError):
+            w.set_row("epmc/omega", 3, 1.0)
+    with h5py.File(tmp_path / "w.h5", "r") as h5:
+        assert list(h5["epmc/omega"][()]) == [0.0, 7.0, 2.0]
+        assert h5["epmc/omega"].attrs["committed_rows"] == 3
+
+
+def test_the_tolerance_warning_names_the_first_point_in_row_order(tmp_path, caplog):
+    """Results coming back in reverse order still warn about the first row above tol."""
+    from jointsim.solvers.indicators import ErrorIndicators
+
+    sc = load_scene(SDOF, QUICK)
+    with ResultWriter(tmp_path / "w.h5", sc) as w:
+        with w.commit():
+            for name in ("omega", "error_estimate", "error_truncation", "error_aliasing",
+                         "error_force_tail", "error_frequency", "error_damping"):
+                w.append_rows(f"epmc/{name}", np.full(4, np.nan), "1")
+        inds = PointIndicators(w, "epmc", None, ToleranceWatch(1e-2, "epmc"), 1)
+        for r in range(4):
+            inds.order.expect(r)
+            inds.where[r] = (0, f"row {r}")
+        for r in (3, 2, 1, 0):
+            inds._write(r, ErrorIndicators(0.1 * r, 0.0, 0.1 * r, 0.0))
+    warned = [rec.getMessage() for rec in caplog.records if rec.levelname == "WARNING"]
+    assert len(warned) == 1 and "at point 1 (row 1)" in warned[0]
+    with h5py.File(tmp_path / "w.h5", "r") as h5:
+        assert np.allclose(h5["epmc/error_estimate"][()], [0.0, 0.1, 0.2, 0.3])
+
+
+# -- FRC: one branch in this process, its indicators on the pool ---------------------
+CHAIN = MODELS / "hbm" / "chain2_jenkins.toml"
+CHAIN_QUICK = ["analysis.hbm.force_scale=[0.2]", "analysis.hbm.harmonics=[0, 1, 3]",
+               "analysis.hbm.n_samples=32"]
+
+
+def _frc_same(pooled, serial):
+    a, attrs = _datasets(pooled, "hbm")
+    b, _ = _datasets(serial, "hbm")
+    assert sorted(a) == sorted(b)
+    for k in b:
+        if k.startswith("error_"):
+            assert not np.isnan(a[k]).any(), k
+            assert np.allclose(a[k], b[k], rtol=1e-9, atol=0), k
+        else:
+            assert np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f"), k
+    return attrs
+
+
+def test_frc_pool_gives_the_serial_indicators(tmp_path):
+    run_scene(load_scene(CHAIN, CHAIN_QUICK + ["analysis.hbm.workers=1"]), tmp_path / "s.h5")
+    run_scene(load_scene(CHAIN, CHAIN_QUICK + ["analysis.hbm.workers=2"]), tmp_path / "p.h5")
+    attrs = _frc_same(tmp_path / "p.h5", tmp_path / "s.h5")
+    assert attrs["indicator_workers"] == 2
+    with h5py.File(tmp_path / "p.h5", "r") as h5:
+        assert h5["hbm/omega"].shape[0] > 50
+
+
+def test_frc_interrupted_with_indicators_pending_resumes_to_the_same_file(tmp_path,
+                                                                          monkeypatch):
+    sc = load_scene(CHAIN, CHAIN_QUICK + ["analysis.hbm.workers=2"])
+    run_scene(sc, tmp_path / "full.h5")
+    part = tmp_path / "part.h5"
+    run_interrupted_after(sc, part, 30, monkeypatch)
+    run_scene(sc, part, resume=True)
+    with h5py.File(part, "r") as h5:
+        assert h5.attrs["status"] == "complete"
+    a, _ = _datasets(part, "hbm")
+    b, _ = _datasets(tmp_path / "full.h5", "hbm")
+    for k in b:
+        if k.startswith("error_"):   # the points before the interrupt as they were,
+            # those after it retrace the branch to round-off (1e-9 of ||q||), and so do
+            # their indicators (some are round-off themselves, 1e-17)
+            assert np.allclose(a[k][:30], b[k][:30], rtol=1e-9, atol=0), k
+            assert not np.isnan(a[k]).any(), k
+            assert np.abs(a[k] - b[k]).max() <= 1e-6 * np.abs(b[k]).max(), k
+        elif k in ("omega", "q", "X"):
+            assert np.abs(a[k] - b[k]).max() <= 1e-8 * np.abs(b[k]).max(), k
+
+
+@pytest.mark.slow
+def test_frc_pool_gives_the_serial_indicators_on_the_coarse_fe_joint(tmp_path):
+    """One coupled-N branch at force scale 20 around the resonance."""
+    ov = NO_FULL + ["analysis.hbm.force_scale=[20.0]", "analysis.hbm.omega_start=960",
+                    "analysis.hbm.omega_end=1000"]
+    run_scene(lap_scene(COUPLED, ("modes", "hbm"), ov + ["analysis.hbm.workers=1"]),
+              tmp_path / "s.h5")
+    run_scene(lap_scene(COUPLED, ("modes", "hbm"), ov + ["analysis.hbm.workers=2"]),
+              tmp_path / "p.h5")
+    _frc_same(tmp_path / "p.h5", tmp_path / "s.h5")
