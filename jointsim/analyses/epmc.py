@@ -735,8 +735,15 @@ def solve_at_amplitudes(writer, a, system, ep, F, scale, rscale, amplitudes=None
         if loops is not None and amp in a.loop_amplitudes:
             sets.append((k, y))
     out["damping_ratio"] = out["xi"] / (2.0 * out["omega"])
-    units = system.model.units
+    _write_exact(writer, system.model.units, out)
     _write_exact_loops(writer, system, ep, F, out, sets, loops)
+    log.info("epmc: solved at %d of %d given modal amplitudes", int(out["converged"].sum()),
+             n_amp)
+    return out
+
+
+def _write_exact(writer, units: str, out: dict) -> None:
+    """``/epmc/at_amplitudes/*`` of :func:`solve_at_amplitudes`'s ``out``."""
     amp_unit = "m kg^0.5" if units == "SI" else "length mass^0.5"
     g = "epmc/at_amplitudes"
     writer.write(f"{g}/amplitude", out["amplitude"], amp_unit,
@@ -754,9 +761,6 @@ def solve_at_amplitudes(writer, a, system, ep, F, scale, rscale, amplitudes=None
     writer.write(f"{g}/converged", out["converged"], "1", "Newton converged at the amplitude")
     writer.write(f"{g}/iterations", out["iterations"], "1", "Newton iterations")
     writer.write(f"{g}/residual", out["residual"], "1", "max |R| / residual scale")
-    log.info("epmc: solved at %d of %d given modal amplitudes", int(out["converged"].sum()),
-             n_amp)
-    return out
 
 
 def _write_exact_loops(writer, system, ep, F, out, sets, loops) -> None:
