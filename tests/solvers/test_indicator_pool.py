@@ -76,11 +76,19 @@ def test_pool_gives_the_serial_indicators_on_the_coarse_fe_joint(tmp_path):
     """Coupled N, through the stuck onset into microslip."""
     ov = NO_FULL + ["analysis.epmc.log10_amplitude_start=-4.5",
                     "analysis.epmc.log10_amplitude_end=-3.3"]
-    run_scene(lap_scene(COUPLED, ("modes", "epmc"), ov + ["analysis.epmc.workers=1"]),
-              tmp_path / "serial.h5")
-    run_scene(lap_scene(COUPLED, ("modes", "epmc"), ov + ["analysis.epmc.workers=2"]),
-              tmp_path / "pool.h5")
-    assert_same_run(tmp_path / "pool.h5", tmp_path / "serial.h5")
+    assert_same_run(*_pool_and_serial(tmp_path, "epmc", ov))
+
+
+def _pool_and_serial(tmp_path, analysis: str, ov: list[str]):
+    """Run the coupled coarse FE joint's ``analysis`` with 2 workers and with 1; the
+    two result files (pool, serial)."""
+    out = []
+    for workers in (2, 1):
+        f = tmp_path / f"workers{workers}.h5"
+        run_scene(lap_scene(COUPLED, ("modes", analysis),
+                            ov + [f"analysis.{analysis}.workers={workers}"]), f)
+        out.append(f)
+    return out
 
 
 @pytest.mark.parametrize("workers", [2, pytest.param(1, marks=pytest.mark.slow)])
@@ -254,8 +262,4 @@ def test_frc_pool_gives_the_serial_indicators_on_the_coarse_fe_joint(tmp_path):
     """One coupled-N branch at force scale 20 around the resonance."""
     ov = NO_FULL + ["analysis.hbm.force_scale=[20.0]", "analysis.hbm.omega_start=960",
                     "analysis.hbm.omega_end=1000"]
-    run_scene(lap_scene(COUPLED, ("modes", "hbm"), ov + ["analysis.hbm.workers=1"]),
-              tmp_path / "s.h5")
-    run_scene(lap_scene(COUPLED, ("modes", "hbm"), ov + ["analysis.hbm.workers=2"]),
-              tmp_path / "p.h5")
-    _frc_same(tmp_path / "p.h5", tmp_path / "s.h5")
+    _frc_same(*_pool_and_serial(tmp_path, "hbm", ov))
