@@ -102,8 +102,9 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
         n_workers = 1
     if n_workers > 1:
         if a.error_indicators and missing_error_indicators(writer.h5, "hbm").size:
-            with _indicator_pool(writer, a, system, 1):
-                pass   # rows a killed run left NaN: computed here, serially, first
+            # rows a killed run left NaN, before the branches fork: a serial pool
+            # computes and writes each row as it is submitted, i.e. when it is made
+            _indicator_pool(writer, a, system, 1).close()
         failures = _run_branches_forked(todo, job_args, min(n_workers, len(todo)),
                                         out.write_point, out.finish_branch)
     else:
@@ -646,7 +647,7 @@ def _indicator_pool(writer, a, system, workers):
     if not a.error_indicators or not system.n_z:
         return PointIndicators(writer, "hbm", None, ToleranceWatch(a.error_tol, "hbm"), 1)
     missing = missing_error_indicators(writer.h5, "hbm")
-    n = pool_workers(workers) if workers != 1 else 1
+    n = pool_workers(workers)
     writer.h5["hbm"].attrs["indicator_workers"] = n
     if n == 1 and not missing.size:   # serial: each branch computes its own
         return PointIndicators(writer, "hbm", None, ToleranceWatch(a.error_tol, "hbm"), 1)
