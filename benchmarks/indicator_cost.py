@@ -16,7 +16,9 @@ the coarse mesh, EPMC from a = 1e-5 to 1e-3).
 coupled N) on the 121-pair lap mesh of ``benchmarks/scale.py`` (generated once and
 cached in the temporary directory), Krylov path, one process: the FRC at force
 scale 2 (first 20 points) and the EPMC (first 10 points, no loop amplitudes), the
-cases of issues 10 and 12.  Their runs stop at ``max_points`` (reported as a
+cases of issues 10 and 12; ``lap121_stuck`` the FRC at force scale 0.02 (first 30
+points), stuck below the slip limit: its points are linear and their indicators
+cost no extended solve (:data:`jointsim.solvers.indicators.LINEAR_FORCE_TOL`).  Their runs stop at ``max_points`` (reported as a
 failed branch: the points are kept).  The last column is the indicators' share of
 the run, ``(with - without) / with``.
 
@@ -79,6 +81,10 @@ CASES = {
                    LAP121 + ["analysis.hbm.force_scale=[2.0]", "analysis.hbm.refine_peak=false",
                              "analysis.hbm.workers=1", "analysis.hbm.linear_solver='krylov'",
                              "analysis.hbm.max_points=20"]),
+    "lap121_stuck": ("hbm", ROOT / "models/lap_joint.toml",
+                     LAP121 + ["analysis.hbm.force_scale=[0.02]", "analysis.hbm.refine_peak=false",
+                               "analysis.hbm.workers=1", "analysis.hbm.linear_solver='krylov'",
+                               "analysis.hbm.max_points=30"]),
     "lap121_epmc": ("epmc", ROOT / "models/lap_joint.toml",
                     LAP121 + ["analysis.epmc.loop_amplitudes=[]",
                               "analysis.epmc.linear_solver='krylov'",

@@ -292,11 +292,7 @@ class HBMSystem:
                 self._store(dR[p], h, v)
         aft = None
         if self.n_e and nr:
-            U = Q[:, self.t_row] if self.friction else None
-            Gq = Q[:, self.n_row] if self.coupled else None
-            if U is None:
-                U = np.zeros((nc, self.n_e))
-            aft = self.aft.evaluate(U, Gq, jacobian)
+            aft = self.contact_forces(z, jacobian)
             if self.friction:
                 R[:, self.t_row] += aft.Ft.T
             if self.coupled:
@@ -312,6 +308,26 @@ class HBMSystem:
                             stats=self.stats, cache=self.preconditioner, rtol=self.krylov_rtol,
                             schur=S_kept)
         return Evaluation(R=R.ravel(), J=J, dR={p: v.ravel() for p, v in dR.items()}, aft=aft)
+
+    def contact_forces(self, z, jacobian: bool = False):
+        """The AFT of the contact elements at the coefficients ``z``.
+
+        Parameters
+        ----------
+        z : ndarray, shape (n_z,)
+            Coefficients of the contact coordinates [m].
+        jacobian : bool
+            Also the element tangents.
+
+        Returns
+        -------
+        AFTResult
+            Force coefficients ``Ft``, ``Nc`` [N] (and tangents [N/m]) of every element.
+        """
+        Q = np.asarray(z, dtype=float).reshape(self.n_c, self.n_r)
+        U = Q[:, self.t_row] if self.friction else np.zeros((self.n_c, self.n_e))
+        Gq = Q[:, self.n_row] if self.coupled else None
+        return self.aft.evaluate(U, Gq, jacobian)
 
     def _add_element_blocks(self, J, aft):
         add_element_blocks(J, self.n_r, self.n_c, self.t_row, self.n_row,

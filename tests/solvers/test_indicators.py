@@ -18,6 +18,7 @@ from jointsim.scene import load_scene
 from jointsim.solvers.condensation import dense_array
 from jointsim.solvers.epmc import EPMCSystem
 from jointsim.solvers.hbm import HBMSystem, solve_point
+from jointsim.solvers import indicators
 from jointsim.solvers.indicators import ErrorEstimator
 from jointsim.solvers.modes import elastic_mode
 from jointsim.solvers.newton import NewtonOptions, newton
@@ -136,12 +137,48 @@ def test_error_estimate_tracks_the_true_error(chain, fold):
     _check(*fold.total(((7, 32), (3, 128), (15, 1024))), "fold total")
 
 
-def test_a_stuck_point_has_a_negligible_error():
-    """Below the slip limit the joint is linear: no force tail, no aliasing."""
+def _with_and_without_linear_shortcut(monkeypatch, fn):
+    """``fn()`` as it is, and with the linear-point shortcut off (the extended solve)."""
+    short = fn()
+    with monkeypatch.context() as mp:
+        mp.setattr(indicators, "LINEAR_FORCE_TOL", -1.0)
+        full = fn()
+    return short, full
+
+
+def test_a_stuck_point_has_a_negligible_error(monkeypatch):
+    """Below the slip limit the joint is linear: no force tail, no aliasing.  The
+    shortcut reports 0; the extended solve it saves gives round-off."""
     m = build_model(load_scene(CHAIN2))
     s, F, p = _point(m, 7, 128, 0.01, 1.0)
-    ind = ErrorEstimator(s).hbm(p.z, 1.0, F, p.X)
-    assert ind.estimate < 1e-12 and ind.force_tail < 1e-12
+    est = ErrorEstimator(s)
+    short, full = _with_and_without_linear_shortcut(
+        monkeypatch, lambda: est.hbm(p.z, 1.0, F, p.X))
+    assert short.estimate == 0.0 and short.force_tail < 1e-12
+    assert full.estimate < 1e-12 and full.force_tail < 1e-12
+
+
+@pytest.mark.parametrize("scene", [COUPLED, FIXED], ids=["coupled", "fixed"])
+def test_fe_joint_linear_points_skip_the_extended_solve(scene, monkeypatch):
+    """FE lap joint (coarse mesh, H = 0..7, N_t = 128).  At a stuck point (force x 0.02,
+    below and at the stuck resonance) the shortcut's 0 stands for an extended solve
+    that gives at most 1e-12 (round-off); at a slipping point (force x 2 near its
+    peak) the shortcut is not taken and the indicators are unchanged."""
+    m = build_model(lap_scene(scene))
+    s = HBMSystem(m, tuple(range(8)), 128, linear_solver="krylov")
+    est = ErrorEstimator(s)
+    for fs, w, stuck in ((0.02, 900.0, True), (0.02, 1029.0, True), (2.0, 1004.0, False)):
+        F = s.force_coefficients(fs)
+        p = solve_point(s, w, F, tol=1e-10, max_iter=60)
+        assert p.convergence.success, p.convergence.message
+        short, full = _with_and_without_linear_shortcut(
+            monkeypatch, lambda: est.hbm(p.z, w, F, p.X))
+        if stuck:
+            assert short.estimate == 0.0 and full.estimate < 1e-12, (fs, w, full)
+        else:
+            assert full.estimate > 1e-4
+            for name in ("truncation", "aliasing", "force_tail"):
+                assert getattr(short, name) == pytest.approx(getattr(full, name), rel=1e-4)
 
 
 def test_krylov_path_gives_the_direct_indicators():
@@ -208,6 +245,18 @@ def test_epmc_indicators_track_the_true_error(amp):
                                                           y7[nz:nz + 2]))
     runs = [_mode_point(m, H, nt, amp) for H, nt in ((3, 128), (7, 32), (7, 512))]
     _check_epmc_ladder(runs, epr, yr, f"epmc at a = {amp}")
+
+
+def test_epmc_stuck_point_skips_the_extended_solve(monkeypatch):
+    """SDOF Jenkins oscillator below its slip amplitude (0.8): the mode is linear; the
+    shortcut's zeros stand for an extended Newton solve that changes nothing beyond
+    round-off."""
+    m = build_model(load_scene(MODELS / "hbm" / "sdof_jenkins_epmc.toml"))
+    s, ep, y = _mode_point(m, 7, 128, 0.5)
+    est = ErrorEstimator(s)
+    short, full = _with_and_without_linear_shortcut(monkeypatch, lambda: est.epmc(ep, y))
+    assert (short.estimate, short.frequency, short.damping) == (0.0, 0.0, 0.0)
+    assert full.estimate < 1e-12 and full.frequency < 1e-12
 
 
 # -- the FE joint ------------------------------------------------------------------------
