@@ -58,6 +58,11 @@ log = logging.getLogger(__name__)
 #: flagged in ``/epmc/outside_range`` and counted in the attribute
 #: ``n_outside_range``, with a warning.
 MAX_DAMPING_RATIO = 0.1
+#: The backbone stops, saying why, when its last ``STALL_POINTS`` points advanced
+#: log10 a by less than ``STALL_SHARE`` of the range (a drift at nearly fixed
+#: amplitude: :func:`jointsim.solvers.branch_watch.stall_message`).
+STALL_POINTS = 20
+STALL_SHARE = 1e-4
 
 
 class _LoopSelection:
@@ -299,7 +304,8 @@ def _continue(a, ep, y0, t0, h0, solve_first, max_pts, scale, rscale, on_point, 
     direction = 1.0 if lam_end >= lam_start else -1.0
     common = dict(scale=scale, rscale=rscale, step_min=a.step_min, step_max=a.step_max,
                   tol=a.tol, max_iter=a.max_iter, desc=f"epmc mode {a.mode}",
-                  monitor=step_monitor(a, nz), lam_start=lam_start)
+                  monitor=step_monitor(a, nz), lam_start=lam_start,
+                  lam_stall=(STALL_POINTS, STALL_SHARE))
     n_before = 0
     if onset is not None:
         ahead = (onset - float(y0[-1])) * direction

@@ -21,6 +21,15 @@ Pure functions used by :class:`jointsim.solvers.continuation.Continuation`:
   residual where the sign changes legitimately (the stiff chain at kt = 1e4 and
   the fold scene at mu = 1e6 stopped early when every flipped point was rejected).
 * :func:`lost_way_message`: what a failed branch did before it gave up.
+* :func:`stall_message`: a branch that keeps finding points without advancing in
+  ``lam`` (optional ``lam_stall`` of the stepper).  The EPMC backbone of the coupled
+  lap joint with pressure-dependent stiffness (96 Gauss points, ``joint.kt_pressure``
+  and ``kn_pressure``) does that at the macroslip onset, log10 a = -2.433874: there
+  the two beams' static relative position is held only by the suspension springs,
+  and the branch turns to run along that nearly free drift.  The dense direct path
+  then took 120 points that advanced log10 a by 1.7e-5 in all (the contact
+  coordinates doubling), heading for ``max_points``; the Krylov path shrank its step
+  below ``step_min`` at the same log10 a.
 """
 from __future__ import annotations
 
@@ -79,3 +88,28 @@ def lost_way_message(reversals, n_points: int, retraced: int) -> str:
                    f"{len(rev)} times (at lam = {where}): it zig-zags between nearby "
                    f"pieces of the branch, a fold or corner it did not resolve")
     return "; " + "; ".join(out) if out else ""
+
+
+def stall_message(lams, n: int, share: float, span: float) -> str | None:
+    """Why a branch stalls in ``lam``, or None.
+
+    Parameters
+    ----------
+    lams : sequence of float
+        ``lam`` of the accepted points, in order.
+    n : int
+        Points looked back over.
+    share : float
+        The branch stalls when its last ``n`` points advanced ``lam`` by less than
+        ``share * span`` in all.
+    span : float
+        The range of ``lam`` (> 0).
+    """
+    if n < 1 or len(lams) <= n:
+        return None
+    moved = abs(float(lams[-1]) - float(lams[-1 - n]))
+    if moved >= share * span:
+        return None
+    return (f"the branch stalls at lam = {float(lams[-1]):.8g}: its last {n} points "
+            f"advanced lam by {moved:.3g} in all, less than {share:g} of the range "
+            f"({span:.3g}); it runs along a direction in which lam hardly changes")

@@ -74,7 +74,7 @@ from .jacobian import drop_last_column, scale_columns, solve
 from .newton import NewtonOptions, newton
 from .arclength import bordered, corner_step, fold_step, tangent
 from .branch_record import Branch, PointInfo
-from .branch_watch import lost_way_message, orientation_sign, runs_back
+from .branch_watch import lost_way_message, orientation_sign, runs_back, stall_message
 
 log = logging.getLogger(__name__)
 
@@ -168,6 +168,10 @@ class Continuation:
     z_origin : ndarray, shape (n,), optional
         ``z0`` of ``adapt_scale`` (default ``y0[:-1]``; a resumed branch passes
         the start of the uninterrupted one).
+    lam_stall : tuple (n, share), optional
+        Stop the branch (not converged, saying why) when its last ``n`` points
+        advanced ``lam`` by less than ``share`` of the range in all
+        (:func:`.branch_watch.stall_message`).
     keep_orientation : bool
         Reject a point found by a remedy that flips ``sign det [J; t]``
         (:meth:`_flips`).  The FRC runner sets it where re-closing contacts take
@@ -214,9 +218,10 @@ class Continuation:
                  backtrack: int = 4, stall: int = 5, solve_first: bool = True,
                  tangent0=None, desc: str = "continuation", monitor=None,
                  lam_start=None, adapt_scale: bool = False, z_origin=None,
-                 keep_orientation: bool = False):
+                 keep_orientation: bool = False, lam_stall=None):
         y0 = np.asarray(y0, dtype=float).copy()
         self.keep_orientation = bool(keep_orientation)
+        self.lam_stall = lam_stall
         self.adapt_scale = bool(adapt_scale)
         self._z0 = y0[:-1].copy() if z_origin is None else np.asarray(z_origin, dtype=float)
         self._growth = []     # (|z - z0|, lam) of the points of a geometric growth
@@ -627,6 +632,11 @@ class Continuation:
             self._rescale()
             if self.status != "running":
                 return self.message
+        if self.lam_stall is not None:
+            why = stall_message([p[-1] for p in self.points], *self.lam_stall,
+                                abs(self.lam_end - self._lam_start_h * self.scale[-1]))
+            if why:
+                return self._finish(NOT_CONVERGED, why)
         self._check_max_points()
         return self.message
 
@@ -712,7 +722,8 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                     solve_first: bool = True, tangent0=None, on_point=None,
                     progress: bool = True, desc: str = "continuation",
                     monitor=None, lam_start=None, adapt_scale: bool = False,
-                    z_origin=None, keep_orientation: bool = False) -> Branch:
+                    z_origin=None, keep_orientation: bool = False,
+                    lam_stall=None) -> Branch:
     """Follow the solution branch of ``R(z, lam) = 0`` from ``y0`` to ``lam = lam_end``.
 
     Drives a :class:`Continuation` (whose parameters it takes) to its end.
@@ -722,7 +733,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
     fun, y0, lam_end, scale, rscale, step, step_min, step_max, max_points, tol
         As for :class:`Continuation`.
     max_iter, target_iter, max_jump, backtrack, stall, solve_first, tangent0, desc, monitor
-    adapt_scale, z_origin, keep_orientation
+    adapt_scale, z_origin, keep_orientation, lam_stall
         As for :class:`Continuation`.
     lam_start : float, optional
         Where the branch began, when ``y0`` is a later point of it (resume).
@@ -752,7 +763,7 @@ def continue_branch(fun, y0, lam_end: float, *, scale, rscale: float, step: floa
                             solve_first=solve_first, tangent0=tangent0, desc=desc,
                             monitor=monitor, lam_start=lam_start,
                             adapt_scale=adapt_scale, z_origin=z_origin,
-                            keep_orientation=keep_orientation)
+                            keep_orientation=keep_orientation, lam_stall=lam_stall)
         span = abs(cont.lam_end - cont.lam0)
         done = 0
         while True:

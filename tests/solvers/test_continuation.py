@@ -133,3 +133,28 @@ def test_max_points_stops_the_branch():
                          **dict(SETTINGS, max_points=7))
     assert br.y.shape[0] == 7
     assert not br.convergence.success and "max_points" in br.convergence.message
+
+
+def _asymptote(y):
+    """The curve lam = 1 - exp(-z): it approaches lam = 1 and never reaches it."""
+    z, lam = y
+    return np.array([lam - 1.0 + np.exp(-z)]), np.array([[-np.exp(-z), 1.0]]), None
+
+
+@pytest.mark.parametrize("stall", [None, (20, 1e-4)])
+def test_a_branch_that_stalls_in_lam_stops_and_says_so(stall):
+    """Towards lam_end = 2 the branch runs along z while lam creeps up to 1.  Without
+    ``lam_stall`` it goes on to max_points; with (20, 1e-4) it stops at the first point
+    whose last 20 points advanced lam by less than 2e-4 (1e-4 of the range 2), keeping
+    every point it found."""
+    br = continue_branch(_asymptote, np.array([0.0, 0.0]), 2.0, scale=np.ones(2), rscale=1.0,
+                         step=0.1, step_min=1e-8, step_max=0.5, max_points=400, tol=1e-12,
+                         progress=False, lam_stall=stall)
+    assert not br.convergence.success
+    lam = br.y[:, -1]
+    assert np.allclose(lam, 1.0 - np.exp(-br.y[:, 0]), atol=1e-11)
+    if stall is None:
+        assert len(br.y) == 400 and "max_points" in br.convergence.message
+    else:
+        assert "stalls" in br.convergence.message and len(br.y) < 400
+        assert lam[-1] - lam[-21] < 2e-4 <= lam[-2] - lam[-22]
