@@ -76,8 +76,8 @@ closed (or open) over the whole period, the contact forces are affine in the
 coefficients: they have no harmonics above ``H``, and ``4 N_t`` samples give the
 same retained ones as ``N_t``.  The right-hand side of the extended step is then
 the point's Newton residual alone, and the discretisation errors are zero.  The
-estimator compares the forces of the two discretisations (the extended
-evaluation it needs anyway, and one AFT of the point's own system) and reports
+estimator compares the forces of the two discretisations (one AFT of each system,
+no residual or Jacobian: the contact forces alone decide) and reports
 0 when they differ by at most :data:`LINEAR_FORCE_TOL` (measured on the coarse FE
 joint: 6e-13..3e-12 coupled, 1e-15 fixed N).  What the extended solve gave there
 is the Newton residual's correction: 2e-15..2e-13 at points converged to 1e-10,
@@ -219,34 +219,43 @@ class ErrorEstimator:
             parts.append(aft.Nc)
         return np.concatenate(parts, axis=0)
 
-    def _force_tail(self, ev) -> float:
+    def _force_tail(self, aft) -> float:
+        """``||phi_M|| / ||phi_R (h >= 1)||`` of the extended system's AFT (or None)."""
         nc = self.system.n_c
-        if ev.aft is None:
+        if aft is None:
             return 0.0
-        Fc = self._forces(ev.aft)                # (n_elem rows, n_c_ext)
+        Fc = self._forces(aft)                   # (n_elem rows, n_c_ext)
         kept = np.linalg.norm(Fc[:, :nc][:, self._kept])
         tail = np.linalg.norm(Fc[:, nc:])
         return float(tail / kept) if kept > 0 else (0.0 if tail == 0 else float("inf"))
 
-    def _linear(self, ev, z) -> bool:
+    def _linear(self, z):
         """Whether the extended discretisation leaves the contact forces unchanged.
 
-        True when the extended evaluation ``ev`` has no force harmonics above ``H``
-        and the same retained ones as the ``N_t`` samples of the point's own system
-        at ``z`` (shape (n_z,), [m]), both to :data:`LINEAR_FORCE_TOL` of the
+        True when the extended system's AFT at the contact coefficients ``z``
+        (shape (n_z,) of the point's own system, [m]) has no force harmonics above
+        ``H`` and the same retained ones as the point's own ``N_t`` samples, both
+        to :data:`LINEAR_FORCE_TOL` of the
         retained vibrating forces: every element sticks and stays closed (or open)
         over the whole period, so the forces are affine in the coefficients.  The
         right-hand side of the extended step is then the point's Newton residual
         alone, and the discretisation errors the indicators estimate are zero.
+
+        Returns
+        -------
+        linear : bool
+        aft : AFTResult
+            The extended system's AFT (its force tail is reported either way).
         """
-        if ev.aft is None:
-            return False
-        nc = self.system.n_c
-        Fx = self._forces(ev.aft)
-        Fk = self._forces(self.system.contact_forces(z))
+        s = self.system
+        nc = s.n_c
+        z = np.asarray(z, dtype=float)
+        aft = self.ext.contact_forces(self._embed(z.reshape(nc, s.n_r)).ravel())
+        Fx = self._forces(aft)
+        Fk = self._forces(s.contact_forces(z))
         ref = float(np.linalg.norm(Fk[:, self._kept]))
         change = float(np.linalg.norm(Fx[:, nc:]) + np.linalg.norm(Fx[:, :nc] - Fk))
-        return ref > 0.0 and change <= LINEAR_FORCE_TOL * ref
+        return ref > 0.0 and change <= LINEAR_FORCE_TOL * ref, aft
 
     def _split_solve(self, A, r, n_rows):
         """``-A^-1`` of the residual ``r`` split into (alias: rows < n_rows, tail: the rest)."""
@@ -290,11 +299,11 @@ class ErrorEstimator:
             X = s.reconstruct(z, omega, F, xi)
         if not s.n_z:
             return ErrorIndicators(0.0, 0.0, 0.0, 0.0)
+        linear, aft = self._linear(z)        # the contact forces alone decide
+        if linear:
+            return ErrorIndicators(0.0, 0.0, 0.0, force_tail=self._force_tail(aft))
         ze = self._embed(np.asarray(z, dtype=float).reshape(s.n_c, s.n_r)).ravel()
-        Fe = self._embed(F)
-        ev = ext.evaluate(ze, omega, Fe, xi=xi, wrt=())
-        if self._linear(ev, z):
-            return ErrorIndicators(0.0, 0.0, 0.0, force_tail=self._force_tail(ev))
+        ev = ext.evaluate(ze, omega, self._embed(F), xi=xi, wrt=())
         n_rows = s.n_c * s.n_r
         da, dt = self._split_solve(ev.J, ev.R, n_rows)
         # the kept rows of X depend on the kept rows of z only: the main system
@@ -305,7 +314,7 @@ class ErrorEstimator:
         ea = ALIAS_RICHARDSON * self._rel(dXa, X)
         et = self._rel(dXt, X)
         return ErrorIndicators(truncation=et, aliasing=ea, estimate=et + ea,
-                               force_tail=self._force_tail(ev))
+                               force_tail=self._force_tail(ev.aft))
 
     # -- EPMC ---------------------------------------------------------------------
     def epmc(self, ep: EPMCSystem, y, max_iter: int | None = None) -> ErrorIndicators:
@@ -340,13 +349,14 @@ class ErrorEstimator:
         omega, xi, lam = float(y[nz]), float(y[nz + 1]), float(y[nz + 2])
         if not nz:
             return ErrorIndicators(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        linear, aft = self._linear(ep.z0 + 10.0 ** lam * y[:nz])
+        if linear:
+            return ErrorIndicators(0.0, 0.0, 0.0, self._force_tail(aft), 0.0, 0.0)
         X = ep.coefficients(y)
         epx = EPMCSystem(ext, ep.phi, self._embed(ep.F))
         zh = self._embed(y[:nz].reshape(s.n_c, s.n_r)).ravel()
         yx = np.concatenate([zh, [omega, xi, lam]])
         R, J, ev = epx.fun(yx)
-        if ev is not None and self._linear(ev, ep.z0 + 10.0 ** lam * y[:nz]):
-            return ErrorIndicators(0.0, 0.0, 0.0, self._force_tail(ev), 0.0, 0.0)
         n_rows = s.n_c * s.n_r
         nzx = ext.n_z
         # rows: retained harmonics, missing harmonics, amplitude and phase (the last two
@@ -402,7 +412,7 @@ class ErrorEstimator:
             fz = abs(dzeta(sol[nzx] - omega, sol[nzx + 1] - xi)) / abs(zeta) \
                 if zeta != 0 else float("nan")
         return ErrorIndicators(truncation=et, aliasing=ea, estimate=et + ea,
-                               force_tail=self._force_tail(ev) if ev is not None else
+                               force_tail=self._force_tail(ev.aft) if ev is not None else
                                float("nan"), frequency=float(fw), damping=float(fz))
 
     @staticmethod
