@@ -220,7 +220,7 @@ class ErrorEstimator:
         return np.concatenate(parts, axis=0)
 
     def _force_tail(self, aft) -> float:
-        """``||phi_M|| / ||phi_R (h >= 1)||`` of the extended system's AFT (or None)."""
+        """``||phi_M|| / ||phi_R (h >= 1)||`` of the extended system's AFT (0 without one)."""
         nc = self.system.n_c
         if aft is None:
             return 0.0
@@ -232,23 +232,26 @@ class ErrorEstimator:
     def _linear(self, z):
         """Whether the extended discretisation leaves the contact forces unchanged.
 
-        True when the extended system's AFT at the contact coefficients ``z``
+        Linear when the extended system's AFT at the contact coefficients ``z``
         (shape (n_z,) of the point's own system, [m]) has no force harmonics above
         ``H`` and the same retained ones as the point's own ``N_t`` samples, both
-        to :data:`LINEAR_FORCE_TOL` of the
-        retained vibrating forces: every element sticks and stays closed (or open)
-        over the whole period, so the forces are affine in the coefficients.  The
-        right-hand side of the extended step is then the point's Newton residual
-        alone, and the discretisation errors the indicators estimate are zero.
+        to :data:`LINEAR_FORCE_TOL` of the retained vibrating forces: every element
+        sticks and stays closed (or open) over the whole period, so the forces are
+        affine in the coefficients.  The right-hand side of the extended step is
+        then the point's Newton residual alone, and the discretisation errors the
+        indicators estimate are zero.
 
         Returns
         -------
         linear : bool
-        aft : AFTResult
-            The extended system's AFT (its force tail is reported either way).
+        aft : AFTResult or None
+            The extended system's AFT (its force tail is reported either way; None
+            without contact elements).
         """
         s = self.system
         nc = s.n_c
+        if not s.n_e:
+            return False, None
         z = np.asarray(z, dtype=float)
         aft = self.ext.contact_forces(self._embed(z.reshape(nc, s.n_r)).ravel())
         Fx = self._forces(aft)
