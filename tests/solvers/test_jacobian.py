@@ -268,8 +268,10 @@ def test_krylov_epmc_in_the_linear_range_of_the_coarse_lap_joint(tmp_path, monke
     assert np.abs(X["direct"] - X["krylov"]).max() <= 1e-8 * scale
     # without the deflation the first solves took the 400-iteration limit (121 pairs)
     assert per_solve and max(per_solve) <= 40
-    # the mechanism, on the first bordered system: J's harmonic-1 block is singular to
-    # round-off, the shifted one is well conditioned, and the solve is the dense one
+    # the mechanism, on the first bordered system: J's harmonic-1 block is singular up to
+    # the round-off of the point's frequency (condition 7e10 here, above 1e12 on other
+    # machines' BLAS), the shifted one is well conditioned (about 8e2), and the solve is
+    # the dense one
     A, b = bordered[0]
     i1, ell = A.deflate
     J = A.J
@@ -277,8 +279,8 @@ def test_krylov_epmc_in_the_linear_range_of_the_coarse_lap_joint(tmp_path, monke
     u = c[J._ic[i1]] - 1j * c[J._is[i1]]
     plain = HarmonicPreconditioner(J)
     shifted = HarmonicPreconditioner(J, (i1, u, ell))
-    assert np.linalg.cond(plain.Pinv[i1]) > 1e12
-    assert np.linalg.cond(shifted.Pinv[i1]) < 1e8
+    c_plain, c_shifted = np.linalg.cond(plain.Pinv[i1]), np.linalg.cond(shifted.Pinv[i1])
+    assert c_plain > 1e10 and c_shifted < 1e8 and c_plain > 1e6 * c_shifted
     x = orig_solve(A, b)
     xd = np.linalg.solve(A.to_dense(), b)
     assert np.abs(x - xd).max() <= 1e-6 * np.abs(xd).max()
