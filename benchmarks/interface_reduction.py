@@ -29,6 +29,8 @@ Bases (``--basis``):
   from one amplitude serve another?
 * ``pod-epmc``: the same from the points of the file's EPMC backbone (``/epmc``, same
   harmonics): shapes a scene computes anyway, before its FRC;
+* ``pod-epmc-stuck``: the EPMC points and the stuck joint's forced responses at
+  ``N_STUCK`` frequencies of the FRC range (one linear solve each, from the preload);
 * ``legendre``: Legendre polynomials of the element position along the interface,
   tangential and normal rows separately (``k / 2`` each);
 * ``stiffness``: the lowest eigenvectors of the stuck static stiffness on the contact
@@ -43,6 +45,7 @@ read back from the file)::
         --set joint.kt_pressure=1.1811e7 --set joint.kn_pressure=1.1811e7 \\
         --set analysis.epmc.log10_amplitude_end=-2.45 --set analysis.hbm.step_max=0.17
     python benchmarks/interface_reduction.py frc.h5 --k 48 64 96 --basis pod pod-epmc
+    python benchmarks/interface_reduction.py frc.h5 --branch 20 --basis pod-epmc-stuck --k 96
 
 Measured (round 11, that file: 96
 Gauss points with both pressure keys, ``n_r`` = 192 contact coordinates, 2,880
@@ -52,7 +55,10 @@ not serve (1e-2 and worse at k = 96, Newton often fails); shapes from the run's 
 EPMC backbone (``pod-epmc``) reproduce every tested FRC point to 1.5e-4 in X at k = 96
 (half the coordinates), gross slip included, at 0.13-0.15 s per Newton iteration
 against 0.42-0.58 s on the full Krylov path in gross slip; one full Newton step from
-a reduced solution estimates its error within about a factor 1.5.
+a reduced solution estimates its error within about a factor 1.5.  Over the whole
+force-20 branch (``--branch``, the EPMC shapes plus 9 stuck forced responses) the
+reduced continuation is 1.51x faster (46.0 s against 69.6 s; largest one-step estimate
+6.7e-4): its dense bordered LUs of 1,441 unknowns take most of the gain back.
 """
 from __future__ import annotations
 
@@ -66,7 +72,9 @@ import h5py
 import numpy as np
 from numpy.polynomial import legendre
 
-BASES = ("pod", "pod-other", "pod-epmc", "legendre", "stiffness")
+BASES = ("pod", "pod-other", "pod-epmc", "pod-epmc-stuck", "legendre", "stiffness")
+#: frequencies of the stuck forced responses of ``pod-epmc-stuck``
+N_STUCK = 9
 MAX_ITER = 30
 TOL = 1e-10
 
@@ -184,11 +192,119 @@ def reduced_solve(system, V, z0, z_start, omega, F):
     return out(MAX_ITER, False)
 
 
+def follow_branch(system, F, y0, a, scale, rscale, V=None, z0=None):
+    """One FRC branch by arclength continuation, full or on the basis ``V``.
+
+    Parameters
+    ----------
+    system : jointsim.solvers.hbm.HBMSystem
+        Krylov path (structured Jacobians).
+    F : ndarray, shape (n_c, n_dof)
+        Force coefficients [N].
+    y0 : ndarray, shape (n_z + 1,)
+        First point ``(z, omega)`` (solved again on the reduced system).
+    a : jointsim.analysis_sections.HBMSection
+        The scene's ``[analysis.hbm]`` (steps, tolerances, frequency range).
+    scale, rscale
+        :func:`jointsim.solvers.hbm.frc_scales` of the full system (the reduced
+        coordinates, orthonormal shapes in metres, take its ``z`` scale).
+    V : ndarray, shape (n_r, k), optional
+        Shapes; None: the full system, as :mod:`jointsim.analyses.hbm` solves it
+        (without the error indicators).
+    z0 : ndarray, shape (n_z,)
+        Preload contact coordinates (the affine offset of the reduced unknowns) [m].
+
+    Returns
+    -------
+    points : list of ndarray
+        The branch's points in full coordinates ``(z, omega)``.
+    branch : jointsim.solvers.continuation.Branch
+    seconds : float
+    """
+    from jointsim.solvers.continuation import continue_branch
+    from jointsim.solvers.jacobian import BorderedJacobian
+    nc, nr = system.n_c, system.n_r
+
+    if V is None:
+        def fun(y):
+            ev = system.evaluate(y[:-1], y[-1], F)
+            return ev.R, BorderedJacobian(ev.J, ev.dR["omega"]), ev
+        start, sc, origin = y0, scale, z0
+
+        def full(y):
+            return y
+    else:
+        Z0 = z0.reshape(nc, nr)
+
+        def full(y):
+            return np.append((Z0 + y[:-1].reshape(nc, -1) @ V.T).ravel(), y[-1])
+
+        def fun(y):
+            ev = system.evaluate(full(y)[:-1], y[-1], F)
+            J = np.column_stack([project_jacobian(ev.J, V),
+                                 (ev.dR["omega"].reshape(nc, nr) @ V).ravel()])
+            return (ev.R.reshape(nc, nr) @ V).ravel(), J, ev
+        w0 = ((y0[:-1].reshape(nc, nr) - Z0) @ V).ravel()
+        start = np.append(w0, y0[-1])
+        sc = np.append(np.full(w0.size, scale[0]), scale[-1])
+        origin = np.zeros(w0.size)
+    t0 = time.perf_counter()
+    br = continue_branch(fun, start, a.omega_end, scale=sc, rscale=rscale, step=a.step,
+                         step_min=a.step_min, step_max=a.step_max, max_points=a.max_points,
+                         tol=a.tol, max_iter=a.max_iter, solve_first=True, progress=False,
+                         lam_start=a.omega_start, adapt_scale=True, z_origin=origin,
+                         desc="reduced branch" if V is not None else "full branch")
+    seconds = time.perf_counter() - t0
+    return [full(np.asarray(y)) for y in br.y], br, seconds
+
+
+def compare_branches(system, F, y0, a, V, z0, dof):
+    """The full and the reduced branch side by side (see :func:`follow_branch`); prints
+    their points, Newton iterations, times, largest amplitudes, and the largest
+    one-step error estimate over the reduced points."""
+    from jointsim.solvers.hbm import frc_scales
+    scale, rscale = frc_scales(system, F, a.omega_start, a.omega_end)
+    c1, s1 = system.basis.index[1]
+    rows = []
+    for name, basis in (("full", None), (f"reduced (k = {V.shape[1]})", V)):
+        pts, br, sec = follow_branch(system, F, y0, a, scale, rscale, basis, z0)
+        amps = []
+        for y in pts:
+            X = system.reconstruct(y[:-1], y[-1], F)
+            amps.append(float(np.hypot(X[c1, dof], X[s1, dof])))
+        i = int(np.argmax(amps))
+        iters = int(np.sum(br.iterations))
+        rows.append((name, len(pts), iters, sec, amps[i], float(pts[i][-1]), pts,
+                     br.convergence.message))
+    est = []
+    for y in rows[1][6]:
+        d, _ = full_newton_step(system, y[:-1], float(y[-1]), F)
+        X = system.reconstruct(y[:-1], y[-1], F)
+        ref = float(np.linalg.norm(X[system.basis.hk > 0]))
+        est.append(float(np.linalg.norm(system.reconstruct(y[:-1] + d, y[-1], F) - X)) / ref)
+    j = int(np.argmax(est))
+    w_red = [float(y[-1]) for y in rows[1][6]]
+    print("one-step error estimates of the reduced points, omega [rad/s]: estimate")
+    print(", ".join(f"{w:.1f}: {e:.1e}" for w, e in zip(w_red, est)))
+    print("| branch | points | Newton it. | s | s / point | largest amplitude [m] | at omega "
+          "[rad/s] | end |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, n, it, sec, am, w, _, msg in rows:
+        print(f"| {name} | {n} | {it} | {sec:.1f} | {sec / n:.3f} | {am:.6e} | {w:.3f} | "
+              f"{msg} |")
+    full_, red = rows
+    print(f"largest amplitude: relative difference {abs(red[4] - full_[4]) / full_[4]:.2e}, "
+          f"its frequency {abs(red[5] - full_[5]) / full_[5]:.2e} (both unrefined: branch "
+          f"points); time ratio full / reduced {full_[3] / red[3]:.2f}; largest one-step "
+          f"error estimate over the reduced points {est[j]:.2e} (omega = {w_red[j]:.2f})")
+
+
 class Bases:
     """The candidate bases of one system (see the module doc)."""
 
-    def __init__(self, system, z0, Z_points, branch, Z_epmc=None):
+    def __init__(self, system, z0, Z_points, branch, Z_epmc=None, omega_range=None):
         self.s = system
+        self.omega_range = omega_range
         self.z0 = z0
         self.Z = Z_points                  # (n_points, n_z)
         self.branch = branch
@@ -208,6 +324,18 @@ class Bases:
         u, _, _ = np.linalg.svd(snaps, full_matrices=False)
         return u[:, :k]
 
+    def _stuck(self):
+        """``z`` of the stuck joint's forced responses (one Newton step from the preload)
+        at ``N_STUCK`` frequencies of ``omega_range`` (n, n_z)."""
+        from jointsim.solvers.jacobian import solve
+        s = self.s
+        F = s.force_coefficients(1.0)
+        out = []
+        for w in np.linspace(*self.omega_range, N_STUCK):
+            ev = s.evaluate(self.z0, float(w), F, wrt=())
+            out.append(self.z0 + solve(ev.J, -ev.R))
+        return np.array(out)
+
     def get(self, kind, k, branch):
         """``V`` (n_r, k) of basis ``kind`` (``pod-other`` leaves out ``branch``)."""
         s = self.s
@@ -218,6 +346,10 @@ class Bases:
             return self._pod(self.Z[rows], k) if rows.size else None
         if kind == "pod-epmc":
             return None if self.Z_epmc is None else self._pod(self.Z_epmc, k)
+        if kind == "pod-epmc-stuck":
+            if self.Z_epmc is None or self.omega_range is None:
+                return None
+            return self._pod(np.vstack([self.Z_epmc, self._stuck()]), k)
         if kind == "legendre":
             m = max(k // (2 if s.coupled and s.friction else 1), 1)
             P = legendre.legvander(self.xi, m - 1)
@@ -245,6 +377,10 @@ def main(argv=None) -> None:
     p.add_argument("--k", type=int, nargs="+", default=[8, 16, 32, 48],
                    help="basis sizes (shapes per coefficient)")
     p.add_argument("--basis", nargs="+", default=list(BASES), choices=BASES)
+    p.add_argument("--branch", type=float, default=None, metavar="FORCE_SCALE",
+                   help="instead of the point table: follow that force level's FRC branch "
+                        "in full (Krylov path, no error indicators) and on the first "
+                        "--basis with the first --k shapes, side by side")
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     from jointsim.model import build_model
@@ -275,7 +411,7 @@ def main(argv=None) -> None:
     Z = np.array([s.contact_coordinates(x) for x in X])
     Z_epmc = None if X_epmc is None or not len(X_epmc) else \
         np.array([s.contact_coordinates(x) for x in X_epmc])
-    bases = Bases(s, z0, Z, br, Z_epmc)
+    bases = Bases(s, z0, Z, br, Z_epmc, (hb.omega_start, hb.omega_end))
     kept = s.basis.hk > 0
     c1, s1 = s.basis.index[1]                   # the fundamental's cos and sin rows
 
@@ -283,6 +419,17 @@ def main(argv=None) -> None:
         return float(np.hypot(x[c1, dof], x[s1, dof]))
     print(f"{path}: {s.n_e} contact elements, {s.n_r} contact coordinates x {s.n_c} "
           f"coefficients = {s.n_z} unknowns; load {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    if a.branch is not None:
+        ib = int(np.argmin(np.abs(scales - a.branch)))
+        first = int(np.flatnonzero(br == ib)[0])
+        V = bases.get(a.basis[0], min(a.k[0], s.n_r), ib)
+        if V is None:
+            raise SystemExit(f"basis {a.basis[0]} has no snapshots in {path}")
+        print(f"force scale {scales[ib]:g}, basis {a.basis[0]}, k = {V.shape[1]} "
+              f"({s.n_c * V.shape[1]:,} unknowns)")
+        compare_branches(s, s.force_coefficients(float(scales[ib])),
+                         np.append(Z[first], om[first]), hb, V, z0, dof)
+        return
     print("| force scale | omega [rad/s] | basis | k | unknowns | Newton it. | converged "
           "| s / iteration (full) | rel. error X | its estimate | rel. error amplitude |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
