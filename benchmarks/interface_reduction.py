@@ -72,6 +72,8 @@ import h5py
 import numpy as np
 from numpy.polynomial import legendre
 
+from jointsim.harmonics import harmonic_amplitude
+
 BASES = ("pod", "pod-other", "pod-epmc", "pod-epmc-stuck", "legendre", "stiffness")
 #: frequencies of the stuck forced responses of ``pod-epmc-stuck``
 N_STUCK = 9
@@ -135,6 +137,19 @@ def full_newton_step(system, z, omega, F):
     ev = system.evaluate(z, omega, F, wrt=())
     d = solve(ev.J, -ev.R)
     return d, time.perf_counter() - t0
+
+
+def error_estimate(system, z, omega, F) -> float:
+    """What a run without a reference could report of a reduced point ``z``: the change
+    of its coefficients X by one full Newton step (:func:`full_newton_step`), relative
+    to its vibration ``||X (h >= 1)||``; NaN when the full solve fails."""
+    X = system.reconstruct(z, omega, F)
+    try:
+        d, _ = full_newton_step(system, z, omega, F)
+    except (RuntimeError, np.linalg.LinAlgError):
+        return float("nan")
+    ref = float(np.linalg.norm(X[system.basis.hk > 0]))
+    return float(np.linalg.norm(system.reconstruct(z + d, omega, F) - X)) / ref
 
 
 def reduced_solve(system, V, z0, z_start, omega, F):
@@ -264,39 +279,35 @@ def compare_branches(system, F, y0, a, V, z0, dof):
     one-step error estimate over the reduced points."""
     from jointsim.solvers.hbm import frc_scales
     scale, rscale = frc_scales(system, F, a.omega_start, a.omega_end)
-    c1, s1 = system.basis.index[1]
-    rows = []
+    runs = {}
     for name, basis in (("full", None), (f"reduced (k = {V.shape[1]})", V)):
         pts, br, sec = follow_branch(system, F, y0, a, scale, rscale, basis, z0)
-        amps = []
-        for y in pts:
-            X = system.reconstruct(y[:-1], y[-1], F)
-            amps.append(float(np.hypot(X[c1, dof], X[s1, dof])))
+        amps = [float(harmonic_amplitude(system.basis,
+                                         system.reconstruct(y[:-1], y[-1], F)[:, dof]))
+                for y in pts]
         i = int(np.argmax(amps))
-        iters = int(np.sum(br.iterations))
-        rows.append((name, len(pts), iters, sec, amps[i], float(pts[i][-1]), pts,
-                     br.convergence.message))
-    est = []
-    for y in rows[1][6]:
-        d, _ = full_newton_step(system, y[:-1], float(y[-1]), F)
-        X = system.reconstruct(y[:-1], y[-1], F)
-        ref = float(np.linalg.norm(X[system.basis.hk > 0]))
-        est.append(float(np.linalg.norm(system.reconstruct(y[:-1] + d, y[-1], F) - X)) / ref)
-    j = int(np.argmax(est))
-    w_red = [float(y[-1]) for y in rows[1][6]]
+        runs[name] = dict(points=pts, n=len(pts), iterations=int(np.sum(br.iterations)),
+                          seconds=sec, amplitude=amps[i], omega=float(pts[i][-1]),
+                          message=br.convergence.message)
+    full, red = runs.values()
+    w_red = [float(y[-1]) for y in red["points"]]
+    est = [error_estimate(system, y[:-1], float(y[-1]), F) for y in red["points"]]
+    j = int(np.nanargmax(est))
     print("one-step error estimates of the reduced points, omega [rad/s]: estimate")
     print(", ".join(f"{w:.1f}: {e:.1e}" for w, e in zip(w_red, est)))
     print("| branch | points | Newton it. | s | s / point | largest amplitude [m] | at omega "
           "[rad/s] | end |")
     print("|---|---|---|---|---|---|---|---|")
-    for name, n, it, sec, am, w, _, msg in rows:
-        print(f"| {name} | {n} | {it} | {sec:.1f} | {sec / n:.3f} | {am:.6e} | {w:.3f} | "
-              f"{msg} |")
-    full_, red = rows
-    print(f"largest amplitude: relative difference {abs(red[4] - full_[4]) / full_[4]:.2e}, "
-          f"its frequency {abs(red[5] - full_[5]) / full_[5]:.2e} (both unrefined: branch "
-          f"points); time ratio full / reduced {full_[3] / red[3]:.2f}; largest one-step "
-          f"error estimate over the reduced points {est[j]:.2e} (omega = {w_red[j]:.2f})")
+    for name, r in runs.items():
+        print(f"| {name} | {r['n']} | {r['iterations']} | {r['seconds']:.1f} | "
+              f"{r['seconds'] / r['n']:.3f} | {r['amplitude']:.6e} | {r['omega']:.3f} | "
+              f"{r['message']} |")
+    print(f"largest amplitude: relative difference "
+          f"{abs(red['amplitude'] - full['amplitude']) / full['amplitude']:.2e}, its frequency "
+          f"{abs(red['omega'] - full['omega']) / full['omega']:.2e} (both unrefined: branch "
+          f"points); time ratio full / reduced {full['seconds'] / red['seconds']:.2f}; "
+          f"largest one-step error estimate over the reduced points {est[j]:.2e} "
+          f"(omega = {w_red[j]:.2f})")
 
 
 class Bases:
@@ -413,10 +424,9 @@ def main(argv=None) -> None:
         np.array([s.contact_coordinates(x) for x in X_epmc])
     bases = Bases(s, z0, Z, br, Z_epmc, (hb.omega_start, hb.omega_end))
     kept = s.basis.hk > 0
-    c1, s1 = s.basis.index[1]                   # the fundamental's cos and sin rows
 
     def fundamental(x):
-        return float(np.hypot(x[c1, dof], x[s1, dof]))
+        return float(harmonic_amplitude(s.basis, x[:, dof]))
     print(f"{path}: {s.n_e} contact elements, {s.n_r} contact coordinates x {s.n_c} "
           f"coefficients = {s.n_z} unknowns; load {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     if a.branch is not None:
@@ -451,13 +461,7 @@ def main(argv=None) -> None:
                     Xr = s.reconstruct(z, float(om[p_]), F)
                     eX = float(np.linalg.norm(Xr - X[p_]) / ref)
                     ea = abs(fundamental(Xr) - a_ref) / a_ref
-                    # the estimate without a reference: one full Newton step from it
-                    try:
-                        d, _ = full_newton_step(s, z, float(om[p_]), F)
-                        est = float(np.linalg.norm(s.reconstruct(z + d, float(om[p_]), F)
-                                                   - Xr) / ref)
-                    except (RuntimeError, np.linalg.LinAlgError):
-                        est = float("nan")
+                    est = error_estimate(s, z, float(om[p_]), F)
                     print(f"| {scales[b]:g} | {om[p_]:.3f} | {kind} | {V.shape[1]} | "
                           f"{s.n_c * V.shape[1]:,} | {its} | {'yes' if ok else 'no'} | "
                           f"{sec / its:.3f} ({full:.3f}) | {eX:.2e} | {est:.2e} | {ea:.2e} |",
