@@ -439,10 +439,15 @@ class _Output:
             amp = np.asarray(self.points["amplitude"])[rows]
             Z = np.asarray(self.points["q"])[rows]
             if a.refine_peak:
-                pw, pa, ok = refine_peak(
+                t0 = time.perf_counter()
+                pw, pa, ok, st = refine_peak(
                     system, F, om, Z, amp, self.dof, min(a.tol, 1e-10),
                     amplitude_of=lambda X: response_amplitude(system.basis, X[:, self.dof],
                                                               a.amplitude))
+                log.info("hbm branch %d: peak %s (%d Newton solves, %d iterations, %d "
+                         "frequencies failed; %.1f s): %.6g at omega = %.8g", ib,
+                         "refined" if ok else "not refined", st["solves"], st["iterations"],
+                         st["failed"], time.perf_counter() - t0, pa, pw)
             else:
                 i = int(np.argmax(amp))
                 pw, pa, ok = float(om[i]), float(amp[i]), False

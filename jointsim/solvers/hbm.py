@@ -558,6 +558,11 @@ def _resonance_response(system: HBMSystem, omega: float, F, z_start, z0, rscale:
     return float(np.abs(res.x - z0).max(initial=0.0))
 
 
+#: :func:`refine_peak`: Newton iterations of a solve from one start before the next
+#: start is tried (from a solved neighbour a converging solve takes 1 to 6)
+PEAK_MAX_ITER = 10
+
+
 def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,
                 amplitude_of=None):
     """Refine the largest amplitude of a branch by maximising over frequency.
@@ -567,36 +572,78 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,
 
     Only where the branch is single-valued around its largest point (the
     frequency increases through it); at a fold the largest computed point is
-    returned unrefined.
+    returned unrefined.  Brent's search from the bracket of the largest point
+    and its two neighbours (re-solved to ``tol``; to 1e-10 of the frequency, 25
+    iterations at most; the bounded search between the neighbours when the
+    re-solved amplitudes no longer bracket a maximum).  Each frequency is solved
+    by Newton (:func:`solve_point`, to ``tol``) from the solved points next to
+    it: interpolated between the nearest solved frequency on either side, then
+    from each of those two alone (at most :data:`PEAK_MAX_ITER` iterations each;
+    near a peak where elements begin to slip or separate, Newton from the wrong
+    side of that kink cycles).  A frequency where every start fails counts as
+    amplitude 0, below every solution (logged), so it is never returned.
+
+    Where elements begin to slip or separate, and in gross slip, the amplitude
+    is not smooth near the peak: it is jagged on the scale of the AFT samples
+    (measured on the lap joints: by 1e-4 of the peak at the stuck branches'
+    peaks, 1e-3 in gross slip), and the search finds one of its local maxima.
 
     Returns
     -------
     omega_peak, amplitude_peak : float
     refined : bool
+    stats : dict
+        ``solves`` (Newton solves, failed starts included), ``iterations``
+        (Newton iterations summed), ``failed`` (frequencies where every start
+        failed).
     """
     from scipy.optimize import minimize_scalar
+    stats = {"solves": 0, "iterations": 0, "failed": 0}
     i = int(np.argmax(amplitude))
     n = len(omega)
     if i == 0 or i == n - 1 or not (omega[i - 1] < omega[i] < omega[i + 1]):
-        return float(omega[i]), float(amplitude[i]), False
-    zs = {"z": Z[i]}
+        return float(omega[i]), float(amplitude[i]), False, stats
+    solved = {float(omega[j]): np.asarray(Z[j], dtype=float) for j in (i - 1, i, i + 1)}
+
+    def starts(w):
+        """Starts for a solve at ``w``: interpolated, then the neighbours alone."""
+        ws = np.array(sorted(solved))
+        k = int(np.searchsorted(ws, w))
+        sides = [ws[j] for j in (k - 1, k) if 0 <= j < ws.size]
+        sides.sort(key=lambda v: abs(v - w))
+        if len(sides) == 2:
+            lo, hi = sorted(sides)
+            t = (w - lo) / (hi - lo)
+            yield (1.0 - t) * solved[lo] + t * solved[hi]
+        for v in sides:
+            yield solved[v]
 
     def neg_amp(w):
-        sol = solve_point(system, w, F, z0=zs["z"], tol=tol)
-        if not sol.convergence.success:
-            return -float(amplitude[i])
-        zs["z"] = sol.z
-        if amplitude_of is not None:
-            return -float(amplitude_of(sol.X))
-        return -float(harmonic_amplitude(system.basis, sol.X[:, dof]))
+        for z0 in starts(w):
+            sol = solve_point(system, w, F, z0=z0, tol=tol, max_iter=PEAK_MAX_ITER)
+            stats["solves"] += 1
+            stats["iterations"] += sol.convergence.iterations
+            if sol.convergence.success:
+                solved[float(w)] = sol.z
+                if amplitude_of is not None:
+                    return -float(amplitude_of(sol.X))
+                return -float(harmonic_amplitude(system.basis, sol.X[:, dof]))
+        stats["failed"] += 1
+        log.debug("refine_peak: Newton failed at omega = %.10g from every start (%s); "
+                  "taken as amplitude 0", w, sol.convergence.message)
+        return 0.0
 
     lo, hi = float(omega[i - 1]), float(omega[i + 1])
-    res = minimize_scalar(neg_amp, bounds=(lo, hi), method="bounded",
-                          options={"xatol": 1e-10 * max(abs(hi), 1.0), "maxiter": 25})
+    try:
+        res = minimize_scalar(neg_amp, bracket=(lo, float(omega[i]), hi), method="brent",
+                              options={"xtol": 1e-10, "maxiter": 25})
+    except ValueError:      # the re-solved amplitudes do not bracket a maximum
+        res = minimize_scalar(neg_amp, bounds=(lo, hi), method="bounded",
+                              options={"xatol": 1e-10 * max(abs(hi), 1.0), "maxiter": 25})
     a = -float(res.fun)
-    if a < amplitude[i]:
-        return float(omega[i]), float(amplitude[i]), False
-    return float(res.x), a, True
+    if not a > amplitude[i]:        # refined means above the largest computed point
+        return float(omega[i]), float(amplitude[i]), False, stats
+    return float(res.x), a, True, stats
 
 
 # --------------------------------------------------------------------------

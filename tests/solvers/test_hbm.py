@@ -435,3 +435,62 @@ def test_parallel_branches_equal_serial_and_resume(tmp_path, monkeypatch):
             assert om[-1] == pytest.approx(1.3, abs=1e-12)
         np.testing.assert_allclose(h["hbm/peak_amplitude"][()], s["hbm/peak_amplitude"][()],
                                    rtol=1e-7)
+
+
+def test_refine_peak_of_a_slipping_branch_is_a_solved_maximum(tmp_path, monkeypatch):
+    """The refined peak of the slipping chain branch (F = 0.2) is a harmonic-balance
+    solution (Newton from the static state at the refined frequency gives the same
+    amplitude) and a maximum (solves 1e-4 either side are lower); its solves start
+    from the solved neighbours (few Newton iterations each); and when the first start
+    at every new frequency fails, the next start gives the same peak."""
+    import dataclasses
+
+    import jointsim.solvers.hbm as hbm
+    out = tmp_path / "chain.h5"
+    sc = load_scene(MODELS / "chain2_jenkins.toml", ["analysis.hbm.force_scale=[0.2]"])
+    run_scene(sc, out)
+    with h5py.File(out) as h:
+        om, amp, X = h["hbm/omega"][()], h["hbm/amplitude"][()], h["hbm/X"][()]
+        dof = int(h["hbm"].attrs["response_dof"])
+        filed = h["hbm/peak_omega"][0], h["hbm/peak_amplitude"][0]
+    hb = sc.analysis.hbm
+    s = HBMSystem(build_model(sc), hb.harmonics, hb.n_samples)
+    F = s.force_coefficients(0.2)
+    Z = np.array([s.contact_coordinates(x) for x in X])
+    w, a, ok, st = hbm.refine_peak(s, F, om, Z, amp, dof, 1e-10)
+    assert ok and st["failed"] == 0
+    assert (w, a) == pytest.approx(filed, rel=1e-12)      # what the run wrote
+    assert a > amp.max()
+    assert st["iterations"] <= 2 * st["solves"]             # warm starts
+    fund = [float(harmonic_amplitude(s.basis, solve_point(s, v, F, tol=1e-12).X[:, dof]))
+            for v in (w, w * (1 - 1e-4), w * (1 + 1e-4))]
+    assert fund[0] == pytest.approx(a, rel=1e-9)
+    assert max(fund[1:]) < a
+
+    real = hbm.solve_point
+    calls = {float(v) for v in om}      # the branch's points solve from themselves
+
+    def first_start_fails(system, omega, F, z0=None, **kw):
+        sol = real(system, omega, F, z0=z0, **kw)
+        if omega in calls:
+            return sol
+        calls.add(omega)
+        return dataclasses.replace(sol, convergence=dataclasses.replace(sol.convergence,
+                                                                         success=False))
+    monkeypatch.setattr(hbm, "solve_point", first_start_fails)
+    w2, a2, ok2, st2 = hbm.refine_peak(s, F, om, Z, amp, dof, 1e-10)
+    assert ok2 and st2["failed"] == 0 and st2["solves"] >= 2 * (len(calls) - om.size)
+    assert (w2, a2) == pytest.approx((w, a), rel=1e-9)
+
+    # every start fails at every new frequency: the largest point, unrefined (a
+    # failed frequency is never reported as the peak)
+    def new_frequencies_fail(system, omega, F, z0=None, **kw):
+        sol = real(system, omega, F, z0=z0, **kw)
+        if float(omega) in {float(v) for v in om}:
+            return sol
+        return dataclasses.replace(sol, convergence=dataclasses.replace(sol.convergence,
+                                                                         success=False))
+    monkeypatch.setattr(hbm, "solve_point", new_frequencies_fail)
+    w3, a3, ok3, st3 = hbm.refine_peak(s, F, om, Z, amp, dof, 1e-10)
+    i = int(np.argmax(amp))
+    assert not ok3 and st3["failed"] > 0 and (w3, a3) == (om[i], amp[i])
