@@ -22,8 +22,8 @@ as it comes back (:func:`jointsim.io.hbm_points.set_error_indicators`).
 
 Same numbers as serial on the direct path (bit for bit); on the Krylov path a worker's
 extended solves reuse their preconditioner over a different sequence of points, and
-GMRES stops at ``INDICATOR_RTOL``: the indicators then differ by up to about 1e-6
-relative.  Measured side by side (2 cores, load 0.6 to 1.9; README, "How accurate is
+GMRES stops at ``INDICATOR_RTOL``: the indicators then differ by about that, relative
+(up to 1.4e-6 when it was 1e-6).  Measured side by side (2 cores, load 0.6 to 1.9; README, "How accurate is
 a point?"): the EPMC of the 121-pair joint 191.8 -> 104.0 s, one FRC branch of it
 103.8 -> 62.8 s, the main job 53.8 -> 41.0 s.
 """
