@@ -606,12 +606,13 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,
     solved = {float(omega[j]): np.asarray(Z[j], dtype=float) for j in (i - 1, i, i + 1)}
 
     def starts(w):
-        """Starts for a solve at ``w``: interpolated, then the neighbours alone."""
+        """Starts for a solve at ``w``: interpolated, then the neighbours alone (a
+        solved ``w``, re-solved to ``tol``, starts from itself first)."""
         ws = np.array(sorted(solved))
         k = int(np.searchsorted(ws, w))
         sides = [ws[j] for j in (k - 1, k) if 0 <= j < ws.size]
         sides.sort(key=lambda v: abs(v - w))
-        if len(sides) == 2:
+        if len(sides) == 2 and w not in solved:
             lo, hi = sorted(sides)
             t = (w - lo) / (hi - lo)
             yield (1.0 - t) * solved[lo] + t * solved[hi]
