@@ -28,7 +28,8 @@ from jointsim.harmonics import coefficient_index
 from jointsim.model import build_model
 from jointsim.run import run_scene
 from jointsim.scene import load_scene
-from jointsim.solvers.hbm import HBMSystem, first_point, frc_scales, solve_point
+from jointsim.solvers.frc import first_point, frc_scales
+from jointsim.solvers.hbm import HBMSystem, solve_point
 
 ROOT = Path(__file__).resolve().parents[1]
 

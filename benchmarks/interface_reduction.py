@@ -221,7 +221,7 @@ def follow_branch(system, F, y0, a, scale, rscale, V=None, z0=None):
     a : jointsim.analysis_sections.HBMSection
         The scene's ``[analysis.hbm]`` (steps, tolerances, frequency range).
     scale, rscale
-        :func:`jointsim.solvers.hbm.frc_scales` of the full system (the reduced
+        :func:`jointsim.solvers.frc.frc_scales` of the full system (the reduced
         coordinates, orthonormal shapes in metres, take its ``z`` scale).
     V : ndarray, shape (n_r, k), optional
         Shapes; None: the full system, as :mod:`jointsim.analyses.hbm` solves it
@@ -277,7 +277,7 @@ def compare_branches(system, F, y0, a, V, z0, dof):
     """The full and the reduced branch side by side (see :func:`follow_branch`); prints
     their points, Newton iterations, times, largest amplitudes, and the largest
     one-step error estimate over the reduced points."""
-    from jointsim.solvers.hbm import frc_scales
+    from jointsim.solvers.frc import frc_scales
     scale, rscale = frc_scales(system, F, a.omega_start, a.omega_end)
     runs = {}
     for name, basis in (("full", None), (f"reduced (k = {V.shape[1]})", V)):

@@ -54,7 +54,8 @@ from ..harmonics import harmonic_amplitude
 from ..results import Convergence
 from ..solvers.frc_diagnosis import (closing_advice, diagnose_failure, sampled_reclosing,
                                      undamped_resonances)
-from ..solvers.hbm import HBMSystem, first_point, frc_scales, refine_peak
+from ..solvers.frc import first_point, frc_scales, refine_peak
+from ..solvers.hbm import HBMSystem
 from ..solvers.indicators import ErrorEstimator, ToleranceWatch, safe_indicators
 from ..solvers.jacobian import BorderedJacobian
 from .forking import _can_fork, _in_daemon, die_with_parent

@@ -16,7 +16,8 @@ from jointsim.analyses.hbm import _system
 from jointsim.model import build_model
 from jointsim.run import run_scene
 from jointsim.scene import load_scene
-from jointsim.solvers.hbm import first_point, force_homotopy, frc_scales, solve_point
+from jointsim.solvers.frc import first_point, force_homotopy, frc_scales
+from jointsim.solvers.hbm import solve_point
 
 from ._files import assert_all_finite
 from .._scenes import MODELS

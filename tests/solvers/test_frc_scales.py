@@ -1,4 +1,4 @@
-"""The FRC scale estimate (:func:`jointsim.solvers.hbm.frc_scales`).
+"""The FRC scale estimate (:func:`jointsim.solvers.frc.frc_scales`).
 
 Its resonance solve only needs an order of magnitude: where it converges it is the
 plain Newton solve (oracle: :func:`~jointsim.solvers.hbm.solve_point` to the same
@@ -15,7 +15,7 @@ import pytest
 from jointsim.analyses.hbm import _system
 from jointsim.model import build_model
 from jointsim.scene import load_scene
-from jointsim.solvers import hbm as H
+from jointsim.solvers import frc as H
 from jointsim.solvers.modes import stuck_modes
 
 from .._scenes import MODELS

@@ -446,7 +446,7 @@ def test_refine_peak_of_a_slipping_branch_is_a_solved_maximum(tmp_path, monkeypa
     fails, the largest computed point comes back unrefined."""
     import dataclasses
 
-    import jointsim.solvers.hbm as hbm
+    import jointsim.solvers.frc as frc
     out = tmp_path / "chain.h5"
     sc = load_scene(MODELS / "chain2_jenkins.toml", ["analysis.hbm.force_scale=[0.2]"])
     run_scene(sc, out)
@@ -458,7 +458,7 @@ def test_refine_peak_of_a_slipping_branch_is_a_solved_maximum(tmp_path, monkeypa
     s = HBMSystem(build_model(sc), hb.harmonics, hb.n_samples)
     F = s.force_coefficients(0.2)
     Z = np.array([s.contact_coordinates(x) for x in X])
-    w, a, ok, st = hbm.refine_peak(s, F, om, Z, amp, dof, 1e-10)
+    w, a, ok, st = frc.refine_peak(s, F, om, Z, amp, dof, 1e-10)
     assert ok and st["failed"] == 0
     assert (w, a) == pytest.approx(filed, rel=1e-12)      # what the run wrote
     assert a > amp.max()
@@ -468,7 +468,7 @@ def test_refine_peak_of_a_slipping_branch_is_a_solved_maximum(tmp_path, monkeypa
     assert fund[0] == pytest.approx(a, rel=1e-9)
     assert max(fund[1:]) < a
 
-    real, branch = hbm.solve_point, {float(v) for v in om}
+    real, branch = frc.solve_point, {float(v) for v in om}
 
     def failing(first_only):
         """solve_point that fails at every new frequency (the branch's points solve
@@ -486,14 +486,14 @@ def test_refine_peak_of_a_slipping_branch_is_a_solved_maximum(tmp_path, monkeypa
         return solve, tried
 
     solve, tried = failing(first_only=True)
-    monkeypatch.setattr(hbm, "solve_point", solve)
-    w2, a2, ok2, st2 = hbm.refine_peak(s, F, om, Z, amp, dof, 1e-10)
+    monkeypatch.setattr(frc, "solve_point", solve)
+    w2, a2, ok2, st2 = frc.refine_peak(s, F, om, Z, amp, dof, 1e-10)
     assert ok2 and st2["failed"] == 0 and st2["solves"] >= 2 * len(tried)
     assert (w2, a2) == pytest.approx((w, a), rel=1e-9)
 
     # every start fails at every new frequency: the largest point, unrefined (a
     # failed frequency is never reported as the peak)
-    monkeypatch.setattr(hbm, "solve_point", failing(first_only=False)[0])
-    w3, a3, ok3, st3 = hbm.refine_peak(s, F, om, Z, amp, dof, 1e-10)
+    monkeypatch.setattr(frc, "solve_point", failing(first_only=False)[0])
+    w3, a3, ok3, st3 = frc.refine_peak(s, F, om, Z, amp, dof, 1e-10)
     i = int(np.argmax(amp))
     assert not ok3 and st3["failed"] > 0 and (w3, a3) == (om[i], amp[i])

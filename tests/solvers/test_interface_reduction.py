@@ -55,7 +55,7 @@ def test_a_branch_on_the_complete_basis_is_the_full_branch(coarse_lap_fixed):
     from types import SimpleNamespace
 
     from benchmarks.interface_reduction import follow_branch
-    from jointsim.solvers.hbm import frc_scales
+    from jointsim.solvers.frc import frc_scales
     s = HBMSystem(coarse_lap_fixed, (0, 1, 2, 3), 32, linear_solver="krylov")
     a = SimpleNamespace(omega_start=940.0, omega_end=1060.0, step=0.01, step_min=1e-6,
                         step_max=0.1, max_points=200, tol=1e-10, max_iter=20)
