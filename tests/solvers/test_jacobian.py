@@ -68,7 +68,7 @@ def test_preconditioner_is_exact_for_linear_contact():
     P = HarmonicPreconditioner(J)
     v = np.random.default_rng(3).normal(size=sk.n_z)
     assert np.abs(J.matvec(P.solve(v)) - v).max() <= 1e-12 * np.abs(v).max()
-    x, it, rel = gmres(J.matvec, v, P.solve, rtol=1e-12)
+    x, it, rel, _ = gmres(J.matvec, v, P.solve, rtol=1e-12)
     assert it == 1 and rel <= 1e-12
 
 
@@ -92,13 +92,13 @@ def test_lowrank_preconditioner_is_exact_at_stick_slip_and_separation(law, norma
     P = HarmonicPreconditioner(Jk)
     assert P.lowrank is not None and not P.truncated
     assert np.abs(P.solve(v) - xd).max() <= 1e-10 * np.abs(xd).max()
-    x, it, rel = gmres(Jk.matvec, v, P.solve, rtol=1e-12)
+    x, it, rel, _ = gmres(Jk.matvec, v, P.solve, rtol=1e-12)
     assert it == 1 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
     nb = 2 if normal == "coupled" else 1
     monkeypatch.setattr(jm, "LOWRANK_MAX", nb * sk.n_c)          # one element only
     Pt = HarmonicPreconditioner(Jk)
     assert Pt.truncated and Pt.lowrank[0].size == nb
-    x, it, rel = gmres(Jk.matvec, v, lambda u: Pt.apply(u, Jk), rtol=1e-12)
+    x, it, rel, _ = gmres(Jk.matvec, v, lambda u: Pt.apply(u, Jk), rtol=1e-12)
     assert it > 1 and np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
 
 
@@ -107,7 +107,7 @@ def test_gmres_solves_a_nonsymmetric_system():
     rng = np.random.default_rng(4)
     A = np.eye(150) * 4 + rng.normal(size=(150, 150)) / 10
     b = rng.normal(size=150)
-    x, it, rel = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-12, restart=20, maxiter=500)
+    x, it, rel, _ = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-12, restart=20, maxiter=500)
     assert rel <= 1e-12 and it > 20
     assert np.abs(x - np.linalg.solve(A, b)).max() <= 1e-10 * np.abs(x).max()
 
@@ -119,12 +119,51 @@ def test_gmres_goes_on_from_a_start():
     A = np.eye(120) * 4 + rng.normal(size=(120, 120)) / 10
     b = rng.normal(size=120)
     xd = np.linalg.solve(A, b)
-    x5, it5, rel5 = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-12, maxiter=5)
+    x5, it5, rel5, _ = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-12, maxiter=5)
     assert it5 == 5 and rel5 > 1e-6
-    x, it, rel = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-12, x0=x5)
+    x, it, rel, _ = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-12, x0=x5)
     assert rel <= 1e-12 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
-    _x, it0, _rel = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-8, x0=xd)
+    _x, it0, _rel, _ = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-8, x0=xd)
     assert it0 == 0
+
+
+def test_gmres_reports_the_round_off_floor():
+    """Asked for a residual below round-off, GMRES stops where its own residual got
+    there and the true one cannot: ``at_floor``, with the solution to round-off."""
+    rng = np.random.default_rng(8)
+    A = np.eye(60) * 3 + rng.normal(size=(60, 60)) / 10
+    b = rng.normal(size=60)
+    x, it, rel, at_floor = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-18)
+    assert at_floor and 1e-18 < rel <= 1e-14
+    xd = np.linalg.solve(A, b)
+    assert np.abs(x - xd).max() <= 1e-13 * np.abs(xd).max()
+    *_, at_floor = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-10)
+    assert not at_floor
+
+
+@pytest.mark.parametrize("law", ["stuck", "jenkins"])
+def test_a_reused_preconditioner_at_the_round_off_floor_is_not_rebuilt(law, monkeypatch):
+    """Jacobians at nearby frequencies reuse one preconditioner; a solve that stops at
+    the round-off floor (tolerance below it) is accepted, not rebuilt, and equals the
+    dense solve; refusing the floor (FLOOR_FACTOR 0) rebuilds for the same solves."""
+    import jointsim.solvers.jacobian as jm
+    model = build_model(four_dof(law, "anchor", "fixed"))
+    builds, default = {}, jm.FLOOR_FACTOR
+    for factor in (default, 0.0):
+        monkeypatch.setattr(jm, "FLOOR_FACTOR", factor)
+        sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
+        sk.krylov_rtol = 1e-17
+        F = sk.force_coefficients(0.3)
+        rng = np.random.default_rng(2)
+        z = rng.normal(size=sk.n_z) * 0.4
+        for w in (1.3, 1.3005, 1.301, 1.31):
+            J = sk.evaluate(z, w, F).J
+            v = rng.normal(size=sk.n_z)
+            x = J.solve(v)
+            xd = np.linalg.solve(J.to_dense(), v)
+            assert np.abs(x - xd).max() <= 1e-13 * np.abs(xd).max()
+        builds[factor] = sk.stats.factorizations
+    assert builds[default] == 1 < builds[0.0]
 
 
 @pytest.mark.parametrize("law,normal", [("jenkins", "coupled"), ("jenkins", "fixed")])
