@@ -22,7 +22,7 @@ instead of one real LU of size ``n_z``.  With a constant contact tangent
 the elements that slip or separate during the period; a Woodbury (low-rank)
 stage corrects for it exactly (a dense ``m x m`` LU, ``m`` = all coefficients
 of those elements' rows), so that a fresh preconditioner solves in one GMRES
-iteration.  When too many elements slip (``m`` above ``LOWRANK_MAX_FRACTION
+iteration.  When too many elements slip (``m`` above ``LOWRANK_EXACT_FRACTION
 n_z``) only the largest corrections are kept and an element-block stage
 and GMRES do the rest.
 
