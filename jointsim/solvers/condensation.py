@@ -157,46 +157,64 @@ class ReducedLinear:
             E = mat("yy")
         return A, B, Bp, E
 
-    def dblocks(self, nu: float, xi: float, wrt: str, h: int):
-        """Derivatives of ``A, B, B', E`` with respect to ``omega`` (``nu = h omega``) or
-        ``xi``; apply ``dE`` with :meth:`apply_dE`."""
-        if wrt == "omega":
-            def d(b):
-                # h (-2 nu M + i (C - xi M)) without temporaries (bit for bit, as blocks)
-                out = np.empty(self.M[b].shape, dtype=complex)
-                re, im = out.real, out.imag
-                np.multiply(self.M[b], -2.0 * nu, out=re)
-                re *= h
-                np.multiply(self.M[b], -xi, out=im)
-                im += self.C[b]
-                im *= h
-                return out
-            if self.kind == "modal":
-                dE = h * (-2.0 * nu * self.myy + 1j * (self.cyy - xi * self.myy))
-            elif self.kind == "lowrank":
-                dE = (h * (-2.0 * nu - 1j * xi) * self.myy, 1j * h)
-            else:
-                dE = d("yy")
-        else:
-            def d(b):
-                return -1j * nu * self.M[b]
-            if self.kind == "direct":
-                dE = d("yy")
-            elif self.kind == "lowrank":
-                dE = (-1j * nu * self.myy, 0.0)
-            else:
-                dE = -1j * nu * self.myy
-        return d("qq"), d("qy"), d("yq"), dE
+    def _real_product(self, b: str, v) -> tuple:
+        """``(M_b v, C_b v)`` for a complex ``v`` by real products (the complex form of
+        a real matrix is never made)."""
+        V = np.column_stack([v.real, v.imag])
+        Mv, Cv = self.M[b] @ V, self.C[b] @ V
+        return Mv[:, 0] + 1j * Mv[:, 1], Cv[:, 0] + 1j * Cv[:, 1]
 
-    def apply_dE(self, dE, y):
-        """``dE @ y`` for a ``dE`` from :meth:`dblocks`."""
-        if isinstance(dE, tuple):        # low rank: diagonal + coefficient * Cyy
-            diag, coef = dE
-            out = diag * y
-            if coef != 0.0:
-                out = out + coef * (self.Cyy @ y)
+    def dproducts(self, nu: float, xi: float, wrt: str, h: int, q, y, parts: str = "q y"):
+        """Derivatives of the blocks' products with respect to ``omega`` (``nu = h omega``)
+        or ``xi``: ``(dA q + dB y, dB' q + dE y)``.
+
+        With ``D = K - nu^2 M + i nu (C - xi M)``: ``dD/domega = h (-(2 nu + i xi) M +
+        i C)`` and ``dD/dxi = -i nu M``, applied to ``q`` and ``y`` by real products
+        (forming the complex blocks costs more than the products).
+
+        Parameters
+        ----------
+        nu, xi : float
+            Angular frequency of the harmonic [rad/s] and self-excitation [1/s].
+        wrt : str
+            ``"omega"`` or ``"xi"``.
+        h : int
+            The harmonic (``nu = h omega``).
+        q : ndarray, shape (n_r,), complex
+        y : ndarray, shape (n_y,), complex
+        parts : str
+            ``"q"``: the first product only (None for the second), ``"y"``: the second
+            only, ``"q y"``: both.
+
+        Returns
+        -------
+        dq, dy : ndarray (complex) or None
+            Shapes (n_r,) and (n_y,).
+        """
+        if wrt == "omega":
+            cm, cc = -h * (2.0 * nu + 1j * xi), 1j * h
+        else:
+            cm, cc = -1j * nu, 0.0
+
+        def d(b, v):
+            Mv, Cv = self._real_product(b, v)
+            return cm * Mv + cc * Cv
+        dq = dy = None
+        if "q" in parts:
+            dq = d("qq", q) + (d("qy", y) if self.n_y else 0.0)
+        if "y" in parts and self.n_y:
+            dy = d("yq", q) + d("yy", y) if self.kind == "direct" else \
+                d("yq", q) + self._dE_diag(cm, cc, y)
+        return dq, dy
+
+    def _dE_diag(self, cm, cc, y):
+        """``dE y`` of a modal or low-rank ``E`` (``cm M_yy + cc C_yy`` applied to ``y``)."""
+        out = cm * self.myy * y
+        if cc == 0.0:
             return out
-        return dE * y if dE.ndim == 1 else dE @ y
+        if self.kind == "modal":
+            return out + cc * self.cyy * y
+        return out + cc * (self.Cyy @ y)
 
     def solve_E(self, E, rhs, trans: bool = False):
         """``E^-1 rhs`` (``E^-T rhs`` with ``trans``) for diagonal (1-D), low-rank,

@@ -124,8 +124,8 @@ class EPMCSystem:
         d = {}
         for p in ("omega", "xi"):
             if lin.n_y:
-                _dA, _dB, dBp, dE = lin.dblocks(omega, xi, p, 1)
-                d[p] = self.m_y @ (-lin.solve_E(Ef, dBp @ qh + lin.apply_dE(dE, y)))
+                _, dy = lin.dproducts(omega, xi, p, 1, qh, y, parts="y")
+                d[p] = self.m_y @ (-lin.solve_E(Ef, dy))
             else:
                 d[p] = 0.0 + 0.0j
         return q1, ell, d

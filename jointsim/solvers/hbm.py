@@ -249,12 +249,15 @@ class HBMSystem:
         dR = {p: np.zeros((nc, nr)) for p in wrt} if jacobian else {}
         lin = self.lin
         hblocks, S_kept = self.harmonic_blocks(omega, xi)
+        # the force in the contact and the other coordinates, every coefficient at once
+        # (real products: the complex form of Psi and Z is never made)
+        F = np.asarray(F, dtype=float)
+        FPsi, FZ = F @ lin.Psi, F @ lin.Z
         for h, (A, B, Bp, Ef) in zip(self.basis.harmonics, hblocks):
             nu = h * omega
             qh = self._complex(Q, h)
-            Fh = self._complex(F, h)
-            Fq = lin.Psi.T @ Fh
-            Fy = lin.Z.T @ Fh
+            Fq = self._complex(FPsi, h)
+            Fy = self._complex(FZ, h)
             if lin.n_y and jacobian and not structured:
                 both = lin.solve_E(Ef, np.column_stack([Fy - Bp @ qh, Bp]))
                 y, EinvBp = both[:, 0], both[:, 1:]
@@ -284,11 +287,9 @@ class HBMSystem:
             for p in wrt:
                 if h == 0 and p == "omega":
                     continue
-                dA, dB, dBp, dE = lin.dblocks(nu, xi, p, h)
-                v = dA @ qh
+                v, dy = lin.dproducts(nu, xi, p, h, qh, y)
                 if lin.n_y:
-                    y_p = -lin.solve_E(Ef, dBp @ qh + lin.apply_dE(dE, y))
-                    v = v + dB @ y + B @ y_p
+                    v = v + B @ -lin.solve_E(Ef, dy)
                 self._store(dR[p], h, v)
         aft = None
         if self.n_e and nr:
@@ -340,8 +341,9 @@ class HBMSystem:
         """Full coefficients ``X`` (n_c, n_dof) [m] from the contact coordinates."""
         nr, nc = self.n_r, self.n_c
         Q = np.asarray(z, dtype=float).reshape(nc, nr)
-        X = np.zeros((nc, self.model.n_dof))
         lin = self.lin
+        Y = np.zeros((nc, lin.n_y))            # coefficients of the other coordinates
+        FZ = np.asarray(F, dtype=float) @ lin.Z
         # the blocks of an evaluated frequency (not for a full E: its solve from the
         # LU factors differs from a fresh solve in the last bits)
         kept = self.omega_cache.get((float(omega), float(xi))) \
@@ -351,11 +353,10 @@ class HBMSystem:
                 _, _, Bp, E = kept[0][k]
             else:
                 _, _, Bp, E = lin.blocks(h * omega, xi, parts="yq")
-            qh = self._complex(Q, h)
-            Fy = lin.Z.T @ self._complex(F, h)
-            y = lin.solve_E(E, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)
-            self._store(X, h, lin.Psi @ qh + lin.Z @ y)
-        return X
+            if lin.n_y:
+                self._store(Y, h, lin.solve_E(E, self._complex(FZ, h) - Bp @ self._complex(Q, h)))
+        # x = Psi q + Z y, every coefficient at once (real products)
+        return Q @ lin.Psi.T + Y @ lin.Z.T
 
     def contact_coordinates(self, X):
         """``z`` from full coefficients ``X`` (n_c, n_dof)."""
