@@ -114,9 +114,10 @@ class ReducedLinear:
         Kt, Mt, Ct = V.T @ K @ V, V.T @ M @ V, V.T @ C @ V
         r = slice(0, n_r)
         y = slice(n_r, n)
-        self.K = {b: Kt[i, j] for b, (i, j) in _blocks(r, y).items()}
-        self.M = {b: Mt[i, j] for b, (i, j) in _blocks(r, y).items()}
-        self.C = {b: Ct[i, j] for b, (i, j) in _blocks(r, y).items()}
+        # contiguous copies: the blocks per frequency read them (memory-bound)
+        self.K = {b: np.ascontiguousarray(Kt[i, j]) for b, (i, j) in _blocks(r, y).items()}
+        self.M = {b: np.ascontiguousarray(Mt[i, j]) for b, (i, j) in _blocks(r, y).items()}
+        self.C = {b: np.ascontiguousarray(Ct[i, j]) for b, (i, j) in _blocks(r, y).items()}
         if self.kind in ("modal", "lowrank"):
             self.lam = np.diag(self.K["yy"]).copy()
             self.myy = np.diag(self.M["yy"]).copy()
@@ -245,29 +246,40 @@ class ReducedLinear:
 
 class _LowRankE:
     """``E = diag(d) + U diag(s) U^T`` (``U`` real, ``n_y x r``), solved by Woodbury:
-    ``E^-1 = D^-1 - D^-1 U (diag(1/s) + U^T D^-1 U)^-1 U^T D^-1``."""
+    ``E^-1 = D^-1 - D^-1 U (diag(1/s) + U^T D^-1 U)^-1 U^T D^-1``.
+
+    The ``r x r`` matrix (``r`` the damped modes, 12 on the lap joint) is inverted
+    explicitly: a solve is then two thin products and an ``r x r`` one, with no
+    LAPACK wrapper per call (the solve is applied per harmonic in every ``J v``:
+    ``scipy.linalg.lu_solve``'s call overhead was most of it, 5 of 42 s of an FRC
+    branch on 96 Gauss points).
+    """
 
     def __init__(self, d, s, U, Cyy, coef):
         self.d, self.s, self.U = d, s, U
         self.Cyy, self.coef = Cyy, coef
-        self._small = None
+        self._small_inv = None
+        self._factored = False
 
     def factor(self):
+        if self._factored:
+            return
         if np.any(self.d == 0):
             raise np.linalg.LinAlgError("the structure with welded contacts is singular at "
                                         "this frequency (an undamped resonance or an "
                                         "unrestrained rigid-body motion)")
-        if self._small is None and np.any(self.s != 0):
+        if np.any(self.s != 0):
             small = np.diag(1.0 / self.s) + self.U.T @ (self.U / self.d[:, None])
-            self._small = sla.lu_factor(small, check_finite=False)
+            self._small_inv = np.linalg.inv(small)
+        self._factored = True
 
     def solve(self, rhs):
         self.factor()
         d = self.d[:, None] if rhs.ndim == 2 else self.d
         x = rhs / d
-        if self._small is None:          # no damping term (harmonic 0)
+        if self._small_inv is None:      # no damping term (harmonic 0)
             return x
-        return x - (self.U @ sla.lu_solve(self._small, self.U.T @ x, check_finite=False)) / d
+        return x - (self.U @ (self._small_inv @ (self.U.T @ x))) / d
 
 
 def _blocks(r, y):
