@@ -1,0 +1,74 @@
+"""The condensation onto the contact coordinates (jointsim.solvers.condensation): the
+three kinds of ``E`` (modal, low-rank damping, full), their derivatives against finite
+differences, and ``E^-1`` against a dense solve."""
+
+import numpy as np
+import pytest
+
+from jointsim.solvers.condensation import ReducedLinear, _LowRankE
+
+
+def _structure(kind: str, n: int = 14, n_r: int = 4, seed: int = 0):
+    """M, K (SPD), C of the named damping kind, and T (n_r, n)."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(n, n))
+    K = A @ A.T + n * np.eye(n)
+    B = rng.normal(size=(n, n)) / 3
+    M = B @ B.T + np.eye(n)
+    if kind == "modal":                      # Rayleigh: diagonal in the modes
+        C = 0.02 * M + 1e-3 * K
+    elif kind == "lowrank":                  # two damped directions
+        U = rng.normal(size=(n, 2))
+        C = U @ np.diag([0.3, 0.1]) @ U.T
+    else:                                    # full rank, not proportional
+        D = rng.normal(size=(n, n)) / 4
+        C = D @ D.T + 0.05 * np.eye(n)
+    T = rng.normal(size=(n_r, n))
+    return M, K, C, T
+
+
+def _apply_E(E, y):
+    if isinstance(E, _LowRankE):
+        return E.d * y + E.U @ (E.s * (E.U.T @ y))
+    return E * y if E.ndim == 1 else E @ y
+
+
+@pytest.mark.parametrize("kind", ["modal", "lowrank", "direct"])
+def test_derivative_products_match_finite_differences(kind):
+    """``dproducts`` (d/domega at harmonic h, d/dxi) against central differences of
+    ``(A q + B y, B' q + E y)`` built from ``blocks``."""
+    lin = ReducedLinear(*_structure(kind))
+    assert lin.kind == kind
+    rng = np.random.default_rng(1)
+    q = rng.normal(size=lin.n_r) + 1j * rng.normal(size=lin.n_r)
+    y = rng.normal(size=lin.n_y) + 1j * rng.normal(size=lin.n_y)
+    h, omega, xi, eps = 3, 1.7, 0.04, 1e-6
+
+    def products(w, x):
+        A, B, Bp, E = lin.blocks(h * w, x)
+        return A @ q + B @ y, Bp @ q + _apply_E(E, y)
+    for wrt, plus, minus in (("omega", products(omega + eps, xi), products(omega - eps, xi)),
+                             ("xi", products(omega, xi + eps), products(omega, xi - eps))):
+        dq, dy = lin.dproducts(h * omega, xi, wrt, h, q, y)
+        fq, fy = ((p - m) / (2 * eps) for p, m in zip(plus, minus))
+        assert np.abs(dq - fq).max() <= 1e-7 * np.abs(fq).max()
+        assert np.abs(dy - fy).max() <= 1e-7 * np.abs(fy).max()
+        assert lin.dproducts(h * omega, xi, wrt, h, q, y, parts="y")[0] is None
+
+
+@pytest.mark.parametrize("kind", ["modal", "lowrank", "direct"])
+def test_solve_E_is_the_inverse(kind):
+    """``solve_E`` of the factorised ``E`` (one and several right-hand sides, and the
+    transpose) against a dense solve of ``E`` applied to the identity."""
+    lin = ReducedLinear(*_structure(kind))
+    E = lin.blocks(2.3, 0.01)[3]
+    Ed = np.column_stack([_apply_E(E, e) for e in np.eye(lin.n_y, dtype=complex)])
+    Ef = lin.factor_E(E)
+    rng = np.random.default_rng(2)
+    b = rng.normal(size=(lin.n_y, 3)) + 1j * rng.normal(size=(lin.n_y, 3))
+    ref = np.linalg.solve(Ed, b)
+    assert np.abs(lin.solve_E(Ef, b) - ref).max() <= 1e-10 * np.abs(ref).max()
+    assert np.abs(lin.solve_E(Ef, b[:, 0]) - ref[:, 0]).max() <= 1e-10 * np.abs(ref).max()
+    reft = np.linalg.solve(Ed.T, b[:, 1])
+    assert np.abs(lin.solve_E(Ef, b[:, 1], trans=True) - reft).max() \
+        <= 1e-10 * np.abs(reft).max()
