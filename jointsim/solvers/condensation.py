@@ -249,10 +249,10 @@ class _LowRankE:
     ``E^-1 = D^-1 - D^-1 U (diag(1/s) + U^T D^-1 U)^-1 U^T D^-1``.
 
     The ``r x r`` matrix (``r`` the damped modes, 12 on the lap joint) is inverted
-    explicitly: a solve is then two thin products and an ``r x r`` one, with no
-    LAPACK wrapper per call (the solve is applied per harmonic in every ``J v``:
-    ``scipy.linalg.lu_solve``'s call overhead was most of it, 5 of 42 s of an FRC
-    branch on 96 Gauss points).
+    once: a solve is then two thin products and an ``r x r`` one, with no LAPACK
+    wrapper per call.  The solve is applied per harmonic in every ``J v``: on the
+    force-2 FRC branch of 96 Gauss points (profiled, 42 s) these solves took 5.2 s,
+    mostly ``scipy.linalg.lu_solve``'s call overhead, and 2.4 s with the inverse.
     """
 
     def __init__(self, d, s, U, Cyy, coef):

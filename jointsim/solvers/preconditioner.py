@@ -360,6 +360,7 @@ class HarmonicPreconditioner:
         # below LOWRANK_NEGLIGIBLE of the largest tangent entry the correction is
         # round-off of the AFT (or changes GMRES by an iteration at most)
         sel = np.flatnonzero(norm > LOWRANK_NEGLIGIBLE * ref)
+
         def elements(fraction):         # elements in a correction of that many coordinates
             return int(min(max(fraction * jac.n_z, LOWRANK_MIN), LOWRANK_MAX)) // (nb * nc)
         self.truncated = sel.size > elements(LOWRANK_EXACT_FRACTION)

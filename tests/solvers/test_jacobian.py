@@ -102,6 +102,32 @@ def test_lowrank_preconditioner_is_exact_at_stick_slip_and_separation(law, norma
     assert it > 1 and np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
 
 
+def test_lowrank_stage_is_exact_up_to_its_fraction_and_truncated_beyond(monkeypatch):
+    """The low-rank stage keeps every element that couples harmonics while they need at
+    most LOWRANK_EXACT_FRACTION n_z coordinates (exact: one GMRES iteration); beyond,
+    only the largest, LOWRANK_MAX_FRACTION n_z of them (GMRES does the rest and still
+    reaches the dense solution)."""
+    import jointsim.solvers.preconditioner as pm
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
+    F = sd.force_coefficients(0.3)
+    rng = np.random.default_rng(5)
+    z = rng.normal(size=sd.n_z) * 0.4
+    Jd, Jk = sd.evaluate(z, 1.1, F).J, sk.evaluate(z, 1.1, F).J
+    v = rng.normal(size=sd.n_z)
+    xd = np.linalg.solve(Jd, v)
+    monkeypatch.setattr(pm, "LOWRANK_MIN", 0)
+    d = 2 * sk.n_c                               # coordinates of one element
+    assert sk.n_z == 2 * d                       # both elements slip: m = n_z
+    for exact, kept_fraction, kept, iterations in ((1.0, 0.35, 2, 1), (0.9, 0.5, 1, None)):
+        monkeypatch.setattr(pm, "LOWRANK_EXACT_FRACTION", exact)
+        monkeypatch.setattr(pm, "LOWRANK_MAX_FRACTION", kept_fraction)
+        P = HarmonicPreconditioner(Jk)
+        assert P.truncated == (kept < 2) and P.lowrank[2][0].shape[0] == kept * d
+        x, it, rel, _ = gmres(Jk.matvec, v, lambda u: P.apply(u, Jk), rtol=1e-12)
+        assert (it == 1) if iterations == 1 else (it > 1)
+        assert np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
+
+
 def test_gmres_solves_a_nonsymmetric_system():
     """The GMRES (with restarts) against a dense solve, unpreconditioned."""
     rng = np.random.default_rng(4)
