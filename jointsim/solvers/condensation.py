@@ -153,7 +153,7 @@ class ReducedLinear:
             E = (self.lam - nu * nu * self.myy) + 1j * nu * (self.cyy - xi * self.myy)
         elif self.kind == "lowrank":
             E = _LowRankE((self.lam - nu * nu * self.myy) - 1j * nu * xi * self.myy,
-                          1j * nu * self.cw, self.U, self.Cyy, 1j * nu)
+                          1j * nu * self.cw, self.U)
         else:
             E = mat("yy")
         return A, B, Bp, E
@@ -255,9 +255,8 @@ class _LowRankE:
     mostly ``scipy.linalg.lu_solve``'s call overhead, and 2.4 s with the inverse.
     """
 
-    def __init__(self, d, s, U, Cyy, coef):
+    def __init__(self, d, s, U):
         self.d, self.s, self.U = d, s, U
-        self.Cyy, self.coef = Cyy, coef
         self._small_inv = None
         self._factored = False
 
