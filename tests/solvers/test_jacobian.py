@@ -95,11 +95,37 @@ def test_lowrank_preconditioner_is_exact_at_stick_slip_and_separation(law, norma
     x, it, rel, _ = gmres(Jk.matvec, v, P.solve, rtol=1e-12)
     assert it == 1 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
     nb = 2 if normal == "coupled" else 1
-    monkeypatch.setattr(jm, "LOWRANK_MAX", nb * sk.n_c)          # one element only
+    monkeypatch.setattr(jm, "LOWRANK_MAX", nb * sk.n_c)          # nb row blocks only
     Pt = HarmonicPreconditioner(Jk)
-    assert Pt.truncated and Pt.lowrank[0].size == nb
+    assert Pt.truncated and Pt.lowrank.Rrow.size == nb
     x, it, rel, _ = gmres(Jk.matvec, v, lambda u: Pt.apply(u, Jk), rtol=1e-12)
     assert it > 1 and np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
+
+
+def test_lowrank_stage_keeps_only_the_rows_that_couple_harmonics():
+    """An element that slips but stays closed has a constant normal tangent: the
+    low-rank stage keeps its slip rows only (one row block of n_c coordinates, against
+    2 n_c for the whole element) and is still the exact inverse of J (against the
+    dense solve; GMRES in one iteration)."""
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
+    F = sd.force_coefficients(0.3)
+    Z = np.zeros((sk.n_c, sk.n_r))             # rows: slip 0, 1; gap 2, 3 (elements 0, 1)
+    Z[0, 2:] = -5.0                            # both closed by a static gap
+    Z[1, 0] = 3.0                              # element 0 slips (cosine of harmonic 1)
+    Z[1, 2] = 0.05                             # ... with a small normal vibration
+    Z[2, 1] = 0.03                             # element 1 sticks
+    z = Z.ravel()
+    Jk = sk.evaluate(z, 1.1, F).J
+    P = HarmonicPreconditioner(Jk)
+    lr = P.lowrank
+    assert not P.truncated
+    assert lr.Rrow.tolist() == [0] and lr.R.tolist() == [0, 2]   # slip rows of element 0
+    assert lr.lu[0].shape == (sk.n_c, sk.n_c)
+    v = np.random.default_rng(0).normal(size=sk.n_z)
+    xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, v)
+    assert np.abs(P.solve(v) - xd).max() <= 1e-12 * np.abs(xd).max()
+    x, it, rel, _ = gmres(Jk.matvec, v, P.solve, rtol=1e-12)
+    assert it == 1 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
 
 
 def test_lowrank_stage_is_exact_up_to_its_fraction_and_truncated_beyond(monkeypatch):
@@ -117,13 +143,13 @@ def test_lowrank_stage_is_exact_up_to_its_fraction_and_truncated_beyond(monkeypa
     xd = np.linalg.solve(Jd, v)
     monkeypatch.setattr(pm, "LOWRANK_MIN", 0)
     d = 2 * sk.n_c                               # coordinates of one element
-    assert sk.n_z == 2 * d                       # both elements slip: m = n_z
-    # (exact fraction, truncated fraction, elements kept): both fit / one is cut
+    assert sk.n_z == 2 * d                       # both elements slip and separate: m = n_z
+    # (exact fraction, truncated fraction, coordinates kept / d): all fit / half is cut
     for exact, kept_fraction, kept in ((1.0, 0.35, 2), (0.9, 0.5, 1)):
         monkeypatch.setattr(pm, "LOWRANK_EXACT_FRACTION", exact)
         monkeypatch.setattr(pm, "LOWRANK_MAX_FRACTION", kept_fraction)
         P = HarmonicPreconditioner(Jk)
-        assert P.truncated == (kept < 2) and P.lowrank[2][0].shape[0] == kept * d
+        assert P.truncated == (kept < 2) and P.lowrank.lu[0].shape[0] == kept * d
         x, it, rel, _ = gmres(Jk.matvec, v, lambda u: P.apply(u, Jk), rtol=1e-12)
         assert (it == 1) == (not P.truncated)
         assert np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
