@@ -125,6 +125,12 @@ class ReducedLinear:
         if self.kind == "lowrank":
             self.U, self.cw = lowrank
             self.Cyy = self.C["yy"]
+        if self.kind in ("modal", "lowrank") and n_r and self.n_y:
+            # K, M, C side by side for the products of every harmonic at once
+            # (:class:`DynamicProducts`)
+            self.KMC_qq = np.vstack([self.K["qq"], self.M["qq"], self.C["qq"]])
+            self.KMC_yq = np.vstack([self.K["yq"], self.M["yq"], self.C["yq"]])
+            self.KMC_qy = np.hstack([self.K["qy"], self.M["qy"], self.C["qy"]])
         self._Mfull = M
 
     # -- blocks of the transformed dynamic stiffness --------------------------
@@ -242,6 +248,90 @@ class ReducedLinear:
         if E.ndim == 1 or E.shape[0] == 0:
             return E
         return sla.lu_factor(E, check_finite=False)
+
+
+class DynamicProducts:
+    """``S_h x_h`` for every harmonic at once, without forming ``S_h`` or the complex
+    blocks ``A_h``, ``B_h``, ``B'_h``.
+
+    With ``D(nu) = K + c_M M + c_C C`` (``c_M = -nu^2 - i nu xi``, ``c_C = i nu``)
+    every block is a combination of the real ``K``, ``M``, ``C`` blocks, shared by the
+    harmonics; so ``A X``, ``B' X`` and ``B Y`` for the columns of all harmonics are
+    three real BLAS-3 products with ``[K; M; C]`` (read once), and ``E^-1`` is diagonal
+    (modal) or diagonal plus rank ``r`` (Woodbury, an ``r x r`` inverse per harmonic,
+    made here once).  Per product this reads 3 real ``n_r x n_r`` and 6 real
+    ``n_r x n_y`` arrays instead of, per harmonic, three complex blocks: measured on
+    96 Gauss points (``n_r = 192``, ``n_y = 236``, 15 harmonics), 1.1 to 1.7 ms
+    against 3.0 ms.  Only for a modal or low-rank condensation
+    (``ReducedLinear.kind``).
+
+    Parameters
+    ----------
+    lin : ReducedLinear
+    nus : ndarray, shape (n_h,)
+        Angular frequency of each harmonic, ``h omega`` [rad/s].
+    xi : float
+        Self-excitation (damping ``C - xi M``) [1/s].
+    """
+
+    def __init__(self, lin: ReducedLinear, nus, xi: float = 0.0):
+        if lin.kind not in ("modal", "lowrank") or not hasattr(lin, "KMC_qq"):
+            raise ValueError("DynamicProducts needs a modal or low-rank condensation")
+        nus = np.asarray(nus, dtype=float)
+        self.lin = lin
+        self.cm = -nus * nus - 1j * nus * xi
+        self.cc = 1j * nus
+        d = lin.lam[:, None] + lin.myy[:, None] * self.cm[None, :]     # (n_y, n_h)
+        self.W = None
+        if lin.kind == "modal":
+            d = d + lin.cyy[:, None] * self.cc[None, :]
+        else:
+            # E_h = diag(d_h) + U diag(s_h) U^T, s_h = i nu_h c: per harmonic the
+            # Woodbury matrix inverted once (zero for nu = 0: E is diagonal there)
+            U = lin.U
+            self.W = np.zeros((nus.size, U.shape[1], U.shape[1]), dtype=complex)
+            for j, nu in enumerate(nus):
+                s = 1j * nu * lin.cw
+                if np.any(s != 0):
+                    self.W[j] = np.linalg.inv(np.diag(1.0 / s) + U.T @ (U / d[:, j:j + 1]))
+        if np.any(d == 0):
+            raise np.linalg.LinAlgError("the structure with welded contacts is singular at "
+                                        "this frequency (an undamped resonance or an "
+                                        "unrestrained rigid-body motion)")
+        self.Ed = d
+
+    def apply(self, X):
+        """``S_h X[:, h, :]`` for every harmonic ``h``.
+
+        Parameters
+        ----------
+        X : ndarray, shape (n_r, n_h, k), complex
+
+        Returns
+        -------
+        ndarray, shape (n_r, n_h, k), complex
+        """
+        lin = self.lin
+        nr, nh, k = X.shape
+        ny = lin.n_y
+        p = nh * k
+        cm, cc = np.repeat(self.cm, k), np.repeat(self.cc, k)
+        Xf = X.reshape(nr, p)
+        P = lin.KMC_qq @ np.concatenate([Xf.real, Xf.imag], axis=1)      # (3 n_r, 2p)
+        Py = lin.KMC_yq @ np.concatenate([Xf.real, Xf.imag], axis=1)     # (3 n_y, 2p)
+
+        def part(A, i, n):
+            return A[i * n:(i + 1) * n, :p] + 1j * A[i * n:(i + 1) * n, p:]
+        AX = part(P, 0, nr) + cm * part(P, 1, nr) + cc * part(P, 2, nr)
+        Ed = np.repeat(self.Ed, k, axis=1)
+        y = (part(Py, 0, ny) + cm * part(Py, 1, ny) + cc * part(Py, 2, ny)) / Ed
+        if self.W is not None:
+            U = lin.U
+            t = np.einsum("jrs,sj->rj", np.repeat(self.W, k, axis=0), U.T @ y)
+            y = y - (U @ t) / Ed
+        Ys = np.vstack([y, cm * y, cc * y])                                # (3 n_y, p)
+        BY = lin.KMC_qy @ np.concatenate([Ys.real, Ys.imag], axis=1)       # (n_r, 2p)
+        return (AX - (BY[:, :p] + 1j * BY[:, p:])).reshape(nr, nh, k)
 
 
 class _LowRankE:

@@ -197,6 +197,9 @@ class HBMSystem:
             ``(A, B, B', Ef)`` per harmonic of the basis (read-only arrays).
         S : list
             ``S_h`` per harmonic once formed (:meth:`HBMJacobian.schur`), else None.
+        dynamic : list
+            One entry: the :class:`~jointsim.solvers.condensation.DynamicProducts` at
+            this frequency once made (by the first unformed ``J v``), else None.
         """
         key = (float(omega), float(xi))
         cache = self.omega_cache
@@ -209,7 +212,7 @@ class HBMSystem:
                 for a in (A, B, Bp):
                     a.flags.writeable = False
                 blocks.append((A, B, Bp, lin.factor_E(E) if lin.n_y else E))
-            got = (blocks, [None] * len(blocks))
+            got = (blocks, [None] * len(blocks), [None])
         cache[key] = got                       # most recent last
         while len(cache) > OMEGA_CACHE:
             cache.pop(next(iter(cache)))
@@ -248,7 +251,7 @@ class HBMSystem:
             if jacobian and not structured else None
         dR = {p: np.zeros((nc, nr)) for p in wrt} if jacobian else {}
         lin = self.lin
-        hblocks, S_kept = self.harmonic_blocks(omega, xi)
+        hblocks, S_kept, dynamic = self.harmonic_blocks(omega, xi)
         # the force in the contact and the other coordinates, every coefficient at once
         # (real products: the complex form of Psi and Z is never made)
         F = np.asarray(F, dtype=float)
@@ -307,7 +310,7 @@ class HBMSystem:
                             else None,
                             aft.JNN if (aft is not None and self.coupled) else None,
                             stats=self.stats, cache=self.preconditioner, rtol=self.krylov_rtol,
-                            schur=S_kept)
+                            schur=S_kept, freq=(omega, xi), dynamic=dynamic)
         return Evaluation(R=R.ravel(), J=J, dR={p: v.ravel() for p, v in dR.items()}, aft=aft)
 
     def contact_forces(self, z, jacobian: bool = False):

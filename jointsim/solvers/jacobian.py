@@ -11,8 +11,11 @@ unknowns, harmonic-major) is the sum of
   ``n_c`` coefficients: the AFT blocks ``Juu``, ``Jug``, ``JNN`` (n_e, n_c, n_c).
 
 :class:`HBMJacobian` keeps these pieces and applies ``J v`` and ``J^T v``
-without forming ``J`` (``S_h v = A v - B E^-1 (B' v)``, never formed
-either); :meth:`HBMJacobian.to_dense` is the reference.  Its preconditioner
+without forming ``J`` (``S_h v = A v - B E^-1 (B' v)``, with a modal or
+low-rank condensation for every harmonic at once by real BLAS-3 products,
+:class:`~jointsim.solvers.condensation.DynamicProducts`; ``S_h`` is formed only
+for a preconditioner or after ``FORM_AFTER`` products), also on a block of
+columns; :meth:`HBMJacobian.to_dense` is the reference.  Its preconditioner
 (:class:`~jointsim.solvers.preconditioner.HarmonicPreconditioner`) is, per harmonic, ``S_h`` plus the harmonic-
 ``h`` part of each element's tangent (the complex-form projection of its
 ``(h, h)`` 2 x 2 coefficient block, coupling the slip and gap rows of one
@@ -47,23 +50,15 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
-import scipy.linalg as sla
 
+from .condensation import DynamicProducts
+from .gmres import KRYLOV_MAXITER, KRYLOV_RTOL, GMRESResult, gmres, gmres_columns  # noqa: F401
 from .preconditioner import PreconditionerCache
 
 log = logging.getLogger(__name__)
 
-#: Relative residual ``|b - A x| / |b|`` at which GMRES stops.
-KRYLOV_RTOL = 1e-11
-#: GMRES restart length and iteration limit.
-KRYLOV_RESTART = 80
-KRYLOV_MAXITER = 400
-#: GMRES stops (stagnation) after a restart cycle that reduced the true residual by
-#: less than this factor.
-STAGNATION = 0.5
 #: A reused preconditioner's solve that stopped at the round-off floor
 #: (:attr:`GMRESResult.at_floor`) is accepted up to this many times the tolerance
 #: instead of building a new preconditioner and going on: the new one reaches the same
@@ -75,9 +70,14 @@ FLOOR_FACTOR = 1e3
 KRYLOV_MIN_UNKNOWNS = 1200
 LINEAR_SOLVERS = ("auto", "direct", "krylov")
 #: Unformed products ``A v - B E^-1 (B' v)`` of one Jacobian after which its ``S_h``
-#: are formed (a product costs about three formed ones; forming, a BLAS-3 product
-#: of ``n_r^2 n_y`` per harmonic, about as much as ten to twenty of them).
-FORM_AFTER = 12
+#: are formed.  Per-harmonic complex blocks: a product cost about three formed ones and
+#: forming (a BLAS-3 product of ``n_r^2 n_y`` per harmonic) ten to twenty, hence 12
+#: (round 11).  With :class:`~jointsim.solvers.condensation.DynamicProducts` (round 14)
+#: an unformed product costs 1.0 ms against 0.3 to 0.5 ms formed and 21 ms to form (96
+#: Gauss points, 15 harmonics): forming pays after about 40.  Measured on the force-2
+#: branch (one thread): at 12, 91 formings took 1.8 s; at 24, none happened and the
+#: products took 3.8 s against 5.4 s with the formings.
+FORM_AFTER = 40
 
 @dataclass
 class LinearStats:
@@ -102,121 +102,6 @@ class LinearStats:
         out = (self.solves, self.krylov_iterations, self.factorizations)
         self.solves = self.krylov_iterations = self.factorizations = 0
         return out
-
-
-# --------------------------------------------------------------------------
-# GMRES
-# --------------------------------------------------------------------------
-class GMRESResult(NamedTuple):
-    """What :func:`gmres` returns."""
-
-    x: np.ndarray
-    iterations: int
-    relres: float
-    at_floor: bool
-
-
-def gmres(matvec, b, psolve, rtol: float = KRYLOV_RTOL, restart: int = KRYLOV_RESTART,
-          maxiter: int = KRYLOV_MAXITER, x0=None):
-    """Right-preconditioned restarted GMRES for ``A x = b`` (real).
-
-    Minimises ``|b - A P^-1 u|`` over the Krylov space of ``A P^-1``, with
-    ``x = P^-1 u`` (so the residual it monitors is the true one, up to
-    round-off; it is recomputed at every restart and at the end).
-
-    Parameters
-    ----------
-    matvec : callable
-        ``v -> A v``.
-    b : ndarray, shape (n,)
-    psolve : callable
-        ``v -> P^-1 v``.
-    rtol : float
-        Stop at ``|b - A x| <= rtol |b|``.
-    restart, maxiter : int
-    x0 : ndarray, shape (n,), optional
-        Start (default zero), e.g. the result of an attempt that ran out of
-        iterations.
-
-    Returns
-    -------
-    GMRESResult
-        ``(x, iterations, relres, at_floor)``: the solution, shape (n,), the
-        iterations, ``|b - A x| / |b|``, and whether GMRES stopped at the
-        round-off floor (below).
-
-    Notes
-    -----
-    Besides ``rtol`` and ``maxiter`` it stops when a restart cycle reduced the
-    true residual by less than ``1 / STAGNATION``; ``relres`` then tells the
-    caller how far it got.  ``at_floor``: the last cycle's own (Arnoldi)
-    residual reached ``rtol`` but the recomputed true one did not: the
-    residual floor of an ill-conditioned system (near a lightly damped
-    resonance, 1e-11 to 2e-10 at 96 contact points), which no better
-    preconditioner lowers (:func:`krylov_solve`).
-    """
-    n = b.size
-    bn = float(np.linalg.norm(b))
-    x = np.zeros(n)
-    if bn == 0.0 or n == 0:
-        return GMRESResult(x, 0, 0.0, False)
-    total = 0
-    r = b.copy()
-    beta = bn
-    if x0 is not None and np.all(np.isfinite(x0)):
-        r0 = b - matvec(x0)
-        if float(np.linalg.norm(r0)) < bn:          # a better start than zero
-            x, r, beta = np.array(x0, dtype=float), r0, float(np.linalg.norm(r0))
-    while True:
-        if beta <= rtol * bn or total >= maxiter:
-            return GMRESResult(x, total, beta / bn, False)
-        m = min(restart, maxiter - total)
-        V = np.zeros((m + 1, n))
-        Zp = np.zeros((m, n))
-        H = np.zeros((m + 1, m))
-        cs, sn = np.zeros(m), np.zeros(m)
-        g = np.zeros(m + 1)
-        g[0] = beta
-        V[0] = r / beta
-        j_end = 0
-        converged = False
-        for j in range(m):
-            Zp[j] = psolve(V[j])
-            w = matvec(Zp[j])
-            for _ in range(2):                      # classical Gram-Schmidt, twice
-                hj = V[:j + 1] @ w
-                w -= hj @ V[:j + 1]
-                H[:j + 1, j] += hj
-            hn = float(np.linalg.norm(w))
-            H[j + 1, j] = hn
-            if hn > 0.0:
-                V[j + 1] = w / hn
-            for i in range(j):                      # earlier rotations
-                t = cs[i] * H[i, j] + sn[i] * H[i + 1, j]
-                H[i + 1, j] = -sn[i] * H[i, j] + cs[i] * H[i + 1, j]
-                H[i, j] = t
-            d = np.hypot(H[j, j], H[j + 1, j])
-            cs[j], sn[j] = (1.0, 0.0) if d == 0.0 else (H[j, j] / d, H[j + 1, j] / d)
-            H[j, j] = d
-            H[j + 1, j] = 0.0
-            g[j + 1] = -sn[j] * g[j]
-            g[j] = cs[j] * g[j]
-            total += 1
-            j_end = j + 1
-            converged = abs(g[j + 1]) <= 0.5 * rtol * bn
-            if converged or hn == 0.0:
-                break
-        y = sla.solve_triangular(H[:j_end, :j_end], g[:j_end], check_finite=False)
-        x = x + y @ Zp[:j_end]
-        r = b - matvec(x)
-        beta_start, beta = beta, float(np.linalg.norm(r))
-        if j_end < m and beta > rtol * bn and hn == 0.0:  # breakdown without convergence
-            return GMRESResult(x, total, beta / bn, False)
-        if beta > rtol * bn and beta > STAGNATION * beta_start:
-            # a whole cycle gained less than 1/STAGNATION: the true residual is at the
-            # floor that the conditioning allows (e.g. the bordered EPMC system in the
-            # linear range, 2e-11 .. 2e-9 at 121 pairs); the caller judges the result
-            return GMRESResult(x, total, beta / bn, converged)
 
 
 # --------------------------------------------------------------------------
@@ -247,11 +132,21 @@ class HBMJacobian:
         The ``S_h`` list (entries None until formed) shared by every Jacobian at the
         same frequency (:meth:`jointsim.solvers.hbm.HBMSystem.harmonic_blocks`);
         default a list of its own.
+    freq : tuple (omega, xi), optional
+        Base angular frequency [rad/s] and self-excitation [1/s] of the blocks: with a
+        modal or low-rank condensation the unformed products then go through
+        :class:`~jointsim.solvers.condensation.DynamicProducts` (every harmonic in
+        three real BLAS-3 products) instead of the per-harmonic complex blocks.
+    dynamic : list, optional
+        One-entry holder of that object, shared like ``schur``.
     """
 
     def __init__(self, basis, lin, blocks, t_row, n_row, Juu=None, Jug=None, JNN=None,
-                 col=None, stats=None, cache=None, rtol=None, schur=None):
+                 col=None, stats=None, cache=None, rtol=None, schur=None, freq=None,
+                 dynamic=None):
         self.basis, self.lin, self.blocks = basis, lin, blocks
+        self.freq = freq
+        self._dynamic = [None] if dynamic is None else dynamic
         self.n_r = lin.n_r
         self.n_c = basis.n_coeff
         self.n_z = self.n_c * self.n_r
@@ -275,7 +170,7 @@ class HBMJacobian:
         """``J diag(col)`` (same pieces, same cache)."""
         out = HBMJacobian(self.basis, self.lin, self.blocks, self.t_row, self.n_row,
                           self.Juu, self.Jug, self.JNN, self.col * col, self.stats, self.cache,
-                          self.rtol)
+                          self.rtol, freq=self.freq, dynamic=self._dynamic)
         out._S = self._S
         out._products = self._products
         return out
@@ -300,13 +195,21 @@ class HBMJacobian:
         return self._S[i]
 
     def _apply_S(self, Xc, herm: bool = False):
-        """``S_h x_h`` (or ``S_h^H x_h``) for every harmonic; ``Xc`` (n_h, n_r) complex."""
+        """``S_h x_h`` (or ``S_h^H x_h``) for every harmonic; ``Xc`` (n_h, n_r[, k]) complex."""
         lin = self.lin
         out = np.empty_like(Xc)
         if all(S is not None for S in self._S):
             for i, S in enumerate(self._S):      # formed (n_r^2 per harmonic)
                 out[i] = (S.conj().T @ Xc[i]) if herm else S @ Xc[i]
             return out
+        if not herm and self.freq is not None and hasattr(lin, "KMC_qq"):
+            if self._dynamic[0] is None:
+                omega, xi = self.freq
+                self._dynamic[0] = DynamicProducts(
+                    lin, np.asarray(self.basis.harmonics, dtype=float) * omega, xi)
+            X3 = Xc if Xc.ndim == 3 else Xc[:, :, None]          # (n_h, n_r, k)
+            Y3 = self._dynamic[0].apply(X3.transpose(1, 0, 2))  # (n_r, n_h, k)
+            return Y3.transpose(1, 0, 2).reshape(Xc.shape)
         for i, (A, B, Bp, Ef) in enumerate(self.blocks):
             x = Xc[i]
             if herm:
@@ -333,28 +236,33 @@ class HBMJacobian:
         out[self._is[hs]] = -Y[hs].imag
 
     def _elements(self, V, out, transpose: bool):
-        sub = "elk,el->ek" if transpose else "ekl,el->ek"
+        """Add the element tangents' product to ``out``; ``V``, ``out`` (n_c, n_r[, k])."""
+        sub = "elk,le...->ke..." if transpose else "ekl,le...->ke..."
         if self.Juu is not None:
-            out[:, self.t_row] += np.einsum(sub, self.Juu, V[:, self.t_row].T).T
+            out[:, self.t_row] += np.einsum(sub, self.Juu, V[:, self.t_row])
         if self.Jug is not None:
             if transpose:
-                out[:, self.n_row] += np.einsum(sub, self.Jug, V[:, self.t_row].T).T
+                out[:, self.n_row] += np.einsum(sub, self.Jug, V[:, self.t_row])
             else:
-                out[:, self.t_row] += np.einsum(sub, self.Jug, V[:, self.n_row].T).T
+                out[:, self.t_row] += np.einsum(sub, self.Jug, V[:, self.n_row])
         if self.JNN is not None:
-            out[:, self.n_row] -= np.einsum(sub, self.JNN, V[:, self.n_row].T).T
+            out[:, self.n_row] -= np.einsum(sub, self.JNN, V[:, self.n_row])
 
     def matvec(self, v) -> np.ndarray:
-        """``J @ v``, shape (n_z,) (``S_h`` formed after ``FORM_AFTER`` unformed products)."""
+        """``J @ v``, shape (n_z,), or ``J @ V`` for ``V`` of shape (n_z, k) (the
+        blocks read once for the k columns); ``S_h`` is formed after ``FORM_AFTER``
+        unformed products."""
         if self._S and self._S[-1] is None:
             self._products[0] += 1
             if self._products[0] > FORM_AFTER:
                 self.form_schur()
-        V = (np.asarray(v, dtype=float) * self.col).reshape(self.n_c, self.n_r)
+        v = np.asarray(v, dtype=float)
+        col = self.col if v.ndim == 1 else self.col[:, None]
+        V = (v * col).reshape((self.n_c, self.n_r) + v.shape[1:])
         out = np.zeros_like(V)
         self._from_complex(self._apply_S(self._to_complex(V)), out)
         self._elements(V, out, transpose=False)
-        return out.ravel()
+        return out.reshape(v.shape)
 
     def rmatvec(self, w) -> np.ndarray:
         """``J^T @ w``, shape (n_z,)."""
@@ -439,7 +347,8 @@ def add_element_blocks(J, nr, nc, t_row, n_row, Juu, Jug, JNN):
 
 
 def krylov_solve(core: HBMJacobian, matvec, b, make_psolve, shift=None):
-    """GMRES for ``A x = b`` with the preconditioner of ``core`` (cached or rebuilt).
+    """GMRES for ``A x = b`` with the preconditioner of ``core`` (cached or rebuilt);
+    ``b`` of shape (n,) or (n, k) (the columns in lockstep, :func:`gmres_columns`).
 
     A reused preconditioner gets :meth:`PreconditionerCache.budget` GMRES
     iterations; when they do not suffice the solve is repeated with one built
@@ -452,23 +361,36 @@ def krylov_solve(core: HBMJacobian, matvec, b, make_psolve, shift=None):
     residual by less than ``1e-6`` (Newton treats that as a singular Jacobian).
     """
     cache, stats = core.cache, core.stats
+    rtol = core.rtol
+    multi = b.ndim == 2
+
+    def run(P, maxiter=KRYLOV_MAXITER, x0=None):
+        """GMRES with ``P``: ``(result, iterations of all columns)``."""
+        if not multi:
+            res = gmres(matvec, b, make_psolve(P), rtol=rtol, maxiter=maxiter, x0=x0)
+            return res, res.iterations
+        cols = gmres_columns(matvec, b, make_psolve(P), rtol=rtol, maxiter=maxiter, X0=x0)
+        rel = max(r.relres for r in cols)
+        # the columns are one solve: iterations (for the reuse policy) and residual of
+        # the worst column; at the floor when every column short of rtol is
+        res = GMRESResult(np.column_stack([r.x for r in cols]),
+                          max(r.iterations for r in cols), rel,
+                          all(r.at_floor for r in cols if r.relres > rtol))
+        return res, sum(r.iterations for r in cols)
     # S_h is formed (n_r^2 n_y per harmonic) only when a preconditioner is built from
     # core; a reused one leaves J v to the unformed products A v - B E^-1 (B' v)
     P, fresh = cache.get(core, shift)
     # a reused preconditioner gets a short budget before it is rebuilt
-    rtol = core.rtol
-    x, it, rel, at_floor = gmres(matvec, b, make_psolve(P), rtol=rtol,
-                                 maxiter=KRYLOV_MAXITER if fresh else cache.budget())
-    total = it
+    (x, it, rel, at_floor), total = run(P, KRYLOV_MAXITER if fresh else cache.budget())
     # a reused preconditioner is rebuilt when it did not get there, but not when GMRES
     # stopped at the round-off floor: a new one stops there too (FLOOR_FACTOR)
     if rel > rtol and not fresh and not (at_floor and rel <= FLOOR_FACTOR * rtol):
         P, fresh = cache.refresh(core, shift), True
         # on from where the reused preconditioner got to
-        x, it, rel, _ = gmres(matvec, b, make_psolve(P), rtol=rtol, x0=x)
-        total += it
+        (x, it, rel, _), more = run(P, x0=x)
+        total += more
     if stats is not None:
-        stats.solves += 1
+        stats.solves += b.shape[1] if multi else 1
         stats.krylov_iterations += total
     cache.after_solve(it, fresh)
     if not np.all(np.isfinite(x)) or rel > max(1e-6, rtol):

@@ -438,10 +438,9 @@ class HarmonicPreconditioner:
         self.PinvR = np.ascontiguousarray(self.Pinv[:, :, Rrow])
 
     def _harmonic_solve(self, V):
-        """``P^-1`` of the harmonic stage; ``V`` (n_c, n_r) real, returns (n_c, n_r)."""
+        """``P^-1`` of the harmonic stage; ``V`` (n_c, n_r, k) real, returns its shape."""
         jac = self.jac
-        X = jac._to_complex(V)
-        Y = np.matmul(self.Pinv, X[:, :, None])[:, :, 0]
+        Y = np.matmul(self.Pinv, jac._to_complex(V))
         out = np.empty_like(V)
         jac._from_complex(Y, out)
         return out
@@ -479,10 +478,13 @@ class HarmonicPreconditioner:
 
     def apply(self, v, jac) -> np.ndarray:
         """The preconditioner of the scaled ``jac = J diag(col)``: ``diag(col)^-1 P^-1 v``
-        (two-stage when ``TWO_STAGE``)."""
+        (two-stage when ``TWO_STAGE``); ``v`` of shape (n_z,) or (n_z, k)."""
+        v = np.asarray(v, dtype=float)
         if self.Binv is not None:
+            if v.ndim == 2:            # the two-stage one column by column
+                return np.column_stack([self.apply(c, jac) for c in v.T])
             return self.solve2(v, lambda x: jac.matvec(x / jac.col)) / jac.col
-        return self.solve(v) / jac.col
+        return self.solve(v) / (jac.col if v.ndim == 1 else jac.col[:, None])
 
     def solve2(self, v, matvec) -> np.ndarray:
         """Two-stage: ``x = P^-1 v``, then ``x += B^-1 (v - J x)`` (element blocks)."""
@@ -499,22 +501,23 @@ class HarmonicPreconditioner:
         return X.ravel()
 
     def solve(self, v) -> np.ndarray:
-        """``P^-1 v`` for the unscaled ``J``, shape (n_z,)."""
+        """``P^-1 v`` for the unscaled ``J``; ``v`` of shape (n_z,) or (n_z, k)."""
         jac = self.jac
-        V = np.asarray(v, dtype=float).reshape(jac.n_c, jac.n_r)
+        v = np.asarray(v, dtype=float)
+        V = v.reshape(jac.n_c, jac.n_r, -1)
         Y = self._harmonic_solve(V)
         if self.lowrank is None:
-            return Y.ravel()
+            return Y.reshape(v.shape)
         lr = self.lowrank
-        nc, nl = jac.n_c, lr.R.size // lr.nb
-        # element-major column order (l, b, k) from the (k, b nl + l) columns of Y
-        yc = Y[:, lr.R].reshape(nc, lr.nb, nl).transpose(2, 1, 0).reshape(nl, -1)
-        rhs = np.matmul(lr.Lr, yc[lr.block_element][:, :, None])   # L_r y_c, (nrb, n_c, 1)
-        s = sla.lu_solve(lr.lu, rhs.ravel(), check_finite=False)
+        nc, k = jac.n_c, V.shape[2]
+        nl = lr.R.size // lr.nb
+        # element-major column order (l, b n_c + c) from the (c, b nl + l) columns of Y
+        yc = Y[:, lr.R].reshape(nc, lr.nb, nl, k).transpose(2, 1, 0, 3).reshape(nl, -1, k)
+        rhs = np.matmul(lr.Lr, yc[lr.block_element])             # L_r y_c, (nrb, n_c, k)
+        s = sla.lu_solve(lr.lu, rhs.reshape(-1, k), check_finite=False)
         # P^-1 E_r s: only the Rrow columns of P_h^-1 (n_r x nrb per harmonic, not
         # n_r x n_r: the same nonzero terms, a fraction of the memory traffic)
-        Xw = jac._to_complex(np.ascontiguousarray(s.reshape(-1, nc).T))
-        Yw = np.matmul(self.PinvR, Xw[:, :, None])[:, :, 0]
+        Xw = jac._to_complex(np.ascontiguousarray(s.reshape(-1, nc, k).transpose(1, 0, 2)))
         out = np.empty_like(V)
-        jac._from_complex(Yw, out)
-        return (Y - out).ravel()
+        jac._from_complex(np.matmul(self.PinvR, Xw), out)
+        return (Y - out).reshape(v.shape)

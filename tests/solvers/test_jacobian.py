@@ -9,7 +9,7 @@ from jointsim.model import build_model
 from jointsim.run import run_scene
 from jointsim.scene import load_scene
 from jointsim.solvers.hbm import HBMSystem, solve_point
-from jointsim.solvers.jacobian import BorderedJacobian, gmres
+from jointsim.solvers.jacobian import BorderedJacobian, gmres, gmres_columns
 from jointsim.solvers.preconditioner import HarmonicPreconditioner
 
 from .._scenes import ROOT, four_dof, lap_scene
@@ -163,6 +163,83 @@ def test_gmres_solves_a_nonsymmetric_system():
     x, it, rel, _ = gmres(lambda v: A @ v, b, lambda v: v, rtol=1e-12, restart=20, maxiter=500)
     assert rel <= 1e-12 and it > 20
     assert np.abs(x - np.linalg.solve(A, b)).max() <= 1e-10 * np.abs(x).max()
+
+
+def test_gmres_columns_equals_gmres_column_by_column():
+    """The lockstep GMRES of several right-hand sides gives, per column, the iterations,
+    residual and solution of the one-column GMRES (restarts, a start, a zero column and
+    an iteration limit included), with the operator applied to blocks of columns."""
+    rng = np.random.default_rng(11)
+    n = 150
+    A = np.eye(n) * 4 + rng.normal(size=(n, n)) / 10
+    A[:, :5] *= 30.0                               # columns of different difficulty
+    dinv = 1.0 / np.diag(A)
+    B = rng.normal(size=(n, 4))
+    B[:, 1] = 0.0
+    B[:, 3] = A @ rng.normal(size=n)
+    X0 = np.zeros((n, 4))
+    X0[:, 2] = np.linalg.solve(A, B[:, 2]) + 1e-3 * rng.normal(size=n)
+    widths = []
+
+    def matvec(V):
+        widths.append(V.shape[1] if V.ndim == 2 else 1)
+        return A @ V
+    for maxiter in (500, 7):
+        cols = gmres_columns(matvec, B, lambda V: dinv[:, None] * V, rtol=1e-12,
+                             restart=15, maxiter=maxiter, X0=X0)
+        for c in range(4):
+            one = gmres(lambda v: A @ v, B[:, c], lambda v: dinv * v, rtol=1e-12,
+                        restart=15, maxiter=maxiter, x0=X0[:, c])
+            assert cols[c].iterations == one.iterations
+            assert cols[c].at_floor == one.at_floor
+            assert cols[c].relres == pytest.approx(one.relres, rel=1e-6, abs=1e-15)
+            scale = max(np.abs(one.x).max(), 1e-300)
+            assert np.abs(cols[c].x - one.x).max() <= 1e-10 * scale
+        if maxiter == 500:
+            assert all(r.relres <= 1e-12 for r in cols) and cols[1].iterations == 0
+            assert np.abs(cols[0].x - np.linalg.solve(A, B[:, 0])).max() \
+                <= 1e-10 * np.abs(cols[0].x).max()
+        else:
+            assert cols[0].iterations == 7 and cols[0].relres > 1e-12
+    # all four columns only in the residual of the start (once per call); the zero
+    # column is never iterated
+    assert widths.count(4) == 2 and max(widths) == 4 and 3 in widths
+
+
+def test_structured_jacobian_and_preconditioner_take_blocks_of_columns():
+    """``J V``, ``P^-1 V`` (exact and truncated two-stage) and the bordered solve of a
+    block of columns equal the column-by-column results (and the dense solve)."""
+    import jointsim.solvers.preconditioner as pm
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
+    F = sd.force_coefficients(0.3)
+    rng = np.random.default_rng(5)
+    z = rng.normal(size=sd.n_z) * 0.4
+    ed = sd.evaluate(z, 1.1, F, wrt=("omega",))
+    Jk = sk.evaluate(z, 1.1, F, wrt=("omega",)).J.scaled(rng.uniform(0.5, 2.0, sd.n_z))
+    V = rng.normal(size=(sd.n_z, 3))
+    JV = Jk.matvec(V)
+    assert JV.shape == V.shape
+    for c in range(3):
+        assert np.abs(JV[:, c] - Jk.matvec(V[:, c])).max() <= 1e-13 * np.abs(JV).max()
+    for cap in (None, sk.n_c):                       # exact, and truncated (two-stage)
+        old = pm.LOWRANK_MAX
+        try:
+            if cap is not None:
+                pm.LOWRANK_MAX = cap
+            P = HarmonicPreconditioner(Jk)
+        finally:
+            pm.LOWRANK_MAX = old
+        assert P.truncated == (cap is not None)
+        PV = P.apply(V, Jk)
+        for c in range(3):
+            assert np.abs(PV[:, c] - P.apply(V[:, c], Jk)).max() <= 1e-12 * np.abs(PV).max()
+    c_om = ed.dR["omega"]
+    t = rng.normal(size=sd.n_z + 1)
+    Bk = BorderedJacobian(sk.evaluate(z, 1.1, F).J, c_om).with_row(t)
+    Bd = np.vstack([np.column_stack([ed.J, c_om]), t[None, :]])
+    Bb = rng.normal(size=(sd.n_z + 1, 2))
+    Xb = Bk.solve(Bb)
+    assert np.abs(Xb - np.linalg.solve(Bd, Bb)).max() <= 1e-8 * np.abs(Xb).max()
 
 
 def test_gmres_goes_on_from_a_start():
