@@ -300,6 +300,31 @@ class DynamicProducts:
                                         "unrestrained rigid-body motion)")
         self.Ed = d
 
+    def _real(self, A, X, n, k):
+        """The three products ``(K X, M X, C X)`` combined as ``K X + c_M M X + c_C C X``
+        with the stacked real blocks ``A`` (3 n rows, or n rows of 3 column groups);
+        ``X`` (m, p) complex, ``p = n_h k``."""
+        p = X.shape[1]
+        cm, cc = np.repeat(self.cm, k), np.repeat(self.cc, k)
+        if A.shape[0] == 3 * n:
+            P = A @ np.concatenate([X.real, X.imag], axis=1)            # (3n, 2p)
+            parts = [P[i * n:(i + 1) * n, :p] + 1j * P[i * n:(i + 1) * n, p:]
+                     for i in range(3)]
+            return parts[0] + cm * parts[1] + cc * parts[2]
+        Xs = np.vstack([X, cm * X, cc * X])                              # (3m, p)
+        P = A @ np.concatenate([Xs.real, Xs.imag], axis=1)               # (n, 2p)
+        return P[:, :p] + 1j * P[:, p:]
+
+    def _solve_E(self, Y, k):
+        """``E_h^-1`` on the columns of ``Y`` (n_y, n_h k), harmonic-major."""
+        Ed = np.repeat(self.Ed, k, axis=1)
+        y = Y / Ed
+        if self.W is not None:
+            U = self.lin.U
+            t = np.einsum("jrs,sj->rj", np.repeat(self.W, k, axis=0), U.T @ y)
+            y = y - (U @ t) / Ed
+        return y
+
     def apply(self, X):
         """``S_h X[:, h, :]`` for every harmonic ``h``.
 
@@ -313,25 +338,93 @@ class DynamicProducts:
         """
         lin = self.lin
         nr, nh, k = X.shape
-        ny = lin.n_y
-        p = nh * k
-        cm, cc = np.repeat(self.cm, k), np.repeat(self.cc, k)
-        Xf = X.reshape(nr, p)
-        P = lin.KMC_qq @ np.concatenate([Xf.real, Xf.imag], axis=1)      # (3 n_r, 2p)
-        Py = lin.KMC_yq @ np.concatenate([Xf.real, Xf.imag], axis=1)     # (3 n_y, 2p)
+        Xf = X.reshape(nr, nh * k)
+        y = self._solve_E(self._real(lin.KMC_yq, Xf, lin.n_y, k), k)
+        out = self._real(lin.KMC_qq, Xf, nr, k) - self._real(lin.KMC_qy, y, nr, k)
+        return out.reshape(nr, nh, k)
 
-        def part(A, i, n):
-            return A[i * n:(i + 1) * n, :p] + 1j * A[i * n:(i + 1) * n, p:]
-        AX = part(P, 0, nr) + cm * part(P, 1, nr) + cc * part(P, 2, nr)
-        Ed = np.repeat(self.Ed, k, axis=1)
-        y = (part(Py, 0, ny) + cm * part(Py, 1, ny) + cc * part(Py, 2, ny)) / Ed
-        if self.W is not None:
-            U = lin.U
-            t = np.einsum("jrs,sj->rj", np.repeat(self.W, k, axis=0), U.T @ y)
-            y = y - (U @ t) / Ed
-        Ys = np.vstack([y, cm * y, cc * y])                                # (3 n_y, p)
-        BY = lin.KMC_qy @ np.concatenate([Ys.real, Ys.imag], axis=1)       # (n_r, 2p)
-        return (AX - (BY[:, :p] + 1j * BY[:, p:])).reshape(nr, nh, k)
+    def parts(self, Q, Fy):
+        """The residual's linear part of every harmonic: ``y_h = E_h^-1 (F_y,h - B'_h
+        q_h)`` and ``A_h q_h + B_h y_h``.
+
+        Parameters
+        ----------
+        Q : ndarray, shape (n_r, n_h), complex
+            Contact coordinates per harmonic [m].
+        Fy : ndarray, shape (n_y, n_h), complex
+            Force on the other coordinates per harmonic [N].
+
+        Returns
+        -------
+        Aq_By : ndarray, shape (n_r, n_h), complex [N]
+        y : ndarray, shape (n_y, n_h), complex [m]
+        """
+        lin = self.lin
+        y = self._solve_E(Fy - self._real(lin.KMC_yq, Q, lin.n_y, 1), 1)
+        return self._real(lin.KMC_qq, Q, lin.n_r, 1) + self._real(lin.KMC_qy, y, lin.n_r, 1), y
+
+    def b_einv(self, Y):
+        """``B_h E_h^-1 Y[:, h]`` for every harmonic; ``Y`` (n_y, n_h) complex."""
+        return self._real(self.lin.KMC_qy, self._solve_E(Y, 1), self.lin.n_r, 1)
+
+
+class FrequencyBlocks:
+    """The linear part at one frequency, shared by every Jacobian there.
+
+    Parameters
+    ----------
+    lin : ReducedLinear
+    harmonics : sequence of int
+    omega : float
+        Base angular frequency [rad/s].
+    xi : float
+        Self-excitation [1/s].
+
+    Attributes
+    ----------
+    S : list
+        ``S_h`` per harmonic once formed (by a preconditioner's build or after
+        ``FORM_AFTER`` products, :class:`~jointsim.solvers.jacobian.HBMJacobian`),
+        else None.
+    """
+
+    def __init__(self, lin: ReducedLinear, harmonics, omega: float, xi: float = 0.0):
+        self.lin = lin
+        self.harmonics = tuple(harmonics)
+        self.omega, self.xi = float(omega), float(xi)
+        self.S = [None] * len(self.harmonics)
+        self._blocks = None
+        self._dynamic = None
+
+    @property
+    def formed(self) -> bool:
+        """Whether the per-harmonic blocks have been formed."""
+        return self._blocks is not None
+
+    @property
+    def blocks(self) -> list:
+        """Per harmonic ``(A, B, B', Ef)`` (read-only, ``Ef`` factorised), formed on first
+        use (forming ``S_h`` needs them; products and residuals with a modal or low-rank
+        condensation do not, :attr:`dynamic`)."""
+        if self._blocks is None:
+            lin = self.lin
+            out = []
+            for h in self.harmonics:
+                A, B, Bp, E = lin.blocks(h * self.omega, self.xi)
+                for a in (A, B, Bp):
+                    a.flags.writeable = False
+                out.append((A, B, Bp, lin.factor_E(E) if lin.n_y else E))
+            self._blocks = out
+        return self._blocks
+
+    @property
+    def dynamic(self):
+        """The :class:`DynamicProducts` at this frequency (made once), or None when the
+        condensation is not modal or low-rank."""
+        if self._dynamic is None and hasattr(self.lin, "KMC_qq"):
+            self._dynamic = DynamicProducts(
+                self.lin, np.asarray(self.harmonics, dtype=float) * self.omega, self.xi)
+        return self._dynamic
 
 
 class _LowRankE:

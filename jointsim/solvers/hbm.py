@@ -26,7 +26,7 @@ import numpy as np
 
 from ..harmonics import HarmonicBasis
 from .aft import AFT, AFTResult
-from .condensation import ReducedLinear, dense_array
+from .condensation import FrequencyBlocks, ReducedLinear, dense_array
 from .jacobian import (KRYLOV_MIN_UNKNOWNS, KRYLOV_RTOL, LINEAR_SOLVERS, HBMJacobian, LinearStats,
                        add_element_blocks, solve)
 from .preconditioner import PreconditionerCache
@@ -180,9 +180,10 @@ class HBMSystem:
             out[is_] = -v.imag
 
     # -- the linear part per frequency ------------------------------------------
-    def harmonic_blocks(self, omega: float, xi: float = 0.0):
-        """Per harmonic ``(A, B, B', Ef)`` at ``omega`` (``Ef`` factorised) and the list
-        of the ``S_h`` formed from them so far (None until formed).
+    def harmonic_blocks(self, omega: float, xi: float = 0.0) -> FrequencyBlocks:
+        """The linear part at ``omega`` (:class:`~.condensation.FrequencyBlocks`: the
+        per-harmonic blocks, formed on first use, the ``S_h`` formed so far and the
+        all-harmonic products).
 
         They depend on ``(omega, xi)`` only, so the last ``OMEGA_CACHE`` frequencies
         are kept in :attr:`omega_cache`: Newton at a fixed frequency (the first point,
@@ -190,29 +191,12 @@ class HBMSystem:
         reconstruction of an accepted point form them once, and every structured
         Jacobian at that frequency shares its ``S_h`` (formed once).  Bit-identical to
         forming them again (the same operations).
-
-        Returns
-        -------
-        blocks : list of tuple
-            ``(A, B, B', Ef)`` per harmonic of the basis (read-only arrays).
-        S : list
-            ``S_h`` per harmonic once formed (:meth:`HBMJacobian.schur`), else None.
-        dynamic : list
-            One entry: the :class:`~jointsim.solvers.condensation.DynamicProducts` at
-            this frequency once made (by the first unformed ``J v``), else None.
         """
         key = (float(omega), float(xi))
         cache = self.omega_cache
         got = cache.pop(key, None)
         if got is None:
-            lin = self.lin
-            blocks = []
-            for h in self.basis.harmonics:
-                A, B, Bp, E = lin.blocks(h * omega, xi)
-                for a in (A, B, Bp):
-                    a.flags.writeable = False
-                blocks.append((A, B, Bp, lin.factor_E(E) if lin.n_y else E))
-            got = (blocks, [None] * len(blocks), [None])
+            got = FrequencyBlocks(self.lin, self.basis.harmonics, omega, xi)
         cache[key] = got                       # most recent last
         while len(cache) > OMEGA_CACHE:
             cache.pop(next(iter(cache)))
@@ -246,54 +230,19 @@ class HBMSystem:
         Q = np.asarray(z, dtype=float).reshape(nc, nr)
         R = np.zeros((nc, nr))
         structured = jacobian and self.krylov and J_out is None
-        blocks = []
         J = (np.zeros((self.n_z, self.n_z)) if J_out is None else J_out) \
             if jacobian and not structured else None
         dR = {p: np.zeros((nc, nr)) for p in wrt} if jacobian else {}
         lin = self.lin
-        hblocks, S_kept, dynamic = self.harmonic_blocks(omega, xi)
+        fb = self.harmonic_blocks(omega, xi)
         # the force in the contact and the other coordinates, every coefficient at once
         # (real products: the complex form of Psi and Z is never made)
         F = np.asarray(F, dtype=float)
         FPsi, FZ = F @ lin.Psi, F @ lin.Z
-        for h, (A, B, Bp, Ef) in zip(self.basis.harmonics, hblocks):
-            nu = h * omega
-            qh = self._complex(Q, h)
-            Fq = self._complex(FPsi, h)
-            Fy = self._complex(FZ, h)
-            if lin.n_y and jacobian and not structured:
-                both = lin.solve_E(Ef, np.column_stack([Fy - Bp @ qh, Bp]))
-                y, EinvBp = both[:, 0], both[:, 1:]
-            elif lin.n_y:
-                y = lin.solve_E(Ef, Fy - Bp @ qh)
-            else:
-                y, EinvBp = np.zeros(0, complex), np.zeros((0, nr), complex)
-            self._store(R, h, A @ qh + B @ y - Fq)
-            if not jacobian:
-                continue
-            if structured:
-                blocks.append((A, B, Bp, Ef))
-            else:
-                S = A - B @ EinvBp
-            ic, is_ = self.basis.index[h]
-            rc = ic * nr + np.arange(nr)
-            if structured:
-                pass
-            elif h == 0:
-                J[np.ix_(rc, rc)] = S.real
-            else:
-                rs = is_ * nr + np.arange(nr)
-                J[np.ix_(rc, rc)] = S.real
-                J[np.ix_(rc, rs)] = S.imag
-                J[np.ix_(rs, rc)] = -S.imag
-                J[np.ix_(rs, rs)] = S.real
-            for p in wrt:
-                if h == 0 and p == "omega":
-                    continue
-                v, dy = lin.dproducts(nu, xi, p, h, qh, y)
-                if lin.n_y:
-                    v = v + B @ -lin.solve_E(Ef, dy)
-                self._store(dR[p], h, v)
+        if self.krylov and J_out is None and fb.dynamic is not None:
+            self._linear_part_all(fb, Q, FPsi, FZ, R, dR)
+        else:
+            self._linear_part(fb, Q, FPsi, FZ, R, dR, J, jacobian and not structured)
         aft = None
         if self.n_e and nr:
             aft = self.contact_forces(z, jacobian)
@@ -304,14 +253,73 @@ class HBMSystem:
             if jacobian and not structured:
                 self._add_element_blocks(J, aft)
         if structured:
-            J = HBMJacobian(self.basis, self.lin, blocks, self.t_row, self.n_row,
+            J = HBMJacobian(self.basis, self.lin, fb, self.t_row, self.n_row,
                             aft.Juu if (aft is not None and self.friction) else None,
                             aft.Jug if (aft is not None and self.friction and self.coupled)
                             else None,
                             aft.JNN if (aft is not None and self.coupled) else None,
-                            stats=self.stats, cache=self.preconditioner, rtol=self.krylov_rtol,
-                            schur=S_kept, freq=(omega, xi), dynamic=dynamic)
+                            stats=self.stats, cache=self.preconditioner, rtol=self.krylov_rtol)
         return Evaluation(R=R.ravel(), J=J, dR={p: v.ravel() for p, v in dR.items()}, aft=aft)
+
+    def _linear_part(self, fb, Q, FPsi, FZ, R, dR, J, dense):
+        """Add ``A q + B y - F_q`` (``y = E^-1 (F_y - B' q)``) to ``R``, its derivatives
+        to ``dR`` and, when ``dense``, ``S_h`` into ``J``: harmonic by harmonic from the
+        blocks (a full ``E``, or the dense Jacobian)."""
+        nr, lin = self.n_r, self.lin
+        for h, (A, B, Bp, Ef) in zip(self.basis.harmonics, fb.blocks):
+            nu = h * fb.omega
+            qh = self._complex(Q, h)
+            Fq = self._complex(FPsi, h)
+            Fy = self._complex(FZ, h)
+            if lin.n_y and dense:
+                both = lin.solve_E(Ef, np.column_stack([Fy - Bp @ qh, Bp]))
+                y, EinvBp = both[:, 0], both[:, 1:]
+            elif lin.n_y:
+                y = lin.solve_E(Ef, Fy - Bp @ qh)
+            else:
+                y, EinvBp = np.zeros(0, complex), np.zeros((0, nr), complex)
+            self._store(R, h, A @ qh + B @ y - Fq)
+            if dense:
+                S = A - B @ EinvBp
+                ic, is_ = self.basis.index[h]
+                rc = ic * nr + np.arange(nr)
+                J[np.ix_(rc, rc)] = S.real
+                if h:
+                    rs = is_ * nr + np.arange(nr)
+                    J[np.ix_(rc, rs)] = S.imag
+                    J[np.ix_(rs, rc)] = -S.imag
+                    J[np.ix_(rs, rs)] = S.real
+            for p in dR:
+                if h == 0 and p == "omega":
+                    continue
+                v, dy = lin.dproducts(nu, fb.xi, p, h, qh, y)
+                if lin.n_y:
+                    v = v + B @ -lin.solve_E(Ef, dy)
+                self._store(dR[p], h, v)
+
+    def _linear_part_all(self, fb, Q, FPsi, FZ, R, dR):
+        """:meth:`_linear_part` for every harmonic at once by
+        :class:`~.condensation.DynamicProducts` (modal or low-rank condensation): the
+        complex per-harmonic blocks are not formed."""
+        lin, dyn = self.lin, fb.dynamic
+        H = self.basis.harmonics
+        cq = np.stack([self._complex(Q, h) for h in H], axis=1)          # (n_r, n_h)
+        cF = np.stack([self._complex(FPsi, h) for h in H], axis=1)
+        cFy = np.stack([self._complex(FZ, h) for h in H], axis=1)        # (n_y, n_h)
+        lhs, y = dyn.parts(cq, cFy)
+        for j, h in enumerate(H):
+            self._store(R, h, lhs[:, j] - cF[:, j])
+        for p in dR:
+            dq = np.zeros_like(cq)
+            dy = np.zeros_like(y)
+            for j, h in enumerate(H):
+                if h == 0 and p == "omega":
+                    continue
+                dq[:, j], dy[:, j] = lin.dproducts(h * fb.omega, fb.xi, p, h, cq[:, j], y[:, j])
+            v = dq - dyn.b_einv(dy)
+            for j, h in enumerate(H):
+                if not (h == 0 and p == "omega"):
+                    self._store(dR[p], h, v[:, j])
 
     def contact_forces(self, z, jacobian: bool = False):
         """The AFT of the contact elements at the coefficients ``z``.
@@ -347,13 +355,15 @@ class HBMSystem:
         lin = self.lin
         Y = np.zeros((nc, lin.n_y))            # coefficients of the other coordinates
         FZ = np.asarray(F, dtype=float) @ lin.Z
-        # the blocks of an evaluated frequency (not for a full E: its solve from the
-        # LU factors differs from a fresh solve in the last bits)
+        # the blocks of an evaluated frequency where they were formed (not for a full
+        # E: its solve from the LU factors differs from a fresh solve in the last bits)
         kept = self.omega_cache.get((float(omega), float(xi))) \
             if lin.kind != "direct" else None
+        if kept is not None and not kept.formed:
+            kept = None
         for k, h in enumerate(self.basis.harmonics):
             if kept is not None:
-                _, _, Bp, E = kept[0][k]
+                _, _, Bp, E = kept.blocks[k]
             else:
                 _, _, Bp, E = lin.blocks(h * omega, xi, parts="yq")
             if lin.n_y:

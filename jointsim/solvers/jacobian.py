@@ -53,7 +53,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .condensation import DynamicProducts
 from .gmres import KRYLOV_MAXITER, KRYLOV_RTOL, GMRESResult, gmres, gmres_columns  # noqa: F401
 from .preconditioner import PreconditionerCache
 
@@ -114,9 +113,10 @@ class HBMJacobian:
     ----------
     basis : jointsim.harmonics.HarmonicBasis
     lin : jointsim.solvers.condensation.ReducedLinear
-    blocks : list of tuple
-        Per harmonic of ``basis.harmonics``: ``(A, B, B', Ef)`` of
-        :meth:`ReducedLinear.blocks` (``Ef`` prepared by ``factor_E``).
+    freq : jointsim.solvers.condensation.FrequencyBlocks
+        The linear part at the Jacobian's frequency (its blocks, formed on first use,
+        and its ``S_h``, shared by every Jacobian at that frequency,
+        :meth:`jointsim.solvers.hbm.HBMSystem.harmonic_blocks`).
     t_row, n_row : ndarray of int, shape (n_e,)
         Slip and gap rows of each element among the ``n_r`` contact coordinates.
     Juu, Jug, JNN : ndarray, shape (n_e, n_c, n_c) or None
@@ -128,25 +128,11 @@ class HBMJacobian:
     rtol : float, optional
         GMRES tolerance of its solves (default ``KRYLOV_RTOL``; the error indicators
         use a looser one).
-    schur : list, optional
-        The ``S_h`` list (entries None until formed) shared by every Jacobian at the
-        same frequency (:meth:`jointsim.solvers.hbm.HBMSystem.harmonic_blocks`);
-        default a list of its own.
-    freq : tuple (omega, xi), optional
-        Base angular frequency [rad/s] and self-excitation [1/s] of the blocks: with a
-        modal or low-rank condensation the unformed products then go through
-        :class:`~jointsim.solvers.condensation.DynamicProducts` (every harmonic in
-        three real BLAS-3 products) instead of the per-harmonic complex blocks.
-    dynamic : list, optional
-        One-entry holder of that object, shared like ``schur``.
     """
 
-    def __init__(self, basis, lin, blocks, t_row, n_row, Juu=None, Jug=None, JNN=None,
-                 col=None, stats=None, cache=None, rtol=None, schur=None, freq=None,
-                 dynamic=None):
-        self.basis, self.lin, self.blocks = basis, lin, blocks
-        self.freq = freq
-        self._dynamic = [None] if dynamic is None else dynamic
+    def __init__(self, basis, lin, freq, t_row, n_row, Juu=None, Jug=None, JNN=None,
+                 col=None, stats=None, cache=None, rtol=None):
+        self.basis, self.lin, self.freq = basis, lin, freq
         self.n_r = lin.n_r
         self.n_c = basis.n_coeff
         self.n_z = self.n_c * self.n_r
@@ -162,22 +148,21 @@ class HBMJacobian:
         self._is = np.array([basis.index[k][1] if k else basis.index[k][0] for k in h])
         self._h0 = np.array([k == 0 for k in h])
         # S_h once formed (shared by scaled copies and Jacobians at the same frequency)
-        self._S = [None] * len(blocks) if schur is None else schur
-        self._products = [0]                  # unformed J v so far (shared likewise)
+        self._S = freq.S
+        self._products = [0]                  # unformed J v so far (shared by scaled copies)
 
     # -- pieces -------------------------------------------------------------------
     def scaled(self, col) -> "HBMJacobian":
         """``J diag(col)`` (same pieces, same cache)."""
-        out = HBMJacobian(self.basis, self.lin, self.blocks, self.t_row, self.n_row,
+        out = HBMJacobian(self.basis, self.lin, self.freq, self.t_row, self.n_row,
                           self.Juu, self.Jug, self.JNN, self.col * col, self.stats, self.cache,
-                          self.rtol, freq=self.freq, dynamic=self._dynamic)
-        out._S = self._S
+                          self.rtol)
         out._products = self._products
         return out
 
     def form_schur(self) -> None:
         """Form and keep every ``S_h`` (n_r x n_r each), for fast products."""
-        for i in range(len(self.blocks)):
+        for i in range(len(self._S)):
             self.schur(i)
 
     def schur(self, i: int) -> np.ndarray:
@@ -187,7 +172,7 @@ class HBMJacobian:
         like the preconditioner's build, copy it into their own storage).
         """
         if self._S[i] is None:
-            A, B, Bp, Ef = self.blocks[i]
+            A, B, Bp, Ef = self.freq.blocks[i]
             S = np.array(A, dtype=complex) if not self.lin.n_y \
                 else A - B @ self.lin.solve_E(Ef, Bp)
             S.flags.writeable = False
@@ -202,15 +187,11 @@ class HBMJacobian:
             for i, S in enumerate(self._S):      # formed (n_r^2 per harmonic)
                 out[i] = (S.conj().T @ Xc[i]) if herm else S @ Xc[i]
             return out
-        if not herm and self.freq is not None and hasattr(lin, "KMC_qq"):
-            if self._dynamic[0] is None:
-                omega, xi = self.freq
-                self._dynamic[0] = DynamicProducts(
-                    lin, np.asarray(self.basis.harmonics, dtype=float) * omega, xi)
+        if not herm and self.freq.dynamic is not None:      # every harmonic at once
             X3 = Xc if Xc.ndim == 3 else Xc[:, :, None]          # (n_h, n_r, k)
-            Y3 = self._dynamic[0].apply(X3.transpose(1, 0, 2))  # (n_r, n_h, k)
+            Y3 = self.freq.dynamic.apply(X3.transpose(1, 0, 2))  # (n_r, n_h, k)
             return Y3.transpose(1, 0, 2).reshape(Xc.shape)
-        for i, (A, B, Bp, Ef) in enumerate(self.blocks):
+        for i, (A, B, Bp, Ef) in enumerate(self.freq.blocks):
             x = Xc[i]
             if herm:
                 # S^H = A^H - B'^H E^-H B^H; E is complex symmetric (E^T = E)

@@ -150,7 +150,7 @@ class PreconditionerCache:
         """Whether the current preconditioner was built from ``jac``'s pieces (``jac``
         itself or a column-scaled copy of it)."""
         o = self.owner
-        return o is not None and (o is jac or (o.blocks is jac.blocks and o.Juu is jac.Juu
+        return o is not None and (o is jac or (o.freq is jac.freq and o.Juu is jac.Juu
                                                and o.Jug is jac.Jug and o.JNN is jac.JNN))
 
     def refresh(self, jac, shift=None) -> "HarmonicPreconditioner":
