@@ -68,9 +68,14 @@ LOWRANK = True
 #: 8,886 -> 1,837, builds 152 -> 75, the branch's solves 37.4 -> 20.9 s; truncating
 #: to 0.6 instead (m = 1,710, still truncated) was slower than 0.35: 42.0 s (the larger
 #: LU, and 5,011 iterations).  Force scale 2 (m at most 990): unchanged.
+#: ``LOWRANK_MAX`` 3000 -> 4600 (round 14, with the row-block stage): the EPMC's
+#: extended indicator systems (5,952 unknowns, 31 coefficients) needed up to about
+#: 3,400; at 3000, 14 of 36 builds were truncated.  One process, indicators inline:
+#: builds 36 -> 25, their GMRES iterations 846 -> 516, the EPMC 37.0 -> 29.1 s; the
+#: FRC's force-20 branch is unchanged (none truncated either way; peak memory 930 MB).
 LOWRANK_EXACT_FRACTION = 0.9
 LOWRANK_MAX_FRACTION = 0.35
-LOWRANK_MAX = 3000
+LOWRANK_MAX = 4600
 LOWRANK_MIN = 600
 #: Elements whose harmonic coupling ``|L_e|`` is below this fraction of the largest
 #: tangent entry are left out of the low-rank stage (in the stuck range the AFT's
