@@ -393,29 +393,30 @@ class FrequencyBlocks:
         self.harmonics = tuple(harmonics)
         self.omega, self.xi = float(omega), float(xi)
         self.S = [None] * len(self.harmonics)
-        self._blocks = None
+        self._blocks = [None] * len(self.harmonics)
         self._dynamic = None
 
     @property
     def formed(self) -> bool:
-        """Whether the per-harmonic blocks have been formed."""
-        return self._blocks is not None
+        """Whether every harmonic's blocks have been formed."""
+        return all(b is not None for b in self._blocks)
+
+    def block(self, i: int) -> tuple:
+        """``(A, B, B', Ef)`` of the ``i``-th harmonic (read-only, ``Ef`` factorised),
+        formed on first use (forming ``S_h`` needs them; products and residuals with a
+        modal or low-rank condensation do not, :attr:`dynamic`)."""
+        if self._blocks[i] is None:
+            lin = self.lin
+            A, B, Bp, E = lin.blocks(self.harmonics[i] * self.omega, self.xi)
+            for a in (A, B, Bp):
+                a.flags.writeable = False
+            self._blocks[i] = (A, B, Bp, lin.factor_E(E) if lin.n_y else E)
+        return self._blocks[i]
 
     @property
     def blocks(self) -> list:
-        """Per harmonic ``(A, B, B', Ef)`` (read-only, ``Ef`` factorised), formed on first
-        use (forming ``S_h`` needs them; products and residuals with a modal or low-rank
-        condensation do not, :attr:`dynamic`)."""
-        if self._blocks is None:
-            lin = self.lin
-            out = []
-            for h in self.harmonics:
-                A, B, Bp, E = lin.blocks(h * self.omega, self.xi)
-                for a in (A, B, Bp):
-                    a.flags.writeable = False
-                out.append((A, B, Bp, lin.factor_E(E) if lin.n_y else E))
-            self._blocks = out
-        return self._blocks
+        """Every harmonic's :meth:`block`."""
+        return [self.block(i) for i in range(len(self.harmonics))]
 
     @property
     def dynamic(self):

@@ -113,7 +113,7 @@ class EPMCSystem:
         s, lin = self.s, self.s.lin
         qh = s._complex(Q, 1)
         # harmonic 1's blocks, kept by the system from the evaluation at (omega, xi)
-        _A, _B, Bp, Ef = s.harmonic_blocks(omega, xi).blocks[list(s.basis.harmonics).index(1)]
+        _A, _B, Bp, Ef = s.harmonic_blocks(omega, xi).block(list(s.basis.harmonics).index(1))
         Fy = lin.Z.T @ s._complex(self.F, 1)
         y = lin.solve_E(Ef, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)
         q1 = self.m_q @ qh + self.m_y @ y

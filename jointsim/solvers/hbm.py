@@ -363,7 +363,7 @@ class HBMSystem:
             kept = None
         for k, h in enumerate(self.basis.harmonics):
             if kept is not None:
-                _, _, Bp, E = kept.blocks[k]
+                _, _, Bp, E = kept.block(k)
             else:
                 _, _, Bp, E = lin.blocks(h * omega, xi, parts="yq")
             if lin.n_y:
