@@ -77,6 +77,12 @@ LOWRANK_EXACT_FRACTION = 0.9
 LOWRANK_MAX_FRACTION = 0.35
 LOWRANK_MAX = 4600
 LOWRANK_MIN = 600
+#: The low-rank stage's LU is in single precision (half the flops and memory) for
+#: Jacobians solved to this GMRES tolerance or looser: the error indicators' extended
+#: systems (``INDICATOR_RTOL = 1e-3``), where a preconditioner exact to about 1e-6 still
+#: solves in one or two iterations.  Measured on the 121-pair EPMC (one process): the
+#: extended systems' LUs (``m`` up to 4,600) were 61 of its 175 s.
+SINGLE_LU_RTOL = 1e-6
 #: Elements whose harmonic coupling ``|L_e|`` is below this fraction of the largest
 #: tangent entry are left out of the low-rank stage (in the stuck range the AFT's
 #: round-off, about 1e-12, used to fill it: 1,260 coordinates at 121 pairs).
@@ -98,7 +104,8 @@ class LowRankStage(NamedTuple):
     Lr : ndarray, shape (n_rb, n_c, nb n_c)
         ``L`` on each row block, over its element's coordinates [N/m].
     lu : tuple
-        ``scipy.linalg.lu_factor`` of ``I + L_r G`` (``m = n_rb n_c`` square).
+        ``scipy.linalg.lu_factor`` of ``I + L_r G`` (``m = n_rb n_c`` square; single
+        precision for a loose solve, ``SINGLE_LU_RTOL``).
     nb : int
         Row kinds per element (slip and gap rows: 2; one of them: 1).
     """
@@ -437,6 +444,8 @@ class HarmonicPreconditioner:
         for j in range(nrb):                                  # L_r G, row block j
             np.matmul(Lr[j], G[blk_el[j]], out=Mk[j * nc:(j + 1) * nc])
         Mk[np.arange(m), np.arange(m)] += 1.0
+        if jac.rtol >= SINGLE_LU_RTOL:      # a loose solve: the LU in single precision
+            Mk = Mk.astype(np.float32)
         self.lowrank = LowRankStage(R, Rrow, blk_el, Lr,
                                     sla.lu_factor(Mk, check_finite=False), nb)
         # the selected columns of P_h^-1: the correction P^-1 E_r s lives on the Rrow rows
@@ -519,7 +528,8 @@ class HarmonicPreconditioner:
         # element-major column order (l, b n_c + c) from the (c, b nl + l) columns of Y
         yc = Y[:, lr.R].reshape(nc, lr.nb, nl, k).transpose(2, 1, 0, 3).reshape(nl, -1, k)
         rhs = np.matmul(lr.Lr, yc[lr.block_element])             # L_r y_c, (nrb, n_c, k)
-        s = sla.lu_solve(lr.lu, rhs.reshape(-1, k), check_finite=False)
+        s = sla.lu_solve(lr.lu, rhs.reshape(-1, k).astype(lr.lu[0].dtype, copy=False),
+                         check_finite=False).astype(float, copy=False)
         # P^-1 E_r s: only the Rrow columns of P_h^-1 (n_r x nrb per harmonic, not
         # n_r x n_r: the same nonzero terms, a fraction of the memory traffic)
         Xw = jac._to_complex(np.ascontiguousarray(s.reshape(-1, nc, k).transpose(1, 0, 2)))

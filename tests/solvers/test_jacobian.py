@@ -131,6 +131,30 @@ def test_lowrank_stage_keeps_only_the_rows_that_couple_harmonics():
     assert it == 1 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
 
 
+def test_lowrank_lu_is_single_precision_for_a_loose_solve():
+    """A Jacobian solved to a loose tolerance (the error indicators', rtol 1e-3) gets
+    its low-rank LU in single precision: the preconditioner is then the inverse of J to
+    single-precision round-off (against the dense solve) and GMRES still needs one
+    iteration; at the default tolerance the LU stays in double precision."""
+    from jointsim.solvers.preconditioner import SINGLE_LU_RTOL
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
+    F = sd.force_coefficients(0.3)
+    rng = np.random.default_rng(5)
+    z = rng.normal(size=sd.n_z) * 0.4
+    v = rng.normal(size=sd.n_z)
+    xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, v)
+    Jk = sk.evaluate(z, 1.1, F).J
+    assert Jk.rtol < SINGLE_LU_RTOL
+    assert HarmonicPreconditioner(Jk).lowrank.lu[0].dtype == np.float64
+    Jk.rtol = 1e-3
+    P = HarmonicPreconditioner(Jk)
+    assert P.lowrank.lu[0].dtype == np.float32 and not P.truncated
+    err = np.abs(P.solve(v) - xd).max() / np.abs(xd).max()
+    assert 1e-12 < err <= 1e-4
+    x, it, rel, _ = gmres(Jk.matvec, v, P.solve, rtol=1e-3)
+    assert it == 1 and rel <= 1e-3 and P.solve(v).dtype == np.float64
+
+
 def test_lowrank_stage_is_exact_up_to_its_fraction_and_truncated_beyond(monkeypatch):
     """The low-rank stage keeps every element that couples harmonics while they need at
     most LOWRANK_EXACT_FRACTION n_z coordinates (exact: one GMRES iteration); beyond,
