@@ -128,8 +128,10 @@ class ReducedLinear:
         if self.kind in ("modal", "lowrank") and n_r and self.n_y:
             # K, M, C side by side for the products of every harmonic at once
             # (:class:`DynamicProducts`)
-            self.KMC_qq = np.vstack([self.K["qq"], self.M["qq"], self.C["qq"]])
-            self.KMC_yq = np.vstack([self.K["yq"], self.M["yq"], self.C["yq"]])
+            # rows: K, M, C of the qq blocks, then of the yq blocks (one product gives
+            # A X and B' X); columns: K, M, C of the qy blocks
+            self.KMC_q = np.vstack([self.K["qq"], self.M["qq"], self.C["qq"],
+                                    self.K["yq"], self.M["yq"], self.C["yq"]])
             self.KMC_qy = np.hstack([self.K["qy"], self.M["qy"], self.C["qy"]])
         self._Mfull = M
 
@@ -257,9 +259,9 @@ class DynamicProducts:
     With ``D(nu) = K + c_M M + c_C C`` (``c_M = -nu^2 - i nu xi``, ``c_C = i nu``)
     every block is a combination of the real ``K``, ``M``, ``C`` blocks, shared by the
     harmonics; so ``A X``, ``B' X`` and ``B Y`` for the columns of all harmonics are
-    three real BLAS-3 products with ``[K; M; C]`` (read once), and ``E^-1`` is diagonal
-    (modal) or diagonal plus rank ``r`` (Woodbury, an ``r x r`` inverse per harmonic,
-    made here once).  Per product this reads 3 real ``n_r x n_r`` and 6 real
+    two real BLAS-3 products with the stacked ``K``, ``M``, ``C`` (read once), and
+    ``E^-1`` is diagonal (modal) or diagonal plus rank ``r`` (Woodbury, the ``r x r``
+    inverse of :class:`_LowRankE` per harmonic, made here once).  Per product this reads 3 real ``n_r x n_r`` and 6 real
     ``n_r x n_y`` arrays instead of, per harmonic, three complex blocks: measured on
     96 Gauss points (``n_r = 192``, ``n_y = 236``, 15 harmonics), 1.1 to 1.7 ms
     against 3.0 ms.  Only for a modal or low-rank condensation
@@ -275,7 +277,7 @@ class DynamicProducts:
     """
 
     def __init__(self, lin: ReducedLinear, nus, xi: float = 0.0):
-        if lin.kind not in ("modal", "lowrank") or not hasattr(lin, "KMC_qq"):
+        if not hasattr(lin, "KMC_q"):
             raise ValueError("DynamicProducts needs a modal or low-rank condensation")
         nus = np.asarray(nus, dtype=float)
         self.lin = lin
@@ -285,34 +287,42 @@ class DynamicProducts:
         self.W = None
         if lin.kind == "modal":
             d = d + lin.cyy[:, None] * self.cc[None, :]
+            if np.any(d == 0):
+                raise np.linalg.LinAlgError("the structure with welded contacts is singular "
+                                            "at this frequency (an undamped resonance or an "
+                                            "unrestrained rigid-body motion)")
         else:
-            # E_h = diag(d_h) + U diag(s_h) U^T, s_h = i nu_h c: per harmonic the
-            # Woodbury matrix inverted once (zero for nu = 0: E is diagonal there)
-            U = lin.U
-            self.W = np.zeros((nus.size, U.shape[1], U.shape[1]), dtype=complex)
+            # E_h = diag(d_h) + U diag(s_h) U^T: per harmonic the Woodbury matrix of
+            # _LowRankE, inverted once (none for nu = 0: E is diagonal there)
+            r = lin.U.shape[1]
+            self.W = np.zeros((nus.size, r, r), dtype=complex)
             for j, nu in enumerate(nus):
-                s = 1j * nu * lin.cw
-                if np.any(s != 0):
-                    self.W[j] = np.linalg.inv(np.diag(1.0 / s) + U.T @ (U / d[:, j:j + 1]))
-        if np.any(d == 0):
-            raise np.linalg.LinAlgError("the structure with welded contacts is singular at "
-                                        "this frequency (an undamped resonance or an "
-                                        "unrestrained rigid-body motion)")
+                E = _LowRankE(d[:, j], 1j * nu * lin.cw, lin.U)
+                E.factor()
+                if E._small_inv is not None:
+                    self.W[j] = E._small_inv
         self.Ed = d
 
-    def _real(self, A, X, n, k):
-        """The three products ``(K X, M X, C X)`` combined as ``K X + c_M M X + c_C C X``
-        with the stacked real blocks ``A`` (3 n rows, or n rows of 3 column groups);
-        ``X`` (m, p) complex, ``p = n_h k``."""
+    def _from_q(self, X, k):
+        """``(A_h X, B'_h X)`` for the columns of ``X`` (n_r, n_h k), harmonic-major: one
+        real product with the stacked ``K``, ``M``, ``C`` of the qq and yq blocks."""
+        lin = self.lin
         p = X.shape[1]
         cm, cc = np.repeat(self.cm, k), np.repeat(self.cc, k)
-        if A.shape[0] == 3 * n:
-            P = A @ np.concatenate([X.real, X.imag], axis=1)            # (3n, 2p)
-            parts = [P[i * n:(i + 1) * n, :p] + 1j * P[i * n:(i + 1) * n, p:]
-                     for i in range(3)]
-            return parts[0] + cm * parts[1] + cc * parts[2]
-        Xs = np.vstack([X, cm * X, cc * X])                              # (3m, p)
-        P = A @ np.concatenate([Xs.real, Xs.imag], axis=1)               # (n, 2p)
+        P = lin.KMC_q @ np.concatenate([X.real, X.imag], axis=1)        # (3 n_r + 3 n_y, 2p)
+        P = P[:, :p] + 1j * P[:, p:]
+        nr, ny = lin.n_r, lin.n_y
+        K, M, C = P[:nr], P[nr:2 * nr], P[2 * nr:3 * nr]
+        Ky, My, Cy = P[3 * nr:3 * nr + ny], P[3 * nr + ny:3 * nr + 2 * ny], P[3 * nr + 2 * ny:]
+        return K + cm * M + cc * C, Ky + cm * My + cc * Cy
+
+    def _b(self, Y, k):
+        """``B_h Y`` for the columns of ``Y`` (n_y, n_h k): one real product with the
+        ``K``, ``M``, ``C`` of the qy blocks side by side."""
+        p = Y.shape[1]
+        cm, cc = np.repeat(self.cm, k), np.repeat(self.cc, k)
+        Ys = np.vstack([Y, cm * Y, cc * Y])                              # (3 n_y, p)
+        P = self.lin.KMC_qy @ np.concatenate([Ys.real, Ys.imag], axis=1)  # (n_r, 2p)
         return P[:, :p] + 1j * P[:, p:]
 
     def _solve_E(self, Y, k):
@@ -336,12 +346,9 @@ class DynamicProducts:
         -------
         ndarray, shape (n_r, n_h, k), complex
         """
-        lin = self.lin
         nr, nh, k = X.shape
-        Xf = X.reshape(nr, nh * k)
-        y = self._solve_E(self._real(lin.KMC_yq, Xf, lin.n_y, k), k)
-        out = self._real(lin.KMC_qq, Xf, nr, k) - self._real(lin.KMC_qy, y, nr, k)
-        return out.reshape(nr, nh, k)
+        AX, BpX = self._from_q(X.reshape(nr, nh * k), k)
+        return (AX - self._b(self._solve_E(BpX, k), k)).reshape(nr, nh, k)
 
     def parts(self, Q, Fy):
         """The residual's linear part of every harmonic: ``y_h = E_h^-1 (F_y,h - B'_h
@@ -359,13 +366,13 @@ class DynamicProducts:
         Aq_By : ndarray, shape (n_r, n_h), complex [N]
         y : ndarray, shape (n_y, n_h), complex [m]
         """
-        lin = self.lin
-        y = self._solve_E(Fy - self._real(lin.KMC_yq, Q, lin.n_y, 1), 1)
-        return self._real(lin.KMC_qq, Q, lin.n_r, 1) + self._real(lin.KMC_qy, y, lin.n_r, 1), y
+        AQ, BpQ = self._from_q(Q, 1)
+        y = self._solve_E(Fy - BpQ, 1)
+        return AQ + self._b(y, 1), y
 
     def b_einv(self, Y):
         """``B_h E_h^-1 Y[:, h]`` for every harmonic; ``Y`` (n_y, n_h) complex."""
-        return self._real(self.lin.KMC_qy, self._solve_E(Y, 1), self.lin.n_r, 1)
+        return self._b(self._solve_E(Y, 1), 1)
 
 
 class FrequencyBlocks:
@@ -422,7 +429,7 @@ class FrequencyBlocks:
     def dynamic(self):
         """The :class:`DynamicProducts` at this frequency (made once), or None when the
         condensation is not modal or low-rank."""
-        if self._dynamic is None and hasattr(self.lin, "KMC_qq"):
+        if self._dynamic is None and hasattr(self.lin, "KMC_q"):
             self._dynamic = DynamicProducts(
                 self.lin, np.asarray(self.harmonics, dtype=float) * self.omega, self.xi)
         return self._dynamic

@@ -72,76 +72,21 @@ def gmres(matvec, b, psolve, rtol: float = KRYLOV_RTOL, restart: int = KRYLOV_RE
     resonance, 1e-11 to 2e-10 at 96 contact points), which no better
     preconditioner lowers (:func:`krylov_solve`).
     """
-    n = b.size
-    bn = float(np.linalg.norm(b))
-    x = np.zeros(n)
-    if bn == 0.0 or n == 0:
-        return GMRESResult(x, 0, 0.0, False)
-    total = 0
-    r = b.copy()
-    beta = bn
-    if x0 is not None and np.all(np.isfinite(x0)):
-        r0 = b - matvec(x0)
-        if float(np.linalg.norm(r0)) < bn:          # a better start than zero
-            x, r, beta = np.array(x0, dtype=float), r0, float(np.linalg.norm(r0))
-    while True:
-        if beta <= rtol * bn or total >= maxiter:
-            return GMRESResult(x, total, beta / bn, False)
-        m = min(restart, maxiter - total)
-        V = np.zeros((m + 1, n))
-        Zp = np.zeros((m, n))
-        H = np.zeros((m + 1, m))
-        cs, sn = np.zeros(m), np.zeros(m)
-        g = np.zeros(m + 1)
-        g[0] = beta
-        V[0] = r / beta
-        j_end = 0
-        converged = False
-        for j in range(m):
-            Zp[j] = psolve(V[j])
-            w = matvec(Zp[j])
-            for _ in range(2):                      # classical Gram-Schmidt, twice
-                hj = V[:j + 1] @ w
-                w -= hj @ V[:j + 1]
-                H[:j + 1, j] += hj
-            hn = float(np.linalg.norm(w))
-            H[j + 1, j] = hn
-            if hn > 0.0:
-                V[j + 1] = w / hn
-            for i in range(j):                      # earlier rotations
-                t = cs[i] * H[i, j] + sn[i] * H[i + 1, j]
-                H[i + 1, j] = -sn[i] * H[i, j] + cs[i] * H[i + 1, j]
-                H[i, j] = t
-            d = np.hypot(H[j, j], H[j + 1, j])
-            cs[j], sn[j] = (1.0, 0.0) if d == 0.0 else (H[j, j] / d, H[j + 1, j] / d)
-            H[j, j] = d
-            H[j + 1, j] = 0.0
-            g[j + 1] = -sn[j] * g[j]
-            g[j] = cs[j] * g[j]
-            total += 1
-            j_end = j + 1
-            converged = abs(g[j + 1]) <= 0.5 * rtol * bn
-            if converged or hn == 0.0:
-                break
-        y = sla.solve_triangular(H[:j_end, :j_end], g[:j_end], check_finite=False)
-        x = x + y @ Zp[:j_end]
-        r = b - matvec(x)
-        beta_start, beta = beta, float(np.linalg.norm(r))
-        if j_end < m and beta > rtol * bn and hn == 0.0:  # breakdown without convergence
-            return GMRESResult(x, total, beta / bn, False)
-        if beta > rtol * bn and beta > STAGNATION * beta_start:
-            # a whole cycle gained less than 1/STAGNATION: the true residual is at the
-            # floor that the conditioning allows (e.g. the bordered EPMC system in the
-            # linear range, 2e-11 .. 2e-9 at 121 pairs); the caller judges the result
-            return GMRESResult(x, total, beta / bn, converged)
+    # one column of gmres_columns (the same iteration, one code path)
+    b = np.asarray(b, dtype=float)
+    X0 = None if x0 is None else np.asarray(x0, dtype=float)[:, None]
+    return gmres_columns(lambda V: matvec(V[:, 0])[:, None], b[:, None],
+                         lambda V: psolve(V[:, 0])[:, None], rtol=rtol, restart=restart,
+                         maxiter=maxiter, X0=X0)[0]
 
 
 def gmres_columns(matvec, B, psolve, rtol: float = KRYLOV_RTOL,
                   restart: int = KRYLOV_RESTART, maxiter: int = KRYLOV_MAXITER, X0=None):
     """:func:`gmres` for every column of ``B`` at once (``A X = B``).
 
-    Each column has its own Krylov space, residual and stopping tests, exactly as in
-    :func:`gmres`; the columns are advanced in lockstep, and ``matvec`` and
+    Each column has its own Krylov space, residual and stopping tests (those of
+    :func:`gmres`, which is this function on one column); the columns are advanced in
+    lockstep, and ``matvec`` and
     ``psolve`` are called on the ``(n, k)`` block of the columns still iterating.
 
     Parameters

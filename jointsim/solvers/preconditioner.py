@@ -71,8 +71,9 @@ LOWRANK = True
 #: ``LOWRANK_MAX`` 3000 -> 4600 (round 14, with the row-block stage): the EPMC's
 #: extended indicator systems (5,952 unknowns, 31 coefficients) needed up to about
 #: 3,400; at 3000, 14 of 36 builds were truncated.  One process, indicators inline:
-#: builds 36 -> 25, their GMRES iterations 846 -> 516, the EPMC 37.0 -> 29.1 s; the
-#: FRC's force-20 branch is unchanged (none truncated either way; peak memory 930 MB).
+#: builds 36 -> 25, their GMRES iterations 846 -> 516, the EPMC 37.0 -> 29.1 s (30.0 s
+#: in a second run); the FRC's force-20 branch is unchanged (none truncated either way;
+#: peak memory 930 MB).
 LOWRANK_EXACT_FRACTION = 0.9
 LOWRANK_MAX_FRACTION = 0.35
 LOWRANK_MAX = 4600
