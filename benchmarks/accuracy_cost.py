@@ -1,7 +1,7 @@
 """What accuracy costs in time: error against wall time (not collected by pytest).
 
-First row, the FE lap joint itself (models/lap_joint_fixed_n.toml and
-models/lap_joint.toml on their default 10 mm mesh), measured in the study's own
+First row, the FE lap joint itself (models/lap_joint_fixed_n_nodes.toml and
+models/lap_joint_nodes.toml on their default 10 mm mesh), measured in the study's own
 quantities: the EPMC frequency and damping ratio of the first bending mode at
 the study's loop amplitudes (fixed N: 3e-4, 1e-3, 3e-3; coupled N: 3e-4, 1e-3
 sqrt(kg) m), each one Newton solve at that fixed modal amplitude started from
@@ -66,8 +66,8 @@ from jointsim.solvers.prescribed import march_prescribed
 ROOT = Path(__file__).resolve().parents[1]
 CHAIN = ROOT / "models" / "hbm" / "chain2_jenkins.toml"
 OMEGA, SCALE = 1.02, 0.2
-FIXED = ROOT / "models" / "lap_joint_fixed_n.toml"
-COUPLED = ROOT / "models" / "lap_joint.toml"
+FIXED = ROOT / "models" / "lap_joint_fixed_n_nodes.toml"
+COUPLED = ROOT / "models" / "lap_joint_nodes.toml"
 
 
 def timed(fn, repeat: int = 5):

@@ -47,7 +47,7 @@ def _fold():
 
 def _lap():
     from jointsim.solvers.march_accuracy import undamped_modes, with_mode_damping
-    sc = load_scene(ROOT / "models/lap_joint.toml",
+    sc = load_scene(ROOT / "models/lap_joint_nodes.toml",
                     ["model.mesh='../meshes/lap_joint_coarse.msh'"])
     model = build_model(sc)
     model = with_mode_damping(model, undamped_modes(model), 0.05)

@@ -42,7 +42,7 @@ def main(argv=None) -> int:
           f"{'build s':>8} {'reduce s':>8} {'preload s':>9} {'f1..f3 reduced [Hz]':>28} "
           f"{'max rel err vs full':>19}")
     for name, path in meshes.items():
-        scene = load_scene(ROOT / "models" / "lap_joint.toml",
+        scene = load_scene(ROOT / "models" / "lap_joint_nodes.toml",
                            [f"model.mesh='{path}'", *a.overrides])
         t0 = time.perf_counter()
         m = build_model(scene)

@@ -19,7 +19,7 @@ from jointsim.model import build_model
 from jointsim.scene import load_scene
 from jointsim.solvers.modes import monolithic_modes, stuck_modes
 
-SCENE = Path(__file__).resolve().parents[1] / "models" / "lap_joint.toml"
+SCENE = Path(__file__).resolve().parents[1] / "models" / "lap_joint_nodes.toml"
 
 
 def f1(overrides):

@@ -1,7 +1,7 @@
 """Time the harmonic balance and EPMC of the FE lap joint (issue 4's 30 s target).
 
-Runs the two default scenes, ``models/lap_joint_fixed_n.toml`` (normal load
-frozen at the preload) and ``models/lap_joint.toml`` (coupled normal load with
+Runs the two default scenes, ``models/lap_joint_fixed_n_nodes.toml`` (normal load
+frozen at the preload) and ``models/lap_joint_nodes.toml`` (coupled normal load with
 separation), one after the other in this process, and prints per analysis the
 wall time, the points and the Newton iterations, read back from the result
 files.  Numba kernels are compiled (or loaded from the cache) by a warm-up run
@@ -26,8 +26,8 @@ from jointsim.run import run_scene
 from jointsim.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENES = {"fixed N": ROOT / "models" / "lap_joint_fixed_n.toml",
-          "coupled N": ROOT / "models" / "lap_joint.toml"}
+SCENES = {"fixed N": ROOT / "models" / "lap_joint_fixed_n_nodes.toml",
+          "coupled N": ROOT / "models" / "lap_joint_nodes.toml"}
 
 
 def warm_up(outdir: Path) -> float:

@@ -41,8 +41,8 @@ def main(argv):
 
     m = root / "models"
     cases = [(m / "hbm/chain2_jenkins.toml", []), (m / "hbm/chain2_friction_fold.toml", []),
-             (m / "hbm/sdof_clearance_fold.toml", []), (m / "lap_joint.toml", [coarse]),
-             (m / "lap_joint_fixed_n.toml", [coarse])]
+             (m / "hbm/sdof_clearance_fold.toml", []), (m / "lap_joint_nodes.toml", [coarse]),
+             (m / "lap_joint_fixed_n_nodes.toml", [coarse])]
     for p, ovs in cases:
         if sel and not any(s in p.name for s in sel):
             continue

@@ -12,7 +12,7 @@ branches serial), ``sdof_epmc`` (``models/hbm/sdof_jenkins_epmc.toml``),
 FRC branch at 200 N over 150-160 Hz), ``lap_epmc`` (the coupled-N lap joint on
 the coarse mesh, EPMC from a = 1e-5 to 1e-3).
 
-``lap121_hbm`` and ``lap121_epmc`` are the default scene (``models/lap_joint.toml``,
+``lap121_hbm`` and ``lap121_epmc`` are the default scene (``models/lap_joint_nodes.toml``,
 coupled N) on the 121-pair lap mesh of ``benchmarks/scale.py`` (generated once and
 cached in the temporary directory), Krylov path, one process: the FRC at force
 scale 2 (first 20 points) and the EPMC (first 10 points, no loop amplitudes), the
@@ -69,23 +69,23 @@ LAP121 = ["analysis.modes.full_model=false", "analysis.modes.monolithic=false"]
 CASES = {
     "chain2": ("hbm", ROOT / "models/hbm/chain2_jenkins.toml", ["analysis.hbm.workers=1"]),
     "sdof_epmc": ("epmc", ROOT / "models/hbm/sdof_jenkins_epmc.toml", []),
-    "lap_fixed": ("hbm", ROOT / "models/lap_joint_fixed_n.toml",
+    "lap_fixed": ("hbm", ROOT / "models/lap_joint_fixed_n_nodes.toml",
                   ["model.mesh='../meshes/lap_joint_coarse.msh'", "analysis.hbm.force_scale=[20.0]",
                    "analysis.hbm.omega_start=942.48", "analysis.hbm.omega_end=1005.3",
                    "analysis.modes.full_model=false", "analysis.modes.monolithic=false"]),
-    "lap_epmc": ("epmc", ROOT / "models/lap_joint.toml",
+    "lap_epmc": ("epmc", ROOT / "models/lap_joint_nodes.toml",
                  ["model.mesh='../meshes/lap_joint_coarse.msh'",
                   "analysis.epmc.log10_amplitude_end=-3.0",
                   "analysis.modes.full_model=false", "analysis.modes.monolithic=false"]),
-    "lap121_hbm": ("hbm", ROOT / "models/lap_joint.toml",
+    "lap121_hbm": ("hbm", ROOT / "models/lap_joint_nodes.toml",
                    LAP121 + ["analysis.hbm.force_scale=[2.0]", "analysis.hbm.refine_peak=false",
                              "analysis.hbm.workers=1", "analysis.hbm.linear_solver='krylov'",
                              "analysis.hbm.max_points=20"]),
-    "lap121_stuck": ("hbm", ROOT / "models/lap_joint.toml",
+    "lap121_stuck": ("hbm", ROOT / "models/lap_joint_nodes.toml",
                      LAP121 + ["analysis.hbm.force_scale=[0.02]", "analysis.hbm.refine_peak=false",
                                "analysis.hbm.workers=1", "analysis.hbm.linear_solver='krylov'",
                                "analysis.hbm.max_points=30"]),
-    "lap121_epmc": ("epmc", ROOT / "models/lap_joint.toml",
+    "lap121_epmc": ("epmc", ROOT / "models/lap_joint_nodes.toml",
                     LAP121 + ["analysis.epmc.loop_amplitudes=[]",
                               "analysis.epmc.linear_solver='krylov'",
                               "analysis.epmc.max_points=10"]),

@@ -56,7 +56,7 @@ def main(argv=None) -> int:
         sets.append(f"model.bolt_washer_radius={a.washer:g}")
     if a.gauss:
         sets += ["model.contact_points='gauss'", f"model.contact_gauss={a.gauss}"]
-    m = build_model(load_scene(ROOT / "models" / "lap_joint.toml", sets))
+    m = build_model(load_scene(ROOT / "models" / "lap_joint_nodes.toml", sets))
     c = m.contacts
     x = c.position[:, 0]
     closed = c.N0 > 0

@@ -1,7 +1,7 @@
 """Profile one analysis of the default lap-joint scene on a generated mesh (issue 10).
 
 Runs ``[analysis.hbm]`` (one force level, one process) or ``[analysis.epmc]`` of
-``models/lap_joint.toml`` on a lap mesh of ``--pairs`` node-to-node contact pairs
+``models/lap_joint_nodes.toml`` on a lap mesh of ``--pairs`` node-to-node contact pairs
 (``meshes/make_meshes.py``, cached like ``benchmarks/scale.py``) under cProfile, and
 prints the load, the analysis time, Newton and GMRES iterations, preconditioner
 builds and linear solves, then the profile.  ``--root`` runs another checkout of
@@ -49,7 +49,7 @@ def main(argv=None) -> None:
     cache = Path(tempfile.gettempdir()) / "jointsim_scale_meshes"
     cache.mkdir(exist_ok=True)
     mesh = _mesh(a.pairs, cache)
-    path = root / "models" / "lap_joint.toml"
+    path = root / "models" / "lap_joint_nodes.toml"
     lines, keep = [], True
     for line in path.read_text().splitlines():
         s = line.strip()

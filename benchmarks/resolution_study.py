@@ -33,8 +33,8 @@ import h5py
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENES = {"coupled N": ROOT / "models" / "lap_joint.toml",
-          "fixed N": ROOT / "models" / "lap_joint_fixed_n.toml"}
+SCENES = {"coupled N": ROOT / "models" / "lap_joint_nodes.toml",
+          "fixed N": ROOT / "models" / "lap_joint_fixed_n_nodes.toml"}
 
 
 def without_frc(text: str) -> str:

@@ -65,7 +65,7 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str) -> dict:
     from jointsim import _toml
     from jointsim.run import run_scene
     from jointsim.scene import apply_overrides, parse_scene
-    path = ROOT / "models" / "lap_joint.toml"
+    path = ROOT / "models" / "lap_joint_nodes.toml"
     lines, keep = [], True
     for line in path.read_text().splitlines():
         s = line.strip()

@@ -10,13 +10,14 @@ compares every setting with the most refined complete one::
     python benchmarks/study_converged.py compare [--H 15 19 23 31] [--out results/study23]
     python benchmarks/study_converged.py refine --H 15 --to 15 31 --amps 3e-4 1e-3 3e-3
 
-``run`` writes a copy of ``models/lap_joint.toml`` without ``[analysis.hbm]``
+``run`` writes a copy of ``models/lap_joint.toml`` (``--scene``) without ``[analysis.hbm]``
 to ``OUT/lap_joint_study.toml`` and runs, one at a time (one process each),::
 
     python -m jointsim.cli run OUT/lap_joint_study.toml -o OUT/h<H>.h5 \\
         --set analysis.epmc.harmonics=[0,...,H] --set analysis.epmc.n_samples=<Nt> \\
         --set analysis.epmc.amplitudes=[1e-4,3e-4,1e-3,3e-3] \\
-        --set analysis.epmc.log10_amplitude_end=-2.45
+        --set analysis.epmc.log10_amplitude_end=-2.45 \\
+        --set analysis.epmc.error_indicators=false
 
 with its log in ``OUT/h<H>.log``; a complete file is kept, an interrupted one
 is continued with ``--resume``.  ``analysis.epmc.amplitudes`` solves the mode
@@ -80,17 +81,19 @@ def overrides(H: int) -> list[str]:
     return [f"analysis.epmc.harmonics=[{','.join(str(h) for h in range(H + 1))}]",
             f"analysis.epmc.n_samples={n_samples(H)}",
             f"analysis.epmc.amplitudes={LOOP_AMPLITUDES}",
-            f"analysis.epmc.log10_amplitude_end={END}"]
+            f"analysis.epmc.log10_amplitude_end={END}",
+            "analysis.epmc.error_indicators=false"]   # the table does not use them
 
 
-def write_scene(out: Path) -> Path:
-    """Copy of the coupled scene without ``[analysis.hbm]`` (the table needs no FRC)."""
-    src = (ROOT / "models" / "lap_joint.toml").read_text()
+def write_scene(out: Path, source: Path = ROOT / "models" / "lap_joint.toml") -> Path:
+    """Copy of the coupled scene ``source`` without ``[analysis.hbm]`` (the table needs
+    no FRC)."""
+    src = Path(source).read_text()
     text = re.sub(r"\n\[analysis\.hbm\]\n(?:(?!\n\[).)*", "\n", src, flags=re.S)
     rel = Path(*[".."] * len(out.resolve().relative_to(ROOT).parts))
     text = text.replace('mesh = "../meshes/', f'mesh = "{rel.as_posix()}/meshes/')
-    if "[analysis.hbm]" in text or "meshes/lap_joint_default.msh" not in text:
-        raise RuntimeError("could not derive the study scene from models/lap_joint.toml")
+    if "[analysis.hbm]" in text or "[analysis.epmc]" not in text:
+        raise RuntimeError(f"could not derive the study scene from {source}")
     path = out / "lap_joint_study.toml"
     if not path.exists() or path.read_text() != text:
         path.write_text(text)
@@ -104,10 +107,10 @@ def _status(path: Path) -> str | None:
         return str(h5.attrs.get("status", "unknown"))
 
 
-def run(ladder: list[int], out: Path) -> int:
+def run(ladder: list[int], out: Path, source: Path = ROOT / "models" / "lap_joint.toml") -> int:
     """Run each setting in turn (complete files are kept, others resumed)."""
     out.mkdir(parents=True, exist_ok=True)
-    scene = write_scene(out)
+    scene = write_scene(out, source)
     rc = 0
     for H in ladder:
         f = out / f"h{H}.h5"
@@ -351,6 +354,9 @@ def main(argv=None) -> int:
                    help="refine: target highest harmonics")
     p.add_argument("--amps", type=float, nargs="+", default=None,
                    help="refine: modal amplitudes (default the four loop amplitudes)")
+    p.add_argument("--scene", type=Path, default=ROOT / "models" / "lap_joint.toml",
+                   help="run: the coupled scene (models/lap_joint_nodes.toml: the node-pair "
+                        "study of rounds up to 14)")
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     ladder = sorted(a.H)
@@ -358,7 +364,7 @@ def main(argv=None) -> int:
         refine([a.out / f"h{H}.h5" for H in ladder], a.to, a.out / "lap_joint_study.toml",
                a.amps)
         return 0
-    return run(ladder, a.out) if a.what == "run" else compare(ladder, a.out)
+    return run(ladder, a.out, a.scene) if a.what == "run" else compare(ladder, a.out)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ on a shared one); the ratio is what matters.
 Cases: ``chain2`` and ``chain2_above`` (the 2-DOF Jenkins chain of
 ``models/hbm/chain2_jenkins.toml``, F = 0.2, at its resonance where the element
 slips every period, and above it where it sticks once steady); ``lap_fixed`` (the
-FE lap joint of ``models/lap_joint.toml`` with the normal load fixed at the
+FE lap joint of ``models/lap_joint_nodes.toml`` with the normal load fixed at the
 preload, 100 N at the peak of the softened first bending mode, coarse mesh by
 default); ``lap_coupled`` (the same with the coupled, unilateral normal load, 10 N
 at 990 rad/s, where the lap ends clap and HBM needs many harmonics);
@@ -69,7 +69,7 @@ class Case:
 
 
 def cases(mesh: str) -> dict:
-    lap = ROOT / "models" / "lap_joint.toml"
+    lap = ROOT / "models" / "lap_joint_nodes.toml"
     mesh_set = f'model.mesh="../meshes/lap_joint_{mesh}.msh"'
     chain = ROOT / "models" / "hbm" / "chain2_jenkins.toml"
     return {

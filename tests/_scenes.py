@@ -17,8 +17,8 @@ ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT / "models"
 MESHES = ROOT / "meshes"
 SEED = MODELS / "seed_fig3"
-COUPLED = MODELS / "lap_joint.toml"
-FIXED = MODELS / "lap_joint_fixed_n.toml"
+COUPLED = MODELS / "lap_joint_nodes.toml"
+FIXED = MODELS / "lap_joint_fixed_n_nodes.toml"
 CHAIN2 = MODELS / "hbm" / "chain2_jenkins.toml"
 COARSE = "model.mesh='../meshes/lap_joint_coarse.msh'"
 

@@ -36,7 +36,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 @pytest.fixture(scope="session")
 def coarse_scene():
-    """``models/lap_joint.toml`` (coupled normal load) on the coarse mesh."""
+    """``models/lap_joint_nodes.toml`` (coupled normal load) on the coarse mesh."""
     return load_scene(COUPLED, [COARSE])
 
 
@@ -57,7 +57,7 @@ def coarse_model(coarse_scene):
 
 @pytest.fixture(scope="session")
 def coarse_fixed_model():
-    """``models/lap_joint_fixed_n.toml`` (fixed normal load) on the coarse mesh."""
+    """``models/lap_joint_fixed_n_nodes.toml`` (fixed normal load) on the coarse mesh."""
     return build_model(load_scene(FIXED, [COARSE]))
 
 

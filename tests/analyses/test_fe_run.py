@@ -9,7 +9,7 @@ from jointsim.post.tables import info_text
 
 from .._scenes import ROOT
 
-SCENE = ROOT / "models" / "lap_joint.toml"
+SCENE = ROOT / "models" / "lap_joint_nodes.toml"
 COARSE = "model.mesh='../meshes/lap_joint_coarse.msh'"
 
 
@@ -29,7 +29,7 @@ def modes_only(text: str) -> str:
 @pytest.fixture(scope="module")
 def result(tmp_path_factory):
     d = tmp_path_factory.mktemp("fe_run")
-    scene = d / "lap_joint.toml"
+    scene = d / "lap_joint_nodes.toml"
     scene.write_text(modes_only(SCENE.read_text()).replace(
         "../meshes/lap_joint_default.msh", str(ROOT / "meshes" / "lap_joint_default.msh")))
     out = d / "lap.h5"
@@ -124,4 +124,4 @@ def test_bad_fe_scene_names_the_key(override, key):
     scene = parse_scene(data, str(SCENE), SCENE.parent)
     with pytest.raises(SceneError) as err:
         build_model(scene)
-    assert err.value.key == key and "lap_joint.toml" in str(err.value)
+    assert err.value.key == key and "lap_joint_nodes.toml" in str(err.value)

@@ -23,7 +23,7 @@ from jointsim.fem.generate import LapJointGeometry, generated_lap_joint
 from jointsim.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[2]
-SCENE = ROOT / "models" / "lap_joint.toml"
+SCENE = ROOT / "models" / "lap_joint_nodes.toml"
 GEO = LapJointGeometry()
 
 

@@ -29,7 +29,7 @@ def test_make_meshes_command_line_and_model_mesh(tmp_path):
     assert r.returncode == 0, r.stderr
     assert out.exists() and "dx_lap 15 mm" in r.stdout
     # a lap spacing of 30 mm / k gives 8 k + 1 node-to-node pairs (benchmarks/scale.py)
-    sc = load_scene(ROOT / "models" / "lap_joint.toml", [f"model.mesh='{out}'"])
+    sc = load_scene(ROOT / "models" / "lap_joint_nodes.toml", [f"model.mesh='{out}'"])
     assert sc.model.generate is None
     assert build_model(sc).contacts.n_elements == 17
 

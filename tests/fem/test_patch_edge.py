@@ -24,7 +24,7 @@ from jointsim._schema import SceneError
 from jointsim.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[2]
-SCENE = ROOT / "models" / "lap_joint.toml"
+SCENE = ROOT / "models" / "lap_joint_nodes.toml"
 #: The nominal pressure of the lap joint: 36 kN on 120 mm x 25.4 mm.
 P_NOM = 36e3 / (0.12 * 0.0254)
 
@@ -193,7 +193,7 @@ def test_epmc_runs_on_two_gauss_points_per_edge():
     from jointsim.model import build_model
     from jointsim.run import run_scene
     from jointsim.solvers.modes import elastic_mode
-    fixed = ROOT / "models" / "lap_joint_fixed_n.toml"
+    fixed = ROOT / "models" / "lap_joint_fixed_n_nodes.toml"
     sets = _sets(0.01, *_keys(), "model.contact_points='gauss'", "model.contact_gauss=2",
                  "analysis.modes.full_model=false", "analysis.modes.monolithic=false",
                  "analysis.epmc.log10_amplitude_end=-4.0", "analysis.epmc.loop_amplitudes=[]",

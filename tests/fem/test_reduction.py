@@ -12,7 +12,7 @@ from jointsim.solvers.modes import eigenmodes, full_stuck_stiffness, stuck_modes
 
 from .._scenes import ROOT
 
-SCENE = ROOT / "models" / "lap_joint.toml"
+SCENE = ROOT / "models" / "lap_joint_nodes.toml"
 
 
 def scene_for(mesh="coarse", extra=()):

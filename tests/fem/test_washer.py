@@ -25,7 +25,7 @@ from jointsim.fem.generate import generated_lap_joint
 from jointsim.scene import Bolt, load_scene
 
 ROOT = Path(__file__).resolve().parents[2]
-SCENE = ROOT / "models" / "lap_joint.toml"
+SCENE = ROOT / "models" / "lap_joint_nodes.toml"
 BOLTS = tuple(Bolt(tag=f"bolt{k}", preload=12e3, stiffness=2e8) for k in (1, 2, 3))
 
 

@@ -17,7 +17,7 @@ from jointsim.solvers.march_accuracy import undamped_modes, with_mode_damping
 from jointsim.solvers.transient import march_steady
 
 ROOT = Path(__file__).resolve().parents[2]
-SCENE = ROOT / "models" / "lap_joint_fixed_n.toml"
+SCENE = ROOT / "models" / "lap_joint_fixed_n_nodes.toml"
 OMEGA = 988.151     # rad/s, the 20 N peak of the default mesh
 
 
@@ -114,7 +114,7 @@ def test_step_error_indicator_on_the_coarse_fe_joint():
     assert np.all(ind / true < 3.0) and np.all(ind / true > 1 / 3.0), (ind, true)
 
 
-COUPLED = ROOT / "models" / "lap_joint.toml"
+COUPLED = ROOT / "models" / "lap_joint_nodes.toml"
 OMEGA_COUPLED = 1053.0   # rad/s, near the 20 N peak of the coarse mesh (1052.66)
 
 

@@ -15,7 +15,7 @@ from jointsim.solvers.static import StaticResult, StuckLinearisation, stuck_line
 
 from .._scenes import ROOT
 
-FE_SCENE = ROOT / "models" / "lap_joint_fixed_n.toml"
+FE_SCENE = ROOT / "models" / "lap_joint_fixed_n_nodes.toml"
 
 
 @pytest.fixture

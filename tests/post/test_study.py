@@ -36,7 +36,7 @@ def coarse_study(tmp_path, name):
 
 @pytest.fixture(scope="module")
 def fixed(tmp_path_factory):
-    return coarse_study(tmp_path_factory.mktemp("study"), "lap_joint_fixed_n")
+    return coarse_study(tmp_path_factory.mktemp("study"), "lap_joint_fixed_n_nodes")
 
 
 def test_low_amplitude_qsma_epmc_and_the_linear_mode_agree(fixed):
@@ -87,7 +87,7 @@ def test_coupled_normal_load_departs_from_the_manifold(tmp_path):
     """With N from the structure (and clapping lap ends) elements leave their
     manifold, more of them as the amplitude grows; the figures and the table
     come out of the file."""
-    out = coarse_study(tmp_path, "lap_joint")
+    out = coarse_study(tmp_path, "lap_joint_nodes")
     with h5py.File(out, "r") as h5:
         sets = study.loop_points(h5, "epmc")
         man, mas, n = study.manifold_fractions(sets)

@@ -76,7 +76,7 @@ def test_failure_message_names_the_fold():
 
 @pytest.mark.slow
 def test_lap_joint_epmc_with_the_scaled_law_turns_at_the_fold_then_stops_at_a_jump(tmp_path):
-    """models/lap_joint.toml on the coarse mesh, EPMC only, joint.reversal = "scaled": the
+    """models/lap_joint_nodes.toml on the coarse mesh, EPMC only, joint.reversal = "scaled": the
     branch turns back at the non-smooth fold near log10 a = -4.2723 (it gave up there
     before) and stops later at a true residual jump, which the message names."""
     from pathlib import Path
@@ -87,7 +87,7 @@ def test_lap_joint_epmc_with_the_scaled_law_turns_at_the_fold_then_stops_at_a_ju
     from jointsim.run import run_scene
     from jointsim.scene import parse_scene
 
-    path = Path("models/lap_joint.toml")
+    path = Path("models/lap_joint_nodes.toml")
     data = _toml.loads(path.read_text(encoding="utf-8"))
     data["model"]["mesh"] = "../meshes/lap_joint_coarse.msh"
     data["joint"]["reversal"] = "scaled"

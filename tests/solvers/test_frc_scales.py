@@ -61,7 +61,7 @@ def test_resonance_solve_that_converges_is_the_plain_newton_solve():
 
 
 def test_gross_slip_resonance_solve_gives_up_early(coarse_model, monkeypatch):
-    a = load_scene(MODELS / "lap_joint.toml").analysis.hbm
+    a = load_scene(MODELS / "lap_joint_nodes.toml").analysis.hbm
     system = _system(coarse_model, a, parallel=False)
     F = system.force_coefficients(2.0)
     z0 = system.static_coordinates()

@@ -361,7 +361,7 @@ def test_krylov_residual_needs_no_blocks_on_the_lap_joint():
     residual, its derivatives and J v (every harmonic at once, DynamicProducts) equal
     the direct path's to round-off without forming the per-harmonic blocks; forming
     S_h (a preconditioner) forms them."""
-    model = build_model(lap_scene(ROOT / "models" / "lap_joint.toml"))
+    model = build_model(lap_scene(ROOT / "models" / "lap_joint_nodes.toml"))
     sd = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="direct")
     sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
     assert sk.lin.kind == "lowrank"
@@ -384,7 +384,7 @@ def test_frequency_cache_reconstructs_bit_identically_on_the_lap_joint():
     """With the low-rank damping condensation of the coarse lap joint, the
     reconstruction from the kept blocks equals one from blocks formed afresh bit for
     bit (and so does a second residual at that frequency)."""
-    model = build_model(lap_scene(ROOT / "models" / "lap_joint.toml"))
+    model = build_model(lap_scene(ROOT / "models" / "lap_joint_nodes.toml"))
     sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
     assert sk.lin.kind == "lowrank"
     F = sk.force_coefficients(1.0)
@@ -432,7 +432,7 @@ def test_krylov_path_equals_direct_path_on_the_coarse_lap_joint():
     microslip, and fixed-frequency solves at the high force level, direct vs Krylov."""
     recs = {}
     for solver in ("direct", "krylov"):
-        sc = lap_scene(ROOT / "models" / "lap_joint.toml", ("modes", "hbm"),
+        sc = lap_scene(ROOT / "models" / "lap_joint_nodes.toml", ("modes", "hbm"),
                        ["analysis.hbm.max_points=6", "analysis.hbm.harmonics=[0,1,2,3]",
                         "analysis.hbm.n_samples=64", "analysis.hbm.step=0.05",
                         f"analysis.hbm.linear_solver='{solver}'"])
@@ -474,7 +474,7 @@ def test_krylov_epmc_in_the_linear_range_of_the_coarse_lap_joint(tmp_path, monke
     monkeypatch.setattr(BorderedJacobian, "solve", keep)
     X = {}
     for solver in ("direct", "krylov"):
-        sc = lap_scene(ROOT / "models" / "lap_joint.toml", ("modes", "epmc"),
+        sc = lap_scene(ROOT / "models" / "lap_joint_nodes.toml", ("modes", "epmc"),
                        ["analysis.epmc.max_points=5", "analysis.epmc.loop_amplitudes=[]",
                         "analysis.epmc.error_indicators=false",
                         f"analysis.epmc.linear_solver='{solver}'"])

@@ -60,7 +60,7 @@ def test_static_cycle_matches_jenkins_loop():
 
 @pytest.fixture(scope="module")
 def fe_fixed():
-    scene = load_scene(ROOT / "models" / "lap_joint.toml", [COARSE, "effects.normal=fixed"])
+    scene = load_scene(ROOT / "models" / "lap_joint_nodes.toml", [COARSE, "effects.normal=fixed"])
     model = build_model(scene)
     modes = stuck_modes(model, 8, suspension_hz=20.0)
     k = int(np.nonzero(modes.elastic)[0][0])

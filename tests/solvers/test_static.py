@@ -18,7 +18,7 @@ from .._scenes import ROOT
 
 NORMALS = {"unilateral": UnilateralPenalty, "bilateral": BilateralPenalty, "fixed": GivenNormal}
 
-SCENE = ROOT / "models" / "lap_joint.toml"
+SCENE = ROOT / "models" / "lap_joint_nodes.toml"
 COARSE = ["model.mesh='../meshes/lap_joint_coarse.msh'"]
 
 

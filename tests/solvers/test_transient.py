@@ -567,7 +567,7 @@ def test_rigid_modes_of_the_free_free_lap_joint():
     from jointsim.scene import load_scene
     from jointsim.solvers.modes import stuck_modes
     root = Path(__file__).resolve().parents[2]
-    model = build_model(load_scene(root / "models" / "lap_joint.toml",
+    model = build_model(load_scene(root / "models" / "lap_joint_nodes.toml",
                                    ["model.mesh='../meshes/lap_joint_coarse.msh'"]))
     rig = rigid_modes(model)
     assert rig.n == 3
