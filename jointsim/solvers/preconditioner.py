@@ -84,6 +84,15 @@ LOWRANK_MIN = 600
 #: solves in one or two iterations.  Measured on the 121-pair EPMC (one process): the
 #: extended systems' LUs (``m`` up to 4,600) were 61 of its 175 s.
 SINGLE_LU_RTOL = 1e-6
+#: ... and for any Jacobian once the LU is this large (``m`` coordinates), where its
+#: ``m^3`` dominates the build: GMRES then needs a few more iterations to the tight
+#: tolerance (the preconditioner is exact to single-precision round-off, and each
+#: restart cycle gains about six digits) and the solution is the same.  Measured
+#: (round 15, one thread, indicators off, side by side): the force-20 FRC branch on
+#: 96 Gauss points 13.7 -> 11.7 s (GMRES iterations 1,718 -> 1,749), on 121 node
+#: pairs 37.3 -> 29.5 s (2,545 -> 2,660); the same Newton iterations and
+#: preconditioner builds, X equal to 3.8e-13 and 1.8e-13.
+SINGLE_LU_MIN = 1000
 #: Elements whose harmonic coupling ``|L_e|`` is below this fraction of the largest
 #: tangent entry are left out of the low-rank stage (in the stuck range the AFT's
 #: round-off, about 1e-12, used to fill it: 1,260 coordinates at 121 pairs).
@@ -106,7 +115,8 @@ class LowRankStage(NamedTuple):
         ``L`` on each row block, over its element's coordinates [N/m].
     lu : tuple
         ``scipy.linalg.lu_factor`` of ``I + L_r G`` (``m = n_rb n_c`` square; single
-        precision for a loose solve, ``SINGLE_LU_RTOL``).
+        precision for a loose solve or a large ``m``: ``SINGLE_LU_RTOL``,
+        ``SINGLE_LU_MIN``).
     nb : int
         Row kinds per element (slip and gap rows: 2; one of them: 1).
     """
@@ -445,7 +455,7 @@ class HarmonicPreconditioner:
         for j in range(nrb):                                  # L_r G, row block j
             np.matmul(Lr[j], G[blk_el[j]], out=Mk[j * nc:(j + 1) * nc])
         Mk[np.arange(m), np.arange(m)] += 1.0
-        if jac.rtol >= SINGLE_LU_RTOL:      # a loose solve: the LU in single precision
+        if jac.rtol >= SINGLE_LU_RTOL or m >= SINGLE_LU_MIN:    # the LU in single precision
             Mk = Mk.astype(np.float32)
         self.lowrank = LowRankStage(R, Rrow, blk_el, Lr,
                                     sla.lu_factor(Mk, check_finite=False), nb)

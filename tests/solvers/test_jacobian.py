@@ -9,6 +9,7 @@ from jointsim.model import build_model
 from jointsim.run import run_scene
 from jointsim.scene import load_scene
 from jointsim.solvers.hbm import HBMSystem, solve_point
+from jointsim.solvers.gmres import KRYLOV_RTOL
 from jointsim.solvers.jacobian import BorderedJacobian, gmres, gmres_columns
 from jointsim.solvers.preconditioner import HarmonicPreconditioner
 
@@ -131,11 +132,15 @@ def test_lowrank_stage_keeps_only_the_rows_that_couple_harmonics():
     assert it == 1 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
 
 
-def test_lowrank_lu_is_single_precision_for_a_loose_solve():
+def test_lowrank_lu_is_single_precision_for_a_loose_solve_or_a_large_stage(monkeypatch):
     """A Jacobian solved to a loose tolerance (the error indicators', rtol 1e-3) gets
     its low-rank LU in single precision: the preconditioner is then the inverse of J to
     single-precision round-off (against the dense solve) and GMRES still needs one
-    iteration; at the default tolerance the LU stays in double precision."""
+    iteration; at the default tolerance a small LU stays in double precision.  A large
+    one (``SINGLE_LU_MIN`` coordinates, here lowered to this stage's size) is single
+    at the tight tolerance too, and GMRES still reaches the dense solution there, in
+    a few more iterations."""
+    import jointsim.solvers.preconditioner as pm
     from jointsim.solvers.preconditioner import SINGLE_LU_RTOL
     sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
     F = sd.force_coefficients(0.3)
@@ -153,6 +158,15 @@ def test_lowrank_lu_is_single_precision_for_a_loose_solve():
     assert 1e-12 < err <= 1e-4
     x, it, rel, _ = gmres(Jk.matvec, v, P.solve, rtol=1e-3)
     assert it == 1 and rel <= 1e-3 and P.solve(v).dtype == np.float64
+    Jk.rtol = KRYLOV_RTOL
+    m = P.lowrank.lu[0].shape[0]
+    assert m < pm.SINGLE_LU_MIN
+    monkeypatch.setattr(pm, "SINGLE_LU_MIN", m)
+    P = HarmonicPreconditioner(Jk)
+    assert P.lowrank.lu[0].dtype == np.float32
+    x, it, rel, _ = gmres(Jk.matvec, v, P.solve, rtol=KRYLOV_RTOL)
+    assert 1 < it <= 4 and rel <= KRYLOV_RTOL
+    assert np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
 
 
 def test_lowrank_stage_is_exact_up_to_its_fraction_and_truncated_beyond(monkeypatch):
