@@ -18,11 +18,18 @@ the points they placed at the same frequency (FRC) or amplitude (EPMC), with
 how many those are, and peak memory; then the fitted exponent ``p`` of
 time per point ~ n^p (Krylov path, least squares over the sizes from 57 on).
 
+``--interface gauss`` runs the default scene's own interface instead (2 Gauss
+points per interface edge, pressure-proportional stiffness, washer bolts; the mesh
+generated from ``model.dx_lap = 0.24 / n``, ``dx_full = 2 dx_lap``, ``ny_half =
+0.02 / dx_lap``: ``n`` a multiple of 8, e.g. 24, 48, 96, 120, 240; the exponent is
+fitted from 48 on).
+
 Usage::
 
     python benchmarks/scale.py                      # all sizes (long)
     python benchmarks/scale.py --elements 25 57 121 --points 6
     python benchmarks/scale.py --quick              # 25, 57, 121 elements, 3 points
+    python benchmarks/scale.py --interface gauss --elements 48 96 120 240 --points 4
     python benchmarks/scale.py --elements 25 57 121 241 481 --points 4 4 4 4 2 \
         --numba-cache 121                           # 481 pairs: about 4.4 GB, minutes
 
@@ -47,7 +54,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _mesh(n: int, cache: Path) -> Path:
+def _mesh(n: int, cache: Path, interface: str = "nodes") -> str:
+    """The mesh of ``n`` node pairs (a file), or for ``interface = "gauss"`` the
+    element length of ``n`` Gauss points (``"gauss:<dx_lap>"``)."""
+    if interface == "gauss":
+        if n % 8:
+            raise SystemExit(f"--interface gauss: {n} Gauss points do not place nodes at "
+                             "the bolts (+-30 mm); use a multiple of 8")
+        return f"gauss:{0.24 / n:.8g}"
     path = cache / f"lap_{n}.msh"
     if n == 25:
         return ROOT / "meshes" / "lap_joint_default.msh"
@@ -58,6 +72,11 @@ def _mesh(n: int, cache: Path) -> Path:
     return path
 
 
+def _stem(mesh) -> str:
+    """A name for the mesh of a case (file stem, or ``gauss_<dx_lap>``)."""
+    return str(mesh).replace(":", "_") if str(mesh).startswith("gauss:") else Path(mesh).stem
+
+
 def _case(mesh: str, analysis: str, solver: str, points: int, out: str) -> dict:
     """One run in this process; returns its numbers (called in a child process)."""
     import h5py
@@ -65,7 +84,8 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str) -> dict:
     from jointsim import _toml
     from jointsim.run import run_scene
     from jointsim.scene import apply_overrides, parse_scene
-    path = ROOT / "models" / "lap_joint_nodes.toml"
+    gauss = mesh.startswith("gauss:")
+    path = ROOT / "models" / ("lap_joint.toml" if gauss else "lap_joint_nodes.toml")
     lines, keep = [], True
     for line in path.read_text().splitlines():
         s = line.strip()
@@ -73,8 +93,14 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str) -> dict:
             keep = not s.startswith("[analysis.") or s[10:-1] in ("modes", analysis)
         if keep:
             lines.append(line)
-    ov = [f"model.mesh='{mesh}'", f"analysis.{analysis}.linear_solver='{solver}'",
-          f"analysis.{analysis}.max_points={points}"]
+    if gauss:
+        dx = float(mesh[6:])
+        ov = [f"model.dx_lap={dx:.8g}", f"model.dx_full={2 * dx:.8g}",
+              f"model.ny_half={max(1, round(0.02 / dx))}"]
+    else:
+        ov = [f"model.mesh='{mesh}'"]
+    ov += [f"analysis.{analysis}.linear_solver='{solver}'",
+           f"analysis.{analysis}.max_points={points}"]
     if analysis == "hbm":
         ov += ["analysis.hbm.force_scale=[2.0]", "analysis.hbm.refine_peak=false"]
     else:
@@ -106,7 +132,7 @@ def _run_child(mesh, analysis, solver, points, tmp, numba_cache=None) -> dict:
     """Run one case in a fresh process; ``process`` is its wall time [s] (imports, numba
     loading or compiling, model build, analysis).  ``numba_cache``: a NUMBA_CACHE_DIR
     for the child (an empty one: a cold cache)."""
-    out = Path(tmp) / f"{Path(mesh).stem}_{analysis}_{solver}.h5"
+    out = Path(tmp) / f"{_stem(mesh)}_{analysis}_{solver}.h5"
     out.unlink(missing_ok=True)
     cmd = [sys.executable, __file__, "--child", str(mesh), analysis, solver, str(points),
            str(out)]
@@ -127,7 +153,7 @@ def _numba_cache_case(mesh, analysis, points, tmp) -> None:
     cache.mkdir(exist_ok=True)
     cold = _run_child(mesh, analysis, "krylov", points, tmp, numba_cache=cache)
     warm = _run_child(mesh, analysis, "krylov", points, tmp, numba_cache=cache)
-    print(f"numba cache, {analysis.upper()} on {Path(mesh).stem} ({cold['n_z']} unknowns, "
+    print(f"numba cache, {analysis.upper()} on {_stem(mesh)} ({cold['n_z']} unknowns, "
           f"{cold['points']} points): process wall cold {cold['process']:.1f} s, warm "
           f"{warm['process']:.1f} s; analysis time cold {cold['time']:.1f} s, warm "
           f"{warm['time']:.1f} s", flush=True)
@@ -145,6 +171,9 @@ def main(argv=None) -> None:
                    help="also run the Krylov case of N elements with a cold and then a warm "
                         "numba cache (an empty NUMBA_CACHE_DIR) and print both times")
     p.add_argument("--analyses", nargs="+", default=["hbm", "epmc"])
+    p.add_argument("--interface", choices=("nodes", "gauss"), default="nodes",
+                   help="node pairs on lap meshes (models/lap_joint_nodes.toml), or the "
+                        "default scene's Gauss points (models/lap_joint.toml)")
     p.add_argument("--quick", action="store_true",
                    help="25, 57 and 121 elements, 3 points per branch (a few minutes)")
     p.add_argument("--child", nargs=5, help=argparse.SUPPRESS)
@@ -166,7 +195,7 @@ def main(argv=None) -> None:
     cache.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         if a.numba_cache is not None:
-            _numba_cache_case(_mesh(a.numba_cache, cache), a.analyses[0],
+            _numba_cache_case(_mesh(a.numba_cache, cache, a.interface), a.analyses[0],
                               points.get(a.numba_cache, a.points[0]), tmp)
         for analysis in a.analyses:
             print(f"\n{analysis.upper()}: points per branch "
@@ -177,7 +206,7 @@ def main(argv=None) -> None:
             sizes, tpp = [], []
             dense_est = None
             for n in a.elements:
-                mesh = _mesh(n, cache)
+                mesh = _mesh(n, cache, a.interface)
                 k = _run_child(mesh, analysis, "krylov", points[n], tmp)
                 d = None
                 if a.dense_limit > 0 and (dense_est is None or dense_est < a.dense_limit):
@@ -202,7 +231,7 @@ def main(argv=None) -> None:
                 print(f"{n:>5} {k['n_z']:>6} {k['points']:>4} {k['newton']:>6} "
                       f"{k['krylov']:>6} {k['builds']:>6} {kt:>11.3f} {dt:>10.3f} {dt / kt:>6.2f} {dx:>8.1e} "
                       f"{k['rss_mb']:>9.0f} {d['rss_mb'] if d else np.nan:>8.0f}{same}", flush=True)
-            sel = [i for i, n in enumerate(sizes) if n >= 57]
+            sel = [i for i, n in enumerate(sizes) if n >= (48 if a.interface == "gauss" else 57)]
             if len(sel) >= 2:
                 pfit = np.polyfit(np.log([sizes[i] for i in sel]),
                                   np.log([tpp[i] for i in sel]), 1)[0]
