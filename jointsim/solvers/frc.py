@@ -146,6 +146,11 @@ def _resonance_response(system: HBMSystem, omega: float, F, z_start, z0, rscale:
 #: :func:`refine_peak`: Newton iterations of a solve from one start before the next
 #: start is tried (from a solved neighbour a converging solve takes 1 to 6)
 PEAK_MAX_ITER = 10
+#: :func:`refine_peak`: a search that solved every frequency it tried and ended within
+#: this relative amplitude of the largest computed point confirms that point as the
+#: peak (refined); "strictly above" let round-off decide (a 121-pair branch flipped
+#: between runs with the same frequency, amplitude and solves)
+PEAK_SAME_RTOL = 1e-9
 
 
 def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,
@@ -177,6 +182,9 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,
     -------
     omega_peak, amplitude_peak : float
     refined : bool
+        The search ended above the largest computed point, or at it to
+        :data:`PEAK_SAME_RTOL` with every frequency solved (then that point is
+        returned); False at a fold, when it ended lower, or when solves failed.
     stats : dict
         ``solves`` (Newton solves, failed starts included), ``iterations``
         (Newton iterations summed), ``failed`` (frequencies where every start
@@ -227,9 +235,12 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,
         res = minimize_scalar(neg_amp, bounds=(lo, hi), method="bounded",
                               options={"xatol": 1e-10 * max(abs(hi), 1.0), "maxiter": 25})
     a = -float(res.fun)
-    if not a > amplitude[i]:        # refined means above the largest computed point
-        return float(omega[i]), float(amplitude[i]), False, stats
-    return float(res.x), a, True, stats
+    if a > amplitude[i]:            # above the largest computed point
+        return float(res.x), a, True, stats
+    # the largest point itself, confirmed to round-off by a search that solved every
+    # frequency it tried; else (below it, or failed frequencies) not refined
+    confirmed = stats["failed"] == 0 and a >= amplitude[i] * (1.0 - PEAK_SAME_RTOL)
+    return float(omega[i]), float(amplitude[i]), confirmed, stats
 
 
 # --------------------------------------------------------------------------

@@ -491,6 +491,16 @@ def test_refine_peak_of_a_slipping_branch_is_a_solved_maximum(tmp_path, monkeypa
     assert ok2 and st2["failed"] == 0 and st2["solves"] >= 2 * len(tried)
     assert (w2, a2) == pytest.approx((w, a), rel=1e-9)
 
+    # a largest computed point at the peak to round-off is confirmed (refined, that
+    # point returned); one clearly above what the search finds is not
+    monkeypatch.setattr(frc, "solve_point", real)
+    i = int(np.argmax(amp))
+    for bump, refined in ((1e-12, True), (1e-6, False)):
+        high = amp.copy()
+        high[i] = a * (1 + bump)
+        w4, a4, ok4, _ = frc.refine_peak(s, F, om, Z, high, dof, 1e-10)
+        assert ok4 == refined and (w4, a4) == (om[i], high[i])
+
     # every start fails at every new frequency: the largest point, unrefined (a
     # failed frequency is never reported as the peak)
     monkeypatch.setattr(frc, "solve_point", failing(first_only=False)[0])
