@@ -116,16 +116,19 @@ def _model_size(scene) -> str:
     if m.kind == "fe":
         size = ""
         try:
-            from .fem.mesh import read_mesh
-            mesh = read_mesh(scene.resolve(m.mesh))
+            from .model.fe import fe_mesh
+            mesh, source = fe_mesh(scene)      # the file read, or the mesh generated
             n_nodes = mesh.points.shape[0]
-            size = (f"{n_nodes} nodes ({2 * n_nodes} DOFs before reduction), "
-                    f"{mesh.quads.shape[0]} quads; ")
+            size = (f"{source}: {n_nodes} mesh nodes, {mesh.quads.shape[0]} quads "
+                    f"(biquadratic elements on them); ")
         except Exception as exc:  # a check reports, it does not fail on a mesh reader
             size = f"mesh not read ({type(exc).__name__}: {exc}); "
-        return (f"FE lap joint, {size}Craig-Bampton keeps {m.n_modes} fixed-interface "
-                f"modes plus the interface, bolt and {len(m.retain_points)} retained point "
-                f"DOFs; {len(m.bolts)} bolt(s), {loads} load(s)")
+        contact = ("node-to-node pairs" if m.contact_points == "nodes"
+                   else f"{m.contact_gauss} Gauss points per interface edge")
+        return (f"FE lap joint, {size}contact at {contact}; Craig-Bampton keeps "
+                f"{m.n_modes} fixed-interface modes plus the interface, bolt and "
+                f"{len(m.retain_points)} retained point DOFs; {len(m.bolts)} bolt(s), "
+                f"{loads} load(s)")
     return f"{m.kind} model from {m.file}, {loads} load(s) ({m.units} units)"
 
 

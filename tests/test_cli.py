@@ -32,3 +32,16 @@ def test_post_grid_of_several_runs(tmp_path):
 def test_check_command(tmp_path, capsys):
     assert main(["check", str(SEED / "sin1.toml"), "--set", "joint.reversal=anchor"]) == 0
     assert "bank_anchor" in capsys.readouterr().out
+
+
+def test_check_command_on_the_default_scene_generates_its_mesh(capsys):
+    """``jointsim check models/lap_joint.toml``: the mesh generated from the scene's keys
+    (2.5 mm along the lap: 48 interface edges, so 96 Gauss contact points), its size
+    printed, not a failure to read ``model.mesh``; a coarser ``--set`` is a new mesh."""
+    assert main(["check", str(SEED.parents[0] / "lap_joint.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "generated lap joint (dx_lap=0.0025" in out and "mesh not read" not in out
+    assert "contact at 2 Gauss points per interface edge" in out
+    assert main(["check", str(SEED.parents[0] / "lap_joint.toml"), "--set", "model.dx_lap=0.01",
+                 "--set", "model.dx_full=0.02", "--set", "model.ny_half=2"]) == 0
+    assert "generated lap joint (dx_lap=0.01" in capsys.readouterr().out
