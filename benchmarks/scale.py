@@ -93,10 +93,9 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str) -> dict:
             keep = not s.startswith("[analysis.") or s[10:-1] in ("modes", analysis)
         if keep:
             lines.append(line)
-    if gauss:
-        dx = float(mesh[6:])
-        ov = [f"model.dx_lap={dx:.8g}", f"model.dx_full={2 * dx:.8g}",
-              f"model.ny_half={max(1, round(0.02 / dx))}"]
+    if gauss:      # the uniform refinement of the resolution study (the scene's washers)
+        from resolution_study import resolution_sets
+        ov = resolution_sets(float(mesh[6:]), None)
     else:
         ov = [f"model.mesh='{mesh}'"]
     ov += [f"analysis.{analysis}.linear_solver='{solver}'",

@@ -27,7 +27,8 @@ F1_LIMIT_HZ = 163.545
 
 def test_default_scenes_declare_the_converged_interface():
     for path in (COUPLED, FIXED):
-        m, j = load_scene(path).model, load_scene(path).joint
+        scene = load_scene(path)
+        m, j = scene.model, scene.joint
         assert m.mesh is None and (m.dx_lap, m.dx_full, m.ny_half) == (0.0025, 0.005, 8)
         assert (m.contact_points, m.contact_gauss, m.bolt_washer_radius) == ("gauss", 2, 0.01)
         assert j.kt_pressure == pytest.approx(36e3 / (0.12 * 0.0254), rel=1e-4)
