@@ -151,6 +151,14 @@ PEAK_MAX_ITER = 10
 #: peak (refined); "strictly above" let round-off decide (a 121-pair branch flipped
 #: between runs with the same frequency, amplitude and solves)
 PEAK_SAME_RTOL = 1e-9
+#: :func:`refine_peak`: Brent's relative tolerance on the peak frequency.  The
+#: amplitude of a branch that slips is a kinked function of the frequency at the
+#: scale of the AFT samples (jagged by about 1e-4 of the peak, docstring), so the
+#: search approaches a kink by golden sections: 1e-10 took its 25 iterations on every
+#: branch of the lap joint (28 solves), for amplitude changes below 1e-9 after the
+#: 16th.  At 1e-7 the amplitude is within about 1e-7 of that of 1e-10 (a smooth
+#: peak's within (1e-7 / zeta)^2, zeta the damping ratio).
+PEAK_XTOL = 1e-7
 
 
 def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,
@@ -163,8 +171,8 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,
     Only where the branch is single-valued around its largest point (the
     frequency increases through it); at a fold the largest computed point is
     returned unrefined.  Brent's search from the bracket of the largest point
-    and its two neighbours (re-solved to ``tol``; to 1e-10 of the frequency, 25
-    iterations at most; the bounded search between the neighbours when the
+    and its two neighbours (re-solved to ``tol``; to :data:`PEAK_XTOL` of the
+    frequency, 25 iterations at most; the bounded search between the neighbours when the
     re-solved amplitudes no longer bracket a maximum).  Each frequency is solved
     by Newton (:func:`solve_point`, to ``tol``) from the solved points next to
     it: interpolated between the nearest solved frequency on either side, then
@@ -230,10 +238,10 @@ def refine_peak(system: HBMSystem, F, omega, Z, amplitude, dof: int, tol: float,
     lo, hi = float(omega[i - 1]), float(omega[i + 1])
     try:
         res = minimize_scalar(neg_amp, bracket=(lo, float(omega[i]), hi), method="brent",
-                              options={"xtol": 1e-10, "maxiter": 25})
+                              options={"xtol": PEAK_XTOL, "maxiter": 25})
     except ValueError:      # the re-solved amplitudes do not bracket a maximum
         res = minimize_scalar(neg_amp, bounds=(lo, hi), method="bounded",
-                              options={"xatol": 1e-10 * max(abs(hi), 1.0), "maxiter": 25})
+                              options={"xatol": PEAK_XTOL * max(abs(hi), 1.0), "maxiter": 25})
     a = -float(res.fun)
     if a > amplitude[i]:            # above the largest computed point
         return float(res.x), a, True, stats

@@ -468,6 +468,16 @@ def test_refine_peak_of_a_slipping_branch_is_a_solved_maximum(tmp_path, monkeypa
     assert fund[0] == pytest.approx(a, rel=1e-9)
     assert max(fund[1:]) < a
 
+    # the peak is a kink (a slip onset between AFT samples): Brent approaches it by
+    # golden sections, and 1e-10 of the frequency takes its 25 iterations; the default
+    # tolerance gives the same maximum to about itself, in fewer solves
+    monkeypatch.setattr(frc, "PEAK_XTOL", 1e-10)
+    wt, at, okt, stt = frc.refine_peak(s, F, om, Z, amp, dof, 1e-10)
+    monkeypatch.undo()
+    assert okt and stt["solves"] == 28
+    assert a == pytest.approx(at, rel=1e-7) and w == pytest.approx(wt, rel=1e-6)
+    assert st["solves"] < stt["solves"]
+
     real, branch = frc.solve_point, {float(v) for v in om}
 
     def failing(first_only):
