@@ -67,6 +67,53 @@ def test_circle_turns_back_through_the_start():
     assert y[-1, 1] < -0.8
 
 
+def _circle(y):
+    z, lam = y
+    return np.array([z * z + lam * lam - 1.0]), np.array([[2 * z, 2 * lam]]), None
+
+
+def test_a_bending_branch_closes_at_the_end_without_tiny_steps(monkeypatch):
+    """z^2 + lam^2 = 1 from lam = -0.8 to 0.95, before its turning point: the tangent
+    overestimates what each step gains in lam, so the step aimed just past the end lands
+    short of it.  That point is closed at lam = 0.95 (on the curve), with no extra points
+    a hair short of the end (END_SHORT = 0 gives 0.9476, 0.94998, 0.95).  When the
+    closing solve fails, the short point is kept and the branch goes on to the end."""
+    import jointsim.solvers.continuation as cmod
+
+    def run():
+        cont = Continuation(_circle, np.array([0.6, -0.8]), 0.95, scale=np.ones(2),
+                            rscale=1.0, step=0.05, step_min=1e-8, step_max=0.1,
+                            max_points=500, tol=1e-12)
+        while cont.status == "running":
+            cont.step()
+        assert cont.status == "finished" and "reached lam = 0.95" in cont.message
+        y = np.array(cont.points)
+        assert np.abs(y[:, 0] ** 2 + y[:, 1] ** 2 - 1).max() <= 1e-12
+        assert y[-1, 1] == 0.95
+        return y[:, 1]
+
+    lam = run()
+    assert 0.95 - lam[-2] > 0.02 and np.all(np.diff(lam) > 0)
+    monkeypatch.setattr(cmod, "END_SHORT", 0.0)
+    old = run()
+    assert old.size == lam.size + 2 and 0.95 - old[-2] < 1e-4
+
+    monkeypatch.setattr(cmod, "END_SHORT", 0.1)
+    real, calls = Continuation._corrector_fixed, []
+
+    def fail_first(self, yh, lam_h):
+        """The fixed-lam corrector, failing its first solve at the end."""
+        out = real(self, yh, lam_h)
+        if lam_h != 0.95:
+            return out
+        calls.append(lam_h)
+        return out[:-1] + (len(calls) > 1 and out[-1],)
+    monkeypatch.setattr(Continuation, "_corrector_fixed", fail_first)
+    kept = run()
+    assert len(calls) == 2 and kept.size == lam.size + 1
+    assert kept[-3] == lam[-2] and kept[-3] < kept[-2] < 0.95
+
+
 def test_step_by_hand_equals_continue_branch():
     """Driving the stepper by hand gives the same points, bit for bit."""
     seen = []
