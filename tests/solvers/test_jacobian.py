@@ -106,6 +106,35 @@ def test_lowrank_preconditioner_is_exact_at_stick_slip_and_separation(law, norma
     assert it > 1 and np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
 
 
+@pytest.mark.parametrize("normal", ["coupled", "fixed"])
+def test_lowrank_product_by_harmonics_equals_the_dense_one(normal):
+    """``L_r G`` formed by harmonics (``_lr_g``) equals ``L_r`` times the dense ``G =
+    E_c^T P^-1 E_r`` in real coefficients, built here from the harmonic inverses."""
+    _, sk = _pair(build_model(four_dof("jenkins", "anchor", normal)))
+    F = sk.force_coefficients(0.3)
+    z = np.random.default_rng(5).normal(size=sk.n_z) * 0.4
+    Jk = sk.evaluate(z, 1.1, F).J
+    P = HarmonicPreconditioner(Jk)
+    lr = P.lowrank
+    nc, nb = Jk.n_c, lr.nb
+    nrb, nl = lr.Rrow.size, lr.R.size // lr.nb
+    # P^-1 in real coefficients: (coefficient, coordinate) x (coefficient, coordinate)
+    Pr = np.zeros((nc, Jk.n_r, nc, Jk.n_r))
+    for i, h in enumerate(Jk.basis.harmonics):
+        ic, is_ = Jk._ic[i], Jk._is[i]
+        Q = P.Pinv[i]
+        Pr[ic, :, ic, :] = Q.real
+        if h:
+            Pr[ic, :, is_, :], Pr[is_, :, ic, :], Pr[is_, :, is_, :] = Q.imag, -Q.imag, Q.real
+    # G: rows (column element l, kind b, coefficient k), columns (row block j, coefficient)
+    G = Pr[:, lr.R][:, :, :, lr.Rrow]                     # (k, b nl + l, k', j)
+    G = G.reshape(nc, nb, nl, nc, nrb).transpose(2, 1, 0, 4, 3).reshape(nl, nb * nc, -1)
+    dense = np.concatenate([lr.Lr[j] @ G[lr.block_element[j]] for j in range(nrb)])
+    fast = P._lr_g(lr.Lr.reshape(nrb, nc, nb, nc), lr.R, lr.Rrow, lr.block_element, float)
+    assert fast.shape == dense.shape == (nrb * nc, nrb * nc)
+    assert np.abs(fast - dense).max() <= 1e-13 * np.abs(dense).max()
+
+
 def test_lowrank_stage_keeps_only_the_rows_that_couple_harmonics():
     """An element that slips but stays closed has a constant normal tangent: the
     low-rank stage keeps its slip rows only (one row block of n_c coordinates, against
