@@ -85,14 +85,10 @@ CORNERS = True
 CORNER_JUMP = 5.7
 #: Newton iterations per corrector the step control aims at (default ``target_iter``).
 TARGET_ITER = 4
-#: Near the end of the range a step aims this factor past ``lam_end`` (along the
-#: tangent); a corrected point that still falls short, by at most ``END_SHORT`` of
-#: what the step gained in ``lam``, is closed at ``lam_end`` by the fixed-``lam``
-#: corrector (from the secant through it).  Before, a bending branch (the lap joint's
-#: gross slip near 170 Hz) landed short twice more: points at 169.9992, 170 - 4e-8
-#: and 170.  Aiming further (1.05) is worse where the range ends at a kink (the EPMC's
-#: first leg ends at the stuck onset): the secant through a point past the kink is a
-#: poor start there.
+#: Near ``lam_end`` a step aims ``END_AIM`` past it; a point that lands short by at most
+#: ``END_SHORT`` of its step's gain in ``lam`` is closed at ``lam_end`` (a bending branch
+#: left 169.9992, 170 - 4e-8, 170 Hz; aiming 1.05 past a range ending at a kink, the
+#: EPMC's stuck onset, gave a poor closing start: docs/hbm.md, "Round 16").
 END_AIM = 1.001
 END_SHORT = 0.1
 #: Points of the traced branch a new point is checked against (no retracing).
@@ -543,13 +539,9 @@ class Continuation:
         return yc, R, J, extra, it
 
     def _close_at_end(self, yk, t, yc, R, extra, it, h, t_new) -> str | None:
-        """The corrected point passed ``lam_end`` (or fell just short of it): close the
-        branch exactly there.
-
-        The guess is the secant from ``yk`` through ``yc`` at ``lam_end``.  When the
-        fixed-``lam`` corrector fails, ``yc`` is kept: past the end the branch ends
-        there; short of it, the branch goes on from it (None returned).
-        """
+        """Close the branch at ``lam_end`` from the secant ``yk -> yc`` (``yc`` past it or
+        just short); when that fails ``yc`` is kept, and short of the end the branch goes
+        on from it (None returned)."""
         lam_end_h = self._lam_end_h
         lam_new = yc[-1]
         a = (lam_end_h - yk[-1]) / (lam_new - yk[-1]) if lam_new != yk[-1] else 1.0
@@ -639,9 +631,8 @@ class Continuation:
         short = (self._lam_end_h - lam_new) * direction
         if short <= 0 or (near_end and short <= END_SHORT * (lam_new - yk[-1]) * direction):
             why = self._close_at_end(yk, t, yc, R, extra, it, h, t_new)
-            if why is not None:
+            if why is not None:      # else short of the end, yc kept: the branch goes on
                 return why
-            # short of the end and not closed there: yc is accepted, the branch goes on
         else:
             info = PointInfo(it, float(np.abs(R).max(initial=0.0)), h, t_new, extra)
             if (lam_new - self._lam_start_h) * direction < 0 and len(self.points) > 1:
