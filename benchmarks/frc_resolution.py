@@ -42,6 +42,9 @@ def compare(fine: str, coarse: str, zoom_hz: float = 3.0) -> list[str]:
         f, c = hf["hbm"], hc["hbm"]
         for b in np.unique(f["branch"][()]):
             mf, mc = f["branch"][()] == b, c["branch"][()] == b
+            if mc.sum() < 2:
+                lines.append(f"branch {b}: {mf.sum()} / {mc.sum()} points (nothing to compare)")
+                continue
             peak = f["amplitude"][()][mf].max()
 
             def plot(g, m):

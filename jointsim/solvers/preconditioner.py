@@ -456,8 +456,8 @@ class HarmonicPreconditioner:
         ``Q_h`` of ``P_h^-1`` in real 2 x 2 form.  So the rows ``(j, r)`` and the columns
         (row block ``j'``, cosine / sine of ``h``) of ``L_r G`` are, with ``L_c`` and ``L_s``
         the cosine and sine columns of ``L_r`` of harmonic ``h``, the real and imaginary
-        parts of ``(L_c + i L_s) Q_h``: ``4 n_b (H + 1) / n_c`` of the flops of the product
-        with the dense ``G`` (``m x m x d``), which is never formed.  Measured on 120
+        parts of ``(L_c + i L_s) Q_h``: ``4 (H + 1) / n_c^2`` (about ``1 / (H + 1)``) of the
+        flops of the product with the dense ``G`` (``m^2 d``), which is never formed.  Measured on 120
         Gauss points, FRC at force scale 20 (error indicators on, one thread): the
         dense ``G`` and product took about 5 of the 15 s of the low-rank stages.
 
