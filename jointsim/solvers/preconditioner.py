@@ -439,21 +439,22 @@ class HarmonicPreconditioner:
         # selected ones block-major, (j n_c + k), so that L_r is one (n_c, d) block per
         # row block and nothing is permuted.
         Lr = np.ascontiguousarray(Lb[el, kind])               # (nrb, n_c, d)
+        # the selected columns of P_h^-1: the correction P^-1 E_r s lives on the Rrow
+        # rows; G is their R rows
+        self.PinvR = np.ascontiguousarray(self.Pinv[:, :, Rrow])
         single = jac.rtol >= SINGLE_LU_RTOL or m >= SINGLE_LU_MIN   # the LU in float32
-        Mk = self._lr_g(Lr.reshape(nrb, nc, nb, nc), R, Rrow, blk_el,
+        Mk = self._lr_g(Lr.reshape(nrb, nc, nb, nc), R, blk_el,
                         np.float32 if single else float)
         Mk[np.arange(m), np.arange(m)] += 1.0
         self.lowrank = LowRankStage(R, Rrow, blk_el, Lr,
                                     sla.lu_factor(Mk, check_finite=False), nb)
-        # the selected columns of P_h^-1: the correction P^-1 E_r s lives on the Rrow rows
-        self.PinvR = np.ascontiguousarray(self.Pinv[:, :, Rrow])
 
-    def _lr_g(self, Lr4, R, Rrow, blk_el, dtype) -> np.ndarray:
+    def _lr_g(self, Lr4, R, blk_el, dtype) -> np.ndarray:
         """``L_r G`` (``m x m``, :meth:`_lowrank`) by harmonics.
 
         ``G = E_c^T P^-1 E_r`` couples the coefficients of one harmonic only: per
         harmonic ``h`` and column element ``l`` it is the complex ``(R, Rrow)`` part
-        ``Q_h`` of ``P_h^-1`` in real 2 x 2 form.  So the rows ``(j, r)`` and the columns
+        ``Q_h`` of ``P_h^-1`` (the ``R`` rows of :attr:`PinvR`) in real 2 x 2 form.  So the rows ``(j, r)`` and the columns
         (row block ``j'``, cosine / sine of ``h``) of ``L_r G`` are, with ``L_c`` and ``L_s``
         the cosine and sine columns of ``L_r`` of harmonic ``h``, the real and imaginary
         parts of ``(L_c + i L_s) Q_h``: ``4 (H + 1) / n_c^2`` (about ``1 / (H + 1)``) of the
@@ -465,8 +466,8 @@ class HarmonicPreconditioner:
         ----------
         Lr4 : ndarray, shape (nrb, n_c, nb, n_c)
             ``L_r`` by (row block, its coefficient, column kind, column coefficient) [N/m].
-        R, Rrow, blk_el : ndarray of int
-            As in :class:`LowRankStage`.
+        R, blk_el : ndarray of int
+            As in :class:`LowRankStage` (``PinvR`` holds the ``Rrow`` columns).
         dtype : numpy dtype
             Of the result (float32 for a single-precision LU).
 
@@ -480,7 +481,7 @@ class HarmonicPreconditioner:
         Mk = np.empty((nrb, nc, nrb, nc), dtype=dtype)
         for i, h in enumerate(jac.basis.harmonics):
             # (R, Rrow) part of P_h^-1, R index b nl + l -> (l, b, j'), then per row block
-            Q = self.Pinv[i][np.ix_(R, Rrow)].reshape(nb, nl, nrb).transpose(1, 0, 2)
+            Q = self.PinvR[i][R].reshape(nb, nl, nrb).transpose(1, 0, 2)
             Qj = Q[blk_el]                                    # (nrb, nb, nrb)
             ic, is_ = jac._ic[i], jac._is[i]
             if h:

@@ -471,9 +471,9 @@ def test_refine_peak_of_a_slipping_branch_is_a_solved_maximum(tmp_path, monkeypa
     # the peak is a kink (a slip onset between AFT samples): Brent approaches it by
     # golden sections, and 1e-10 of the frequency takes its 25 iterations; the default
     # tolerance gives the same maximum to about itself, in fewer solves
-    monkeypatch.setattr(frc, "PEAK_XTOL", 1e-10)
-    wt, at, okt, stt = frc.refine_peak(s, F, om, Z, amp, dof, 1e-10)
-    monkeypatch.undo()
+    with monkeypatch.context() as mp:
+        mp.setattr(frc, "PEAK_XTOL", 1e-10)
+        wt, at, okt, stt = frc.refine_peak(s, F, om, Z, amp, dof, 1e-10)
     assert okt and stt["solves"] == 28
     assert a == pytest.approx(at, rel=1e-7) and w == pytest.approx(wt, rel=1e-6)
     assert st["solves"] < stt["solves"]

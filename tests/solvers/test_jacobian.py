@@ -130,7 +130,7 @@ def test_lowrank_product_by_harmonics_equals_the_dense_one(normal):
     G = Pr[:, lr.R][:, :, :, lr.Rrow]                     # (k, b nl + l, k', j)
     G = G.reshape(nc, nb, nl, nc, nrb).transpose(2, 1, 0, 4, 3).reshape(nl, nb * nc, -1)
     dense = np.concatenate([lr.Lr[j] @ G[lr.block_element[j]] for j in range(nrb)])
-    fast = P._lr_g(lr.Lr.reshape(nrb, nc, nb, nc), lr.R, lr.Rrow, lr.block_element, float)
+    fast = P._lr_g(lr.Lr.reshape(nrb, nc, nb, nc), lr.R, lr.block_element, float)
     assert fast.shape == dense.shape == (nrb * nc, nrb * nc)
     assert np.abs(fast - dense).max() <= 1e-13 * np.abs(dense).max()
 
