@@ -30,6 +30,8 @@ Usage::
     python benchmarks/scale.py --elements 25 57 121 --points 6
     python benchmarks/scale.py --quick              # 25, 57, 121 elements, 3 points
     python benchmarks/scale.py --interface gauss --elements 48 96 120 240 --points 4
+    python benchmarks/scale.py --interface gauss --elements 48 96 120 240 480 --points 4 \
+        --set model.dx_full=0.004 --set model.ny_half=10   # the lap alone refined
     python benchmarks/scale.py --elements 25 57 121 241 481 --points 4 4 4 4 2 \
         --numba-cache 121                           # 481 pairs: about 4.4 GB, minutes
 
@@ -77,8 +79,10 @@ def _stem(mesh) -> str:
     return str(mesh).replace(":", "_") if str(mesh).startswith("gauss:") else Path(mesh).stem
 
 
-def _case(mesh: str, analysis: str, solver: str, points: int, out: str) -> dict:
-    """One run in this process; returns its numbers (called in a child process)."""
+def _case(mesh: str, analysis: str, solver: str, points: int, out: str,
+          sets=()) -> dict:
+    """One run in this process; returns its numbers (called in a child process);
+    ``sets``: further ``--set`` overrides of the scene."""
     import h5py
 
     from jointsim import _toml
@@ -98,7 +102,7 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str) -> dict:
         ov = resolution_sets(float(mesh[6:]), None)
     else:
         ov = [f"model.mesh='{mesh}'"]
-    ov += [f"analysis.{analysis}.linear_solver='{solver}'",
+    ov += list(sets) + [f"analysis.{analysis}.linear_solver='{solver}'",
            f"analysis.{analysis}.max_points={points}"]
     if analysis == "hbm":
         ov += ["analysis.hbm.force_scale=[2.0]", "analysis.hbm.refine_peak=false"]
@@ -127,14 +131,14 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str) -> dict:
                     rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
 
 
-def _run_child(mesh, analysis, solver, points, tmp, numba_cache=None) -> dict:
+def _run_child(mesh, analysis, solver, points, tmp, numba_cache=None, sets=()) -> dict:
     """Run one case in a fresh process; ``process`` is its wall time [s] (imports, numba
     loading or compiling, model build, analysis).  ``numba_cache``: a NUMBA_CACHE_DIR
     for the child (an empty one: a cold cache)."""
     out = Path(tmp) / f"{_stem(mesh)}_{analysis}_{solver}.h5"
     out.unlink(missing_ok=True)
     cmd = [sys.executable, __file__, "--child", str(mesh), analysis, solver, str(points),
-           str(out)]
+           str(out)] + [a for s in sets for a in ("--set", s)]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     if numba_cache is not None:
         env["NUMBA_CACHE_DIR"] = str(numba_cache)
@@ -175,6 +179,11 @@ def main(argv=None) -> None:
                         "default scene's Gauss points (models/lap_joint.toml)")
     p.add_argument("--quick", action="store_true",
                    help="25, 57 and 121 elements, 3 points per branch (a few minutes)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a further scene override for every case, e.g. a fixed body mesh "
+                        "with --interface gauss: --set model.dx_full=0.004 --set "
+                        "model.ny_half=10 (the lap alone refined: the time per point "
+                        "depends on the interface, the model build on the whole mesh)")
     p.add_argument("--child", nargs=5, help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.quick and not a.child:
@@ -182,7 +191,7 @@ def main(argv=None) -> None:
         a.points = [min(a.points[0], 3)]
     if a.child:
         mesh, analysis, solver, points, out = a.child
-        r = _case(mesh, analysis, solver, int(points), out)
+        r = _case(mesh, analysis, solver, int(points), out, a.set)
         print(json.dumps(r))
         return
     if len(a.points) not in (1, len(a.elements)):
@@ -190,6 +199,8 @@ def main(argv=None) -> None:
     points = dict(zip(a.elements, a.points * len(a.elements) if len(a.points) == 1
                       else a.points))
     print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    if a.set:
+        print(f"scene overrides of every case: {' '.join(a.set)}")
     cache = Path(tempfile.gettempdir()) / "jointsim_scale_meshes"
     cache.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
@@ -206,10 +217,10 @@ def main(argv=None) -> None:
             dense_est = None
             for n in a.elements:
                 mesh = _mesh(n, cache, a.interface)
-                k = _run_child(mesh, analysis, "krylov", points[n], tmp)
+                k = _run_child(mesh, analysis, "krylov", points[n], tmp, sets=a.set)
                 d = None
                 if a.dense_limit > 0 and (dense_est is None or dense_est < a.dense_limit):
-                    d = _run_child(mesh, analysis, "direct", points[n], tmp)
+                    d = _run_child(mesh, analysis, "direct", points[n], tmp, sets=a.set)
                     dense_est = d["time"] * 10.0      # next size: about n^3, x 2^3
                 kt = k["time"] / max(k["points"], 1)
                 dt = d["time"] / max(d["points"], 1) if d else np.nan

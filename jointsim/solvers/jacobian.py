@@ -89,7 +89,8 @@ class LinearStats:
     krylov_iterations : int
         GMRES iterations summed over the solves.
     factorizations : int
-        Preconditioners built (each ``H + 1`` LUs of ``n_r x n_r``).
+        Preconditioners built (full: ``H + 1`` inverses of ``n_r x n_r`` and the
+        low-rank LU; partial, on a shared harmonic stage: the low-rank LU only).
     """
 
     solves: int = 0
@@ -361,15 +362,21 @@ def krylov_solve(core: HBMJacobian, matvec, b, make_psolve, shift=None):
     # S_h is formed (n_r^2 n_y per harmonic) only when a preconditioner is built from
     # core; a reused one leaves J v to the unformed products A v - B E^-1 (B' v)
     P, fresh = cache.get(core, shift)
-    # a reused preconditioner gets a short budget before it is rebuilt
-    (x, it, rel, at_floor), total = run(P, KRYLOV_MAXITER if fresh else cache.budget())
-    # a reused preconditioner is rebuilt when it did not get there, but not when GMRES
-    # stopped at the round-off floor: a new one stops there too (FLOOR_FACTOR)
-    if rel > rtol and not fresh and not (at_floor and rel <= FLOOR_FACTOR * rtol):
-        P, fresh = cache.refresh(core, shift), True
-        # on from where the reused preconditioner got to
-        (x, it, rel, _), more = run(P, x0=x)
+    total, x = 0, None
+    while True:
+        # a reused preconditioner gets a short budget before it is rebuilt, and so does
+        # a partial one (the harmonic stage of an earlier build, SHARE_HARMONIC_STAGE)
+        trial = not fresh or P.partial
+        maxiter = KRYLOV_MAXITER if not trial else \
+            cache.partial_budget() if fresh else cache.budget()
+        (x, it, rel, at_floor), more = run(P, maxiter, x0=x)
         total += more
+        # on from where it got to with a new one (a full one after a partial one), but
+        # not when GMRES stopped at the round-off floor: a new one stops there too
+        # (FLOOR_FACTOR)
+        if rel <= rtol or not trial or (at_floor and rel <= FLOOR_FACTOR * rtol):
+            break
+        P, fresh = cache.refresh(core, shift, full=fresh), True
     if stats is not None:
         stats.solves += b.shape[1] if multi else 1
         stats.krylov_iterations += total

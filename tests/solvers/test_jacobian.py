@@ -106,6 +106,69 @@ def test_lowrank_preconditioner_is_exact_at_stick_slip_and_separation(law, norma
     assert it > 1 and np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
 
 
+@pytest.mark.parametrize("law,normal", [("jenkins", "coupled"), ("iwan4", "coupled"),
+                                        ("jenkins", "fixed")])
+def test_a_shared_harmonic_stage_is_exact_at_its_frequency(law, normal, monkeypatch):
+    """A preconditioner built for another tangent at the frequency of the last full
+    build keeps that build's harmonic stage (the same inverses) and builds only its
+    low-rank stage, which corrects for the whole change of the tangent: it is the
+    inverse of J (the dense solve).  At a frequency 2e-4 away (within
+    SHARE_HARMONIC_STAGE) it is not exact and GMRES still reaches the dense solution;
+    farther away, for a loose solve, or with the sharing off, the build is full."""
+    import jointsim.solvers.preconditioner as pm
+    sd, sk = _pair(build_model(four_dof(law, "anchor", normal)))
+    F = sd.force_coefficients(0.3)
+    rng = np.random.default_rng(7)
+    z1, z2 = (rng.normal(size=sd.n_z) * 0.4 for _ in range(2))
+    v = rng.normal(size=sd.n_z)
+    cache = sk.preconditioner
+    P1 = cache.refresh(sk.evaluate(z1, 1.1, F).J)
+    assert not P1.partial
+    J2 = sk.evaluate(z2, 1.1, F).J
+    P2 = cache.refresh(J2)
+    assert P2.partial and P2.Pinv is P1.Pinv and P2.lowrank is not None
+    xd = np.linalg.solve(sd.evaluate(z2, 1.1, F).J, v)
+    assert np.abs(P2.solve(v) - xd).max() <= 1e-10 * np.abs(xd).max()
+    w = 1.1 * (1.0 + 2e-4)
+    J3 = sk.evaluate(z2, w, F).J
+    P3 = cache.refresh(J3)
+    assert P3.partial and P3.Pinv is P1.Pinv
+    xd = np.linalg.solve(sd.evaluate(z2, w, F).J, v)
+    assert np.abs(P3.solve(v) - xd).max() > 1e-8 * np.abs(xd).max()
+    x, it, rel, _ = gmres(J3.matvec, v, P3.solve, rtol=1e-12)
+    assert it > 1 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
+    J3.rtol = pm.SINGLE_LU_RTOL               # a loose solve (error indicators): full
+    assert not cache.refresh(J3).partial
+    assert not cache.refresh(sk.evaluate(z2, 1.1 * (1.0 + 2 * pm.SHARE_HARMONIC_STAGE),
+                                         F).J).partial
+    monkeypatch.setattr(pm, "SHARE_HARMONIC_STAGE", 0.0)
+    assert not cache.refresh(J2).partial
+
+
+def test_a_partial_preconditioner_that_misses_its_budget_is_rebuilt_in_full(monkeypatch):
+    """A Jacobian far from the shared harmonic stage's frequency (the sharing forced
+    on): the reused preconditioner and then the partial one miss their budgets, a full
+    one is built and the solve equals the dense one; it is the new shared stage."""
+    import jointsim.solvers.preconditioner as pm
+    monkeypatch.setattr(pm, "SHARE_HARMONIC_STAGE", 1.0)
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
+    F = sd.force_coefficients(0.3)
+    rng = np.random.default_rng(8)
+    z = rng.normal(size=sd.n_z) * 0.4
+    v = rng.normal(size=sd.n_z)
+    cache = sk.preconditioner
+    cache.refresh_iterations = 1
+    sk.evaluate(z, 1.1, F).J.solve(v)
+    assert sk.stats.take()[2] == 1 and cache.stage_iterations == 1
+    J = sk.evaluate(z, 1.6, F).J
+    x = J.solve(v)
+    xd = np.linalg.solve(sd.evaluate(z, 1.6, F).J, v)
+    assert np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
+    assert sk.stats.take()[2] == 2            # the partial one, then the full one
+    assert cache.current is cache.stage and not cache.stage.partial
+    assert cache.stage.omega == 1.6
+
+
 @pytest.mark.parametrize("normal", ["coupled", "fixed"])
 def test_lowrank_product_by_harmonics_equals_the_dense_one(normal):
     """``L_r G`` formed by harmonics (``_lr_g``) equals ``L_r`` times the dense ``G =
