@@ -615,6 +615,8 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         keep_orientation=keep_orientation)
     log.info("hbm branch %d/%d (force scale %g): %d points in %.1f s", job.ib + 1, n_branches,
              job.fs, len(br.y), time.perf_counter() - t_branch)
+    if len(br.y) >= max_pts:        # stopped at max_points: no physics to diagnose
+        return br.convergence
     return _explain_failure(br.convergence, system, F, a, float(br.y[-1][-1]))
 
 

@@ -77,3 +77,25 @@ def test_gross_slip_resonance_solve_gives_up_early(coarse_model, monkeypatch):
     # the stuck estimate, after at most two Newton steps (with their line searches)
     assert scale[0] == pytest.approx(q_res, rel=1e-10)
     assert len(calls) - (n + len(res)) <= 1 + 2 * 6
+
+
+def test_a_branch_stopped_at_max_points_is_not_diagnosed(monkeypatch):
+    """A branch that ends at its ``max_points`` stops by the user's limit: its message
+    says so, and the search for undamped resonances (eigen-analyses of the linearised
+    systems, 13 s on 480 Gauss points) that explains a physical failure is not run."""
+    import dataclasses
+
+    import jointsim.analyses.hbm as ah
+
+    def forbidden(*args, **kw):
+        raise AssertionError("a max_points stop was diagnosed")
+    monkeypatch.setattr(ah, "undamped_resonances", forbidden)
+    scene = load_scene(MODELS / "hbm" / "chain2_jenkins.toml")
+    a = dataclasses.replace(scene.analysis.hbm, max_points=4)
+    system = ah._system(build_model(scene), a)
+    out = []
+    conv = ah._run_branch(ah._BranchJob(0, a.force_scale[-1], None), system=system, a=a,
+                          dof=0, want_aft=False, n_branches=1, on_record=out.append,
+                          progress=False)
+    assert not conv.success and conv.message.startswith("stopped at max_points = 4")
+    assert len(out) == 4
