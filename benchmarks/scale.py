@@ -12,7 +12,9 @@ through ``jointsim.run.run_scene`` in a fresh process per case (so the peak
 resident memory is that case's), once with ``linear_solver = "krylov"`` and,
 while the dense path's estimated time stays below ``--dense-limit`` seconds,
 once with ``"direct"``.  Printed per case: unknowns, Newton iterations, GMRES
-iterations, preconditioner builds, time per point (analysis time / points) of both paths, their
+iterations, preconditioner builds, time per point (analysis time / points) of both paths, the
+FRC branch's set-up (the resonance solve of ``frc_scales``, once per branch) and the time
+per point without it, their
 ratio, the largest relative difference of ``X`` between the two paths over
 the points they placed at the same frequency (FRC) or amplitude (EPMC), with
 how many those are, and peak memory; then the fitted exponent ``p`` of
@@ -110,6 +112,19 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str,
         ov += ["analysis.epmc.loop_amplitudes=[]"]
     data = apply_overrides(_toml.loads("\n".join(lines)), ov, str(path))
     scene = parse_scene(data, str(path), path.parent)
+    # the FRC branch's set-up (frc_scales: a Newton solve at the linear resonance for
+    # the variables' scales), timed apart: one per branch, not per point
+    import jointsim.analyses.hbm as ah
+    setup = [0.0]
+    scales = ah.frc_scales
+
+    def timed(*args, **kw):
+        t = time.perf_counter()
+        try:
+            return scales(*args, **kw)
+        finally:
+            setup[0] += time.perf_counter() - t
+    ah.frc_scales = timed
     t0 = time.perf_counter()
     try:
         run_scene(scene, out)
@@ -119,7 +134,7 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str,
     with h5py.File(out, "r") as f:
         g = f[analysis]
         return dict(n_z=int(g.attrs["n_unknowns"]), solver=str(g.attrs["linear_solver"]),
-                    time=float(g.attrs["time_s"]), wall=wall,
+                    time=float(g.attrs["time_s"]), wall=wall, setup=setup[0],
                     points=int(g.attrs["n_points"]),
                     newton=int(f[f"{analysis}/iterations"][()].sum()),
                     krylov=int(f[f"{analysis}/krylov_iterations"][()].sum()),
@@ -211,9 +226,9 @@ def main(argv=None) -> None:
             print(f"\n{analysis.upper()}: points per branch "
                   f"{', '.join(f'{n}: {k}' for n, k in points.items())}")
             print(f"{'n_e':>5} {'n_z':>6} {'pts':>4} {'Newton':>6} {'GMRES':>6} {'builds':>6} "
-                  f"{'krylov s/pt':>11} {'dense s/pt':>10} {'ratio':>6} {'max dX':>8} "
-                  f"{'MB krylov':>9} {'MB dense':>8}", flush=True)
-            sizes, tpp = [], []
+                  f"{'krylov s/pt':>11} {'setup s':>7} {'w/o s/pt':>8} {'dense s/pt':>10} "
+                  f"{'ratio':>6} {'max dX':>8} {'MB krylov':>9} {'MB dense':>8}", flush=True)
+            sizes, tpp, tpp0 = [], [], []
             dense_est = None
             for n in a.elements:
                 mesh = _mesh(n, cache, a.interface)
@@ -223,6 +238,7 @@ def main(argv=None) -> None:
                     d = _run_child(mesh, analysis, "direct", points[n], tmp, sets=a.set)
                     dense_est = d["time"] * 10.0      # next size: about n^3, x 2^3
                 kt = k["time"] / max(k["points"], 1)
+                kt0 = (k["time"] - k["setup"]) / max(k["points"], 1)    # without the set-up
                 dt = d["time"] / max(d["points"], 1) if d else np.nan
                 dx, same = np.nan, ""
                 if d:
@@ -238,17 +254,21 @@ def main(argv=None) -> None:
                     same = f" ({len(pairs)}/{len(lk)} points)"
                 sizes.append(n)
                 tpp.append(kt)
+                tpp0.append(kt0)
                 print(f"{n:>5} {k['n_z']:>6} {k['points']:>4} {k['newton']:>6} "
-                      f"{k['krylov']:>6} {k['builds']:>6} {kt:>11.3f} {dt:>10.3f} {dt / kt:>6.2f} {dx:>8.1e} "
+                      f"{k['krylov']:>6} {k['builds']:>6} {kt:>11.3f} {k['setup']:>7.2f} "
+                      f"{kt0:>8.3f} {dt:>10.3f} {dt / kt:>6.2f} {dx:>8.1e} "
                       f"{k['rss_mb']:>9.0f} {d['rss_mb'] if d else np.nan:>8.0f}{same}", flush=True)
             sel = [i for i, n in enumerate(sizes) if n >= (48 if a.interface == "gauss" else 57)]
-            if len(sel) >= 2:
+            for label, t in (("", tpp), (" without the branch set-up", tpp0)):
+                if len(sel) < 2 or (t is tpp0 and analysis != "hbm"):
+                    continue
                 pfit = np.polyfit(np.log([sizes[i] for i in sel]),
-                                  np.log([tpp[i] for i in sel]), 1)[0]
-                print(f"growth of Krylov time per point from {sizes[sel[0]]} to "
+                                  np.log([t[i] for i in sel]), 1)[0]
+                print(f"growth of Krylov time per point{label} from {sizes[sel[0]]} to "
                       f"{sizes[sel[-1]]} elements: n^{pfit:.2f}")
                 steps = [f"{sizes[i]}->{sizes[j]}: n^"
-                         f"{np.log(tpp[j] / tpp[i]) / np.log(sizes[j] / sizes[i]):.2f}"
+                         f"{np.log(t[j] / t[i]) / np.log(sizes[j] / sizes[i]):.2f}"
                          for i, j in zip(sel[:-1], sel[1:])]
                 print(f"  between consecutive sizes: {', '.join(steps)}")
     print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..harmonics import harmonic_amplitude
 from .hbm import HBMSystem, solve_point
-from .jacobian import solve
+from .jacobian import is_structured, solve
 from .newton import NewtonOptions, newton
 
 log = logging.getLogger(__name__)
@@ -71,7 +71,9 @@ def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: in
         if not system.n_z:
             continue
         try:
-            dz = solve(ev.J, -ev.R)
+            # the stuck joint couples no harmonics: only the forced ones are solved
+            dz = ev.J.solve_uncoupled(-ev.R) if is_structured(ev.J) else None
+            dz = solve(ev.J, -ev.R) if dz is None else dz
         except (np.linalg.LinAlgError, RuntimeError):
             continue
         d = float(np.abs(dz).max())

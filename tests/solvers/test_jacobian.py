@@ -145,6 +145,28 @@ def test_a_shared_harmonic_stage_is_exact_at_its_frequency(law, normal, monkeypa
     assert not cache.refresh(J2).partial
 
 
+@pytest.mark.parametrize("normal", ["coupled", "fixed"])
+def test_uncoupled_solve_of_the_stuck_joint_equals_the_dense_solve(normal):
+    """At the static state (every element stuck over the period) the tangent couples no
+    harmonics: the harmonic-by-harmonic solve of the forced harmonics equals the dense
+    solve and forms only their S_h; at a state that slips it declines (None)."""
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", normal)))
+    F = sd.force_coefficients(0.3)
+    z0 = sk.static_coordinates()
+    ek = sk.evaluate(z0, 1.1, F)
+    b = -ek.R
+    xd = np.linalg.solve(sd.evaluate(z0, 1.1, F).J, b)
+    x = ek.J.solve_uncoupled(b)
+    assert x is not None and np.abs(x - xd).max() <= 1e-12 * np.abs(xd).max()
+    formed = [S is not None for S in ek.J._S]
+    assert formed[list(sk.basis.harmonics).index(1)] and sum(formed) < len(formed)
+    col = np.random.default_rng(3).uniform(0.5, 2.0, sk.n_z)       # a scaled J
+    xs = ek.J.scaled(col).solve_uncoupled(b)
+    assert np.abs(xs * col - xd).max() <= 1e-12 * np.abs(xd).max()
+    z = np.random.default_rng(5).normal(size=sk.n_z) * 0.4
+    assert sk.evaluate(z, 1.1, F).J.solve_uncoupled(b) is None
+
+
 def test_a_partial_preconditioner_that_misses_its_budget_is_rebuilt_in_full(monkeypatch):
     """A Jacobian far from the shared harmonic stage's frequency (the sharing forced
     on): the reused preconditioner and then the partial one miss their budgets, a full
