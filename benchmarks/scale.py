@@ -12,13 +12,13 @@ through ``jointsim.run.run_scene`` in a fresh process per case (so the peak
 resident memory is that case's), once with ``linear_solver = "krylov"`` and,
 while the dense path's estimated time stays below ``--dense-limit`` seconds,
 once with ``"direct"``.  Printed per case: unknowns, Newton iterations, GMRES
-iterations, preconditioner builds, time per point (analysis time / points) of both paths, the
-FRC branch's set-up (the resonance solve of ``frc_scales``, once per branch) and the time
-per point without it, their
-ratio, the largest relative difference of ``X`` between the two paths over
-the points they placed at the same frequency (FRC) or amplitude (EPMC), with
-how many those are, and peak memory; then the fitted exponent ``p`` of
-time per point ~ n^p (Krylov path, least squares over the sizes from 57 on).
+iterations, preconditioner builds, time per point (analysis time / points) of both
+paths, the FRC branch's set-up (``frc_scales``: the stuck responses and the resonance
+solve, once per branch) and the time per point without it, their ratio, the largest
+relative difference of ``X`` between the two paths over the points they placed at the
+same frequency (FRC) or amplitude (EPMC), with how many those are, and peak memory;
+then the fitted exponent ``p`` of time per point ~ n^p (Krylov path, least squares over
+the sizes from 57 on; for the FRC also without the set-up).
 
 ``--interface gauss`` runs the default scene's own interface instead (2 Gauss
 points per interface edge, pressure-proportional stiffness, washer bolts; the mesh
@@ -112,8 +112,9 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str,
         ov += ["analysis.epmc.loop_amplitudes=[]"]
     data = apply_overrides(_toml.loads("\n".join(lines)), ov, str(path))
     scene = parse_scene(data, str(path), path.parent)
-    # the FRC branch's set-up (frc_scales: a Newton solve at the linear resonance for
-    # the variables' scales), timed apart: one per branch, not per point
+    # the FRC branch's set-up (frc_scales: the stuck responses and a Newton solve at
+    # the strongest resonance, for the variables' scales), timed apart: one per branch,
+    # not per point
     import jointsim.analyses.hbm as ah
     setup = [0.0]
     scales = ah.frc_scales

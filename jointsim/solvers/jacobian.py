@@ -410,8 +410,9 @@ def krylov_solve(core: HBMJacobian, matvec, b, make_psolve, shift=None):
                           max(r.iterations for r in cols), rel,
                           all(r.at_floor for r in cols if r.relres > rtol))
         return res, sum(r.iterations for r in cols)
-    # S_h is formed (n_r^2 n_y per harmonic) only when a preconditioner is built from
-    # core; a reused one leaves J v to the unformed products A v - B E^-1 (B' v)
+    # S_h is formed (n_r^2 n_y per harmonic) only when a preconditioner is built in full
+    # from core; a reused or partial one leaves J v to the unformed products
+    # A v - B E^-1 (B' v)
     P, fresh = cache.get(core, shift)
     total, x = 0, None
     while True:
