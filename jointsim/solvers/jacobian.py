@@ -54,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .gmres import KRYLOV_MAXITER, KRYLOV_RTOL, GMRESResult, gmres, gmres_columns  # noqa: F401
-from .preconditioner import PreconditionerCache
+from .preconditioner import PreconditionerCache, add_projected_tangent
 
 log = logging.getLogger(__name__)
 
@@ -327,23 +327,15 @@ class HBMJacobian:
             None when it does not meet ``tol`` (the tangent couples harmonics): solve
             in full then.
         """
-        from .preconditioner import _project
         b = np.asarray(b, dtype=float)
         bmax = float(np.abs(b).max(initial=0.0))
         Bc = self._to_complex(b.reshape(self.n_c, self.n_r))
         Y = np.zeros_like(Bc)
-        t, n = self.t_row, self.n_row
-        for i, h in enumerate(self.basis.harmonics):
+        for i in range(len(self.basis.harmonics)):
             if not np.abs(Bc[i]).max(initial=0.0) > 1e-13 * bmax:
                 continue
-            ic, is_ = self._ic[i], self._is[i]
             P = np.array(self.schur(i), dtype=complex)
-            if self.Juu is not None:
-                P[t, t] += _project(self.Juu, ic, is_, h)
-            if self.Jug is not None:
-                P[t, n] += _project(self.Jug, ic, is_, h)
-            if self.JNN is not None:
-                P[n, n] -= _project(self.JNN, ic, is_, h)
+            add_projected_tangent(P, self, i)
             Y[i] = np.linalg.solve(P, Bc[i])
         Y[self._h0] = Y[self._h0].real
         out = np.empty((self.n_c, self.n_r))

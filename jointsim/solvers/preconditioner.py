@@ -294,6 +294,30 @@ def _project(Jb, ic, is_, h):
     return 0.5 * (Jb[:, ic, ic] + Jb[:, is_, is_]) + 0.5j * (Jb[:, ic, is_] - Jb[:, is_, ic])
 
 
+def add_projected_tangent(P, jac, i: int, proj=None) -> None:
+    """Add the harmonic-``i`` projection of every element's tangent to ``P`` in place.
+
+    Parameters
+    ----------
+    P : ndarray, complex, shape (n_r, n_r)
+        A harmonic block (``S_h`` of the ``i``-th harmonic, or a copy of it) [N/m].
+    jac : jointsim.solvers.jacobian.HBMJacobian
+    i : int
+        Index of the harmonic in ``jac.basis.harmonics``.
+    proj : dict, optional
+        The projections already computed (``"uu"``, ``"ug"``, ``"NN"``: (n_h, n_e)
+        complex or None, :attr:`HarmonicPreconditioner.proj`); else computed here for
+        this harmonic.
+    """
+    t, n = jac.t_row, jac.n_row
+    h = jac.basis.harmonics[i]
+    for key, Jb, rows, sign in (("uu", jac.Juu, (t, t), 1.0), ("ug", jac.Jug, (t, n), 1.0),
+                                ("NN", jac.JNN, (n, n), -1.0)):
+        if Jb is not None:
+            p = proj[key][i] if proj is not None else _project(Jb, jac._ic[i], jac._is[i], h)
+            P[rows] += sign * p
+
+
 class HarmonicPreconditioner:
     """Per harmonic, the inverse of ``S_h`` plus the harmonic-``h`` element tangent, with an
     exact low-rank correction for the elements whose tangent couples harmonics
@@ -351,7 +375,6 @@ class HarmonicPreconditioner:
         """Per harmonic, the inverse of ``S_h`` plus the harmonic projection of every
         element's tangent (``self.Pinv``, ``self.proj``; ``S_h`` kept as ``self.S``)."""
         jac = self.jac
-        t, n = jac.t_row, jac.n_row
         nr = jac.n_r
         self.omega, self.xi = jac.freq.omega, jac.freq.xi
         self.S = [jac.schur(i) for i in range(len(jac.basis.harmonics))]
@@ -365,12 +388,7 @@ class HarmonicPreconditioner:
         for i in range(len(jac.basis.harmonics)):
             P = blocks[i]
             P[...] = self.S[i]
-            if jac.Juu is not None:
-                P[t, t] += self.proj["uu"][i]
-            if jac.Jug is not None:
-                P[t, n] += self.proj["ug"][i]
-            if jac.JNN is not None:
-                P[n, n] -= self.proj["NN"][i]
+            add_projected_tangent(P, jac, i, self.proj)
             if shift is not None and shift[0] == i:
                 P += self._rank_one(P, i, shift[1], shift[2])
         # explicit inverses, stacked (n_h, n_r, n_r): one batched product per
