@@ -30,7 +30,7 @@ from .condensation import FrequencyBlocks, ReducedLinear, dense_array
 from .jacobian import (KRYLOV_MIN_UNKNOWNS, KRYLOV_RTOL, LINEAR_SOLVERS, HBMJacobian, LinearStats,
                        add_element_blocks, solve)
 from .preconditioner import PreconditionerCache
-from .newton import NewtonOptions, newton
+from .newton import LINEAR_FORCING, NewtonOptions, newton
 
 log = logging.getLogger(__name__)
 
@@ -409,7 +409,8 @@ class PointSolution:
 
 
 def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
-                max_iter: int = 30, rscale: float | None = None) -> PointSolution:
+                max_iter: int = 30, rscale: float | None = None,
+                forcing: float = LINEAR_FORCING) -> PointSolution:
     """Solve the harmonic balance at a fixed frequency by Newton's method.
 
     Parameters
@@ -426,6 +427,9 @@ def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
         Tolerance on ``max|R| / rscale``.
     rscale : float, optional
         Residual scale (default: the largest force coefficient).
+    forcing : float
+        Inexact Newton steps on the Krylov path (:class:`~.newton.NewtonOptions`; 0:
+        every step solved to round-off).
     """
     from ..results import NOT_CONVERGED, SUCCESS, Convergence
     if rscale is None:
@@ -436,7 +440,8 @@ def solve_point(system: HBMSystem, omega: float, F, z0=None, tol: float = 1e-10,
         ev = system.evaluate(z, omega, F, wrt=())
         return ev.R, ev.J, ev
 
-    res = newton(fun, z0, NewtonOptions(tol, max_iter, line_search="decrease", max_tries=6),
+    res = newton(fun, z0, NewtonOptions(tol, max_iter, line_search="decrease", max_tries=6,
+                                        forcing=forcing),
                  solve=solve, measure=lambda R, _ev: np.abs(R).max(initial=0.0) / rscale)
     z, R, ev, it, ok = res.x, res.R, res.extra, res.iterations, res.success
     rn = float(np.abs(R).max(initial=0.0))
