@@ -43,7 +43,8 @@ explicit object, not module state) while that pays by its flop cost model
 rebuilt when GMRES fails with the old one within that budget.  Every solve is counted in a :class:`LinearStats`.
 GMRES stops at the Jacobian's own tolerance (``KRYLOV_RTOL``), or at a looser one a
 caller asks for: a Newton step is solved only as far as its residual needs
-(:mod:`jointsim.solvers.newton`, ``forcing``; not the EPMC's, :attr:`BorderedJacobian.inexact_steps`).
+(:mod:`jointsim.solvers.newton`, ``forcing``; not the EPMC's,
+:attr:`BorderedJacobian.inexact_steps`).
 
 :func:`solve`, :func:`append_row`, :func:`drop_last_column` and
 :func:`scale_columns` work on dense arrays and on these objects alike; the

@@ -175,7 +175,8 @@ def solve_or_lstsq(A, b, rtol=None):
 def _forcing_rtol(forcing: float, lim: float, r: float, R) -> float | None:
     """Relative 2-norm residual ``eta`` asked of an inexact step: a linear residual of
     at most ``forcing * lim`` in the measure, when the measure ``r`` is a multiple of
-    ``max |R|`` (None when that cannot be said: a zero or non-finite ``R`` or ``r``)."""
+    ``max |R|`` (None when that cannot be said: a zero or non-finite ``R`` or ``r``, or
+    no positive limit ``lim``)."""
     R = np.asarray(R)
     n2 = float(np.linalg.norm(R))
     ninf = float(np.abs(R).max(initial=0.0))
