@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..results import NON_FINITE, NOT_CONVERGED, SUCCESS, Convergence
-from .jacobian import is_structured
+from .jacobian import is_structured, solve as linear_solve
 
 LINE_SEARCHES = ("none", "decrease", "armijo")
 #: Default ``NewtonOptions.forcing``: the linear residual of a structured Jacobian's
@@ -156,22 +156,6 @@ def max_norm(R, extra=None) -> float:
     return float(np.abs(R).max(initial=0.0))
 
 
-def solve_or_lstsq(A, b, rtol=None):
-    """``A^-1 b``; least squares when ``A`` is singular.
-
-    A structured Jacobian (:mod:`jointsim.solvers.jacobian`: anything with a
-    ``solve`` method) solves itself (preconditioned GMRES to ``rtol``, default its
-    own tolerance; it raises ``RuntimeError`` when GMRES fails).  A dense ``A``
-    is solved exactly (``rtol`` unused).
-    """
-    if not isinstance(A, np.ndarray) and hasattr(A, "solve"):
-        return A.solve(b) if rtol is None else A.solve(b, rtol=rtol)
-    try:
-        return np.linalg.solve(A, b)
-    except np.linalg.LinAlgError:
-        return np.linalg.lstsq(A, b, rcond=None)[0]
-
-
 def _forcing_rtol(forcing: float, lim: float, r: float, R) -> float | None:
     """Relative 2-norm residual ``eta`` asked of an inexact step: a linear residual of
     at most ``forcing * lim`` in the measure, when the measure ``r`` is a multiple of
@@ -186,7 +170,8 @@ def _forcing_rtol(forcing: float, lim: float, r: float, R) -> float | None:
     return min(forcing * lim * ninf / (r * n2), forcing)
 
 
-def newton(fun, x0, options: NewtonOptions, *, jacobian=None, solve=solve_or_lstsq,
+def newton(fun, x0, options: NewtonOptions, *, jacobian=None,
+           solve=linear_solve,
            measure=max_norm, threshold=None) -> NewtonResult:
     """Solve ``R(x) = 0`` by damped Newton (module docstring).
 
@@ -203,8 +188,9 @@ def newton(fun, x0, options: NewtonOptions, *, jacobian=None, solve=solve_or_lst
     solve : callable
         ``solve(J, b) -> J^-1 b``; may raise ``LinAlgError`` or ``RuntimeError``
         (singular).  Called as ``solve(J, b, rtol=eta)`` for a structured ``J``
-        when ``options.forcing > 0`` (module doc).  Default: dense solve with a
-        least-squares fallback, or the structured solve.
+        when ``options.forcing > 0`` (module doc).  Default:
+        :func:`jointsim.solvers.jacobian.solve` (dense LU with a least-squares
+        fallback, or the structured solve).
     measure : callable
         ``measure(R, extra) -> float``, the residual measure (default ``max|R|``).
     threshold : callable, optional

@@ -220,8 +220,8 @@ class PreconditionerCache:
     def _stage_for(self, jac, shift) -> "HarmonicPreconditioner | None":
         """The kept harmonic stage when ``jac`` may share it, else None."""
         P = self.stage
-        if not self.reuse or P is None or shift is not None \
-                or P.C2 is not None:
+        if not (self.reuse and SHARE_HARMONIC_STAGE > 0) or P is None or shift is not None \
+                or P.C2 is not None or jac.rtol >= SINGLE_LU_RTOL:   # loose: see the constant
             return None
         o = P.jac
         if o.basis is not jac.basis or o.lin is not jac.lin \
@@ -229,8 +229,7 @@ class PreconditionerCache:
                        ((o.Juu, jac.Juu), (o.Jug, jac.Jug), (o.JNN, jac.JNN))):
             return None
         change = abs(jac.freq.omega - P.omega) + abs(jac.freq.xi - P.xi)
-        tol = 0.0 if jac.rtol >= SINGLE_LU_RTOL else SHARE_HARMONIC_STAGE
-        return P if tol > 0 and change <= tol * abs(P.omega) else None
+        return P if change <= SHARE_HARMONIC_STAGE * abs(P.omega) else None
 
     def partial_budget(self) -> int:
         """GMRES iterations a partial preconditioner (a shared harmonic stage) gets
