@@ -16,9 +16,9 @@ tolerances refer to the scaled quantities.
 * Step control: after a success the step grows or shrinks towards
   ``target_iter`` iterations.  A failed corrector (no convergence, a stall,
   non-finite values, or a jump farther than ``max_jump * h`` from the
-  predictor) first tries, once per point, 4 and 16 times longer steps (a
-  kink of the residual, where Newton cycles, is often passed by landing
-  beyond it), then the corner rules below, then halves the step and retries;
+  predictor) first tries, once per point, a 4 times longer step (a kink of
+  the residual, where Newton cycles, is often passed by landing beyond it),
+  then the corner rules below, then halves the step and retries;
   below ``step_min`` the branch gives up and returns what it has with the
   reason.
 * Monitored change (optional ``monitor(y) -> array``, values already divided
@@ -85,6 +85,8 @@ CORNERS = True
 CORNER_JUMP = 5.7
 #: Newton iterations per corrector the step control aims at (default ``target_iter``).
 TARGET_ITER = 4
+#: A failed corrector is retried this many times longer, once per point (docs/hbm.md, round 19).
+LONGER_STEP = 4.0
 #: Near ``lam_end`` a step aims ``END_AIM`` past it; a point that lands short by at most
 #: ``END_SHORT`` of its step's gain in ``lam`` is closed at ``lam_end`` (a bending branch
 #: left 169.9992, 170 - 4e-8, 170 Hz; aiming 1.05 past a range ending at a kink, the
@@ -380,8 +382,7 @@ class Continuation:
         jump_limit = self.max_jump if jump_limit is None else jump_limit
         desc = self.desc
         pred = yk + h * t
-        # backtracking: the residual is only piecewise smooth (stick/slip
-        # switches at samples) and a full step can cycle across a kink
+        # backtracking: on the piecewise-smooth residual a full step can cycle across a kink
         fun, jac, measure = bordered(self._F, t, yk, h)
         res = newton(fun, pred, NewtonOptions(self.tol, self.max_iter, line_search="decrease",
                                               max_tries=self.backtrack, stall=self.stall),
@@ -461,19 +462,18 @@ class Continuation:
         return c if np.isfinite(c) else 0.0
 
     def _try_longer(self, yk, t, h):
-        """Longer steps (4 and 16 times, at most ``step_max``) over a kink.
+        """A longer step (``LONGER_STEP`` times, at most ``step_max``) over a kink.
 
         A kink of the piecewise-smooth residual (a stick/slip or contact switch
         crossing a sample) can make Newton cycle near it while a longer step
-        lands beyond it.  Returns ``(ok, h, y, R, J, extra, iterations)`` of the
-        last try.
+        lands beyond it.  Returns ``(ok, h, y, R, J, extra, iterations)``.
         """
-        for hj in sorted({min(4.0 * h, self.step_max), min(16.0 * h, self.step_max)}):
-            ok, yc, R, J, extra, it = self._correct(yk, t, hj)
-            if ok:
-                log.debug("%s: stepped over a kink at lam = %.8g (h %.3g -> %.3g)",
-                          self.desc, yk[-1] * self.scale[-1], h, hj)
-                return True, hj, yc, R, J, extra, it
+        hj = min(LONGER_STEP * h, self.step_max)
+        ok, yc, R, J, extra, it = self._correct(yk, t, hj)
+        if ok:
+            log.debug("%s: stepped over a kink at lam = %.8g (h %.3g -> %.3g)",
+                      self.desc, yk[-1] * self.scale[-1], h, hj)
+            return True, hj, yc, R, J, extra, it
         return False, h, yc, R, J, extra, it
 
     def _try_corner(self, yk, t, h):

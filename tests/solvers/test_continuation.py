@@ -138,6 +138,27 @@ def test_step_by_hand_equals_continue_branch():
         cont.step()
 
 
+@pytest.mark.parametrize("failures, tried", [(1, [1.0, 4.0]), (2, [1.0, 4.0, 0.5])])
+def test_a_failed_corrector_tries_one_longer_step_then_halves(failures, tried):
+    """The first ``failures`` correctors of a step fail (on purpose): the step is retried
+    once 4 times longer (a kink is passed by landing beyond it), then halved; the point
+    is accepted at the last length tried.  (A 16 times longer try used to follow the 4
+    times longer one: round 19, docs/hbm.md.)"""
+    cont = Continuation(duffing, duffing_start(), 2.5, **dict(SETTINGS, step_max=0.5))
+    cont.step()
+    h, correct, calls = cont.h, cont._correct, []
+
+    def failing(yk, t, hj, jump_limit=None):
+        calls.append(hj)
+        got = correct(yk, t, hj, jump_limit)
+        return (False,) + got[1:] if len(calls) <= failures else got
+    cont._correct = failing
+    assert cont.step() is None
+    np.testing.assert_allclose(np.array(calls) / h, tried, rtol=1e-12)
+    assert cont.infos[-1].step == pytest.approx(tried[-1] * h, rel=1e-12)
+    assert np.abs(duffing(cont.points[-1])[0]).max() <= SETTINGS["tol"] * FORCE ** 2
+
+
 def test_failing_corrector_shrinks_the_step_and_stops_with_a_message():
     """Past lam = 0.5 the residual is not finite: the step shrinks below step_min, the
     branch keeps its points and says why."""
