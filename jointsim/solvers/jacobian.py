@@ -575,7 +575,7 @@ def solve(A, b, rtol=None) -> np.ndarray:
     """``A^-1 b``: dense LU (least squares when singular) or the structured solve (to
     ``rtol``, default its own tolerance; a dense solve is exact)."""
     if is_structured(A):
-        return A.solve(b) if rtol is None else A.solve(b, rtol=rtol)
+        return A.solve(b, rtol=rtol)
     try:
         return np.linalg.solve(A, b)
     except np.linalg.LinAlgError:
