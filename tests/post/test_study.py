@@ -133,3 +133,23 @@ def test_coupled_normal_load_departs_from_the_manifold(tmp_path):
     assert [p.name for p in figs] == ["deviation_map.png", "manifold_fraction.png",
                                       "element_loops.png"]
     assert all(p.stat().st_size > 10_000 for p in figs)
+
+
+def test_figures_drawn_in_a_forked_process_equal_the_serial_ones(fixed, tmp_path, caplog):
+    """``make_figures`` draws the Masing-study figures in a forked process beside the
+    others (on a machine with two cores or more, as CI's): the same files, in the same
+    order, byte for byte, as drawn in one process."""
+    import logging
+    import os
+
+    from jointsim.post import HEAVY_PLOTTERS, make_figures
+    serial = make_figures(fixed, tmp_path / "serial", parallel=False)
+    with caplog.at_level(logging.DEBUG, logger="jointsim.post"):
+        forked = make_figures(fixed, tmp_path / "forked", parallel=True)
+    if (os.cpu_count() or 1) > 1:
+        assert "in a forked process" in caplog.text
+    names = [p.name for p in serial]
+    assert names == [p.name for p in forked] and "deviation_map.png" in names
+    assert "contacts" in HEAVY_PLOTTERS and len(names) > 3
+    for a, b in zip(serial, forked):
+        assert a.read_bytes() == b.read_bytes(), a.name

@@ -1,0 +1,57 @@
+"""The curve comparisons behind the scenes' step caps (``benchmarks/frc_resolution.py``,
+``benchmarks/epmc_resolution.py``): distances against analytic chords."""
+import re
+
+import h5py
+import numpy as np
+import pytest
+
+from benchmarks.epmc_resolution import compare, curve_distance
+
+
+def test_curve_distance_is_the_chord_sagitta_in_plot_units():
+    """y = x^2 on [0, 1] (201 points) against the polyline through x = 0, 1/2, 1: the
+    largest distance is at x = 1/4, the vertical gap 1/16 to the chord of slope 1/2,
+    i.e. (1/16) / sqrt(1 + 1/4) in units of the curve's extent on both axes; points on
+    the polyline are at distance 0.  Scaling an axis scales its plot unit with it."""
+    x = np.linspace(0.0, 1.0, 201)
+    xc = np.array([0.0, 0.5, 1.0])
+    d = curve_distance(x, x ** 2, xc, xc ** 2)
+    assert d.max() == pytest.approx(0.0625 / np.sqrt(1.25), rel=1e-12)
+    assert np.argmax(d) == 50 and d[[0, 100, 200]].max() < 1e-15
+    d2 = curve_distance(3.0 - 4.0 * x, 1e-3 * x ** 2, 3.0 - 4.0 * xc, 1e-3 * xc ** 2)
+    assert d2.max() == pytest.approx(d.max(), rel=1e-12)
+
+
+def _epmc_file(path, la, at_f, at_zeta):
+    with h5py.File(path, "w") as h5:
+        g = h5.create_group("epmc")
+        g["amplitude"] = 10.0 ** la
+        g["frequency_hz"] = 160.0 - la
+        g["damping_ratio"] = 1e-3 * la ** 2
+        for k in ("iterations", "krylov_iterations", "preconditioners"):
+            g[k] = np.ones(la.size, dtype=int)
+        g.attrs["time_s"] = 1.0
+        g["at_amplitudes/frequency_hz"] = np.asarray(at_f)
+        g["at_amplitudes/damping_ratio"] = np.asarray(at_zeta)
+
+
+def test_epmc_resolution_report(tmp_path):
+    """A backbone against itself is at distance 0 with equal exact values; a coarse
+    one (3 of 201 points) reports the sagitta of its damping chords and the relative
+    change of the exactly solved values."""
+    la = np.linspace(-5.0, -3.0, 201)
+    _epmc_file(tmp_path / "fine.h5", la, [160.0, 150.0], [1e-3, 2e-2])
+    _epmc_file(tmp_path / "coarse.h5", la[::100], [160.0, 150.0 * (1 + 2e-6)],
+               [1e-3 * (1 - 3e-5), 2e-2])
+    same = compare(str(tmp_path / "fine.h5"), str(tmp_path / "fine.h5"))
+    assert "frequency curve max 0.00e+00" in same and "damping curve max 0.00e+00" in same
+    assert "exact amplitudes: frequency 0.0e+00, damping 0.0e+00" in same
+    rep = compare(str(tmp_path / "fine.h5"), str(tmp_path / "coarse.h5"))
+    x = (la - la[0]) / 2.0
+    expect = curve_distance(x, (1e-3 * la ** 2), x[::100], (1e-3 * la ** 2)[::100]).max()
+    assert "3 points (fine 201)" in rep
+    assert f"damping curve max {expect:.2e}" in rep and expect > 0.01
+    straight = float(re.search(r"frequency curve max (\S+),", rep).group(1))
+    assert straight < 1e-12                            # a straight line: no sagitta
+    assert "exact amplitudes: frequency 2.0e-06, damping 3.0e-05" in rep
