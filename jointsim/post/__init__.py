@@ -47,16 +47,17 @@ def plotters() -> dict[str, Callable]:
 HEAVY_PLOTTERS = ("contacts",)
 
 
-def _draw(result, d: Path, frequency: str, groups) -> dict[str, list[Path]]:
-    """Run the plotters of ``groups`` on ``result`` (opened here): group -> its figures."""
-    out = {}
+def _draw_open(h5, d: Path, frequency: str, groups) -> dict[str, list[Path]]:
+    """Run the plotters of ``groups`` on the open result ``h5``: group -> its figures."""
     table = plotters()
+    return {g: table[g](h5, d, frequency=frequency) if g == "hbm" else table[g](h5, d)
+            for g in groups}
+
+
+def _draw(result, d: Path, frequency: str, groups) -> dict[str, list[Path]]:
+    """:func:`_draw_open` on ``result``, opened here (in a forked process: its own handle)."""
     with open_result(result) as h5:
-        for group in groups:
-            plotter = table[group]
-            out[group] = (plotter(h5, d, frequency=frequency) if group == "hbm"
-                          else plotter(h5, d))
-    return out
+        return _draw_open(h5, d, frequency, groups)
 
 
 def make_figures(result, outdir=None, frequency: str = "Hz", parallel: bool = True
@@ -89,19 +90,22 @@ def make_figures(result, outdir=None, frequency: str = "Hz", parallel: bool = Tr
     d = figure_dir(result, outdir)
     with open_result(result) as h5:
         groups = [g for g in plotters() if g in h5]
-    heavy = [g for g in groups if g in HEAVY_PLOTTERS]
-    light = [g for g in groups if g not in HEAVY_PLOTTERS]
-    if parallel and heavy and light and (os.cpu_count() or 1) > 1 and _can_fork() \
-            and not _in_daemon():
+        heavy = [g for g in groups if g in HEAVY_PLOTTERS]
+        light = [g for g in groups if g not in HEAVY_PLOTTERS]
+        fork = parallel and bool(heavy and light) and (os.cpu_count() or 1) > 1 \
+            and _can_fork() and not _in_daemon()
+        if not fork:
+            drawn = _draw_open(h5, d, frequency, groups)
+    if fork:   # forked with no file open: each process opens its own handle
         import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
         log.debug("figures: %s in a forked process, %s here", ", ".join(heavy),
                   ", ".join(light))
-        with mp.get_context("fork").Pool(1) as pool:
-            pending = pool.apply_async(_draw, (result, d, frequency, heavy))
+        # a worker that dies raises BrokenProcessPool here (a Pool would wait forever)
+        with ProcessPoolExecutor(1, mp_context=mp.get_context("fork")) as pool:
+            pending = pool.submit(_draw, result, d, frequency, heavy)
             drawn = _draw(result, d, frequency, light)
-            drawn.update(pending.get())
-    else:
-        drawn = _draw(result, d, frequency, groups)
+            drawn.update(pending.result())
     written = [f for g in groups for f in drawn[g]]
     if not written:
         log.warning("%s: nothing to plot", result)

@@ -153,3 +153,17 @@ def test_figures_drawn_in_a_forked_process_equal_the_serial_ones(fixed, tmp_path
     assert "contacts" in HEAVY_PLOTTERS and len(names) > 3
     for a, b in zip(serial, forked):
         assert a.read_bytes() == b.read_bytes(), a.name
+
+
+def test_a_plotter_that_fails_in_the_forked_process_raises_here(fixed, tmp_path, monkeypatch):
+    """An error of a heavy plotter drawn in the forked process reaches the caller, as in
+    one process (the child is forked after the patch, so it runs the failing plotter)."""
+    import jointsim.post.study_plots as sp
+    from jointsim.post import make_figures
+
+    def broken(h5, d):
+        raise ValueError("broken plotter")
+    monkeypatch.setattr(sp, "plot_masing_study", broken)
+    for parallel in (False, True):
+        with pytest.raises(ValueError, match="broken plotter"):
+            make_figures(fixed, tmp_path / str(parallel), parallel=parallel)
