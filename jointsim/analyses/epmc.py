@@ -189,7 +189,8 @@ def _run(writer, scene, model, a, system, ep, em, F, xi0, g, inds, t_start) -> N
         solve_at_amplitudes(writer, a, system, ep, F, scale, rscale, exact,
                             loops=(model.contacts.law, scene.analysis.masing.tol))
     from .study import write_control   # the study's third column (issue 14)
-    write_control(writer, "epmc", model.contacts.law, scene.analysis.masing.tol, model.units)
+    for group in ("epmc", "epmc/at_amplitudes"):   # the branch's loop sets and the exact ones
+        write_control(writer, group, model.contacts.law, scene.analysis.masing.tol, model.units)
     if not conv.success:
         raise RuntimeError(f"epmc: {conv.message}")
 
@@ -774,7 +775,7 @@ def _write_exact_loops(writer, system, ep, F, out, sets, loops) -> None:
     (``(index, y)``) in ``/epmc/at_amplitudes/{loops,masing}`` (see
     :func:`solve_at_amplitudes`); rewritten whole on every run (resume)."""
     g = "epmc/at_amplitudes"
-    for name in ("loops", "masing"):
+    for name in ("loops", "masing", "control"):
         if f"{g}/{name}" in writer.h5:
             del writer.h5[f"{g}/{name}"]
     if loops is None or not sets or not system.n_z:

@@ -8,7 +8,9 @@ one place.
 * :func:`backbone_comparison` -- EPMC against QSMA (and free decay) frequency
   and damping at chosen modal amplitudes, with relative differences;
 * :func:`loop_points` -- the loops stored by an analysis, with the amplitude
-  (or frequency) of the solution point each belongs to;
+  (or frequency) of the solution point each belongs to; :func:`study_group` --
+  the group the study reads (the EPMC's loops solved exactly at the loop
+  amplitudes when the file has them);
 * :func:`manifold_fractions` -- per loop set, the fraction of loaded elements
   on their manifold and on their classical Masing curve (a count);
 * :func:`weighted_fractions` -- the same shares weighted by contact area or by
@@ -201,6 +203,15 @@ def exact_loop_group(h5: h5py.File, prefix: str) -> str:
             and f"{EXACT_LOOPS}/masing/dev_manifold" in h5:
         return EXACT_LOOPS
     return prefix
+
+
+def study_group(h5: h5py.File) -> str | None:
+    """The loop group the study reads: the EPMC's loops (its sets solved exactly at the
+    loop amplitudes when the file has them, :func:`exact_loop_group`), else the first
+    of :func:`loop_groups`; None when the file has no loops."""
+    groups = loop_groups(h5)
+    prefix = "epmc" if "epmc" in groups else (groups[0] if groups else None)
+    return None if prefix is None else exact_loop_group(h5, prefix)
 
 
 def loop_points(h5: h5py.File, prefix: str = "epmc") -> LoopSets:
@@ -519,12 +530,11 @@ def control_text(sets: LoopSets, control: ControlSets) -> list[str]:
 def study_text(h5: h5py.File) -> str:
     """The headline numbers of a study run, for ``jointsim info``."""
     lines = []
-    groups = loop_groups(h5)
-    prefix = "epmc" if "epmc" in groups else (groups[0] if groups else None)
+    prefix = study_group(h5)
     sets = loop_points(h5, prefix) if prefix is not None else None
     if all(k in h5 and h5[k].shape[0] for k in ("epmc/amplitude", "qsma/amplitude")):
         # both curves hold points (a failed or interrupted run may have an empty group)
-        amps = sets.parameter if sets is not None and prefix == "epmc" else \
+        amps = sets.parameter if sets is not None and prefix in ("epmc", EXACT_LOOPS) else \
             np.logspace(*np.log10(np.percentile(h5["epmc/amplitude"][()], [10, 90])), 3)
         lines.append("  EPMC against QSMA (frequencies in Hz):")
         lines.append(f"    {'amplitude':>11} {'f_EPMC':>10} {'f_QSMA':>10} {'df':>8} "

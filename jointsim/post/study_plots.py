@@ -59,8 +59,7 @@ def plot_backbones(h5: h5py.File, outdir: Path) -> list[Path]:
 
 def plot_masing_study(h5: h5py.File, outdir: Path) -> list[Path]:
     """Deviation maps, manifold fractions and 3D loops of chosen elements."""
-    groups = study.loop_groups(h5)
-    prefix = "epmc" if "epmc" in groups else (groups[0] if groups else None)
+    prefix = study.study_group(h5)
     if prefix is None:
         return []
     sets = study.loop_points(h5, prefix)

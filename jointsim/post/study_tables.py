@@ -44,7 +44,7 @@ def results_rows(h5: h5py.File, label: str | None = None) -> list[str]:
     ``label`` is the scene column (default "fixed N" or "coupled N" from the scene
     file's name); a run that is not complete is marked with its status.
     """
-    sets = study.loop_points(h5, "epmc")
+    sets = study.loop_points(h5, study.study_group(h5))
     label = label or _scene_label(h5)
     status = h5.attrs.get("status", "complete")
     if status != "complete":
@@ -67,7 +67,7 @@ def results_rows(h5: h5py.File, label: str | None = None) -> list[str]:
 
 def headline(h5: h5py.File) -> list[str]:
     """Largest deviations, clip and separation counts of a scene (for the bullets)."""
-    sets = study.loop_points(h5, "epmc")
+    sets = study.loop_points(h5, study.study_group(h5))
     m = sets.loaded
     lines = [f"{_scene_label(h5)}: {int(m.sum())} loaded pairs; largest dev_manifold "
              f"{sets.dev_manifold[m].max():.2g}, dev_masing {sets.dev_masing[m].max():.2g}; "
@@ -84,7 +84,7 @@ def headline(h5: h5py.File) -> list[str]:
 
 
 def confusion_table(h5: h5py.File) -> list[str]:
-    sets = study.loop_points(h5, "epmc")
+    sets = study.loop_points(h5, study.study_group(h5))
     c = study.condition_confusion(sets)
     return [f"{_scene_label(h5)}: {c.total} pairs, precision {c.precision:.2f}, "
             f"recall {c.recall:.2f}",
@@ -95,10 +95,10 @@ def confusion_table(h5: h5py.File) -> list[str]:
 
 def control_table(h5: h5py.File) -> list[str]:
     """Third-column rows and the attribution table of one scene."""
-    sets = study.loop_points(h5, "epmc")
-    control = study.control_sets(h5, "epmc")
+    sets = study.loop_points(h5, study.study_group(h5))
+    control = study.control_sets(h5, sets.group)
     if control is None:
-        return [f"{_scene_label(h5)}: no /epmc/control"]
+        return [f"{_scene_label(h5)}: no /{sets.group}/control"]
     label = _scene_label(h5)
     phys, _, _ = study.manifold_fractions(sets)
     on, adm, dev = study.control_fractions(sets, control)

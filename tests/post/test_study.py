@@ -117,11 +117,20 @@ def test_coupled_normal_load_departs_from_the_manifold(tmp_path):
     assert np.all(att.separating <= att.count) and np.all(att.clipped <= att.count)
     assert att.separating.sum() == int((sets.separating & m).sum())
     assert np.all(np.isfinite(sets.manifold_excess))
-    # the README's tables come out of the same numbers
+    # the README's tables come out of the same numbers, at the loop amplitudes
+    # themselves: the EPMC's loop sets solved exactly there, with their own control
     from jointsim.post import study_tables
     with h5py.File(out, "r") as h5:
+        assert study.study_group(h5) == study.EXACT_LOOPS
+        sets = study.loop_points(h5, study.EXACT_LOOPS)
+        control = study.control_sets(h5, study.EXACT_LOOPS)
         rows = study_tables.results_rows(h5)
         ctrl = study_tables.control_table(h5)
+    np.testing.assert_array_equal(sets.parameter, AMPLITUDES)
+    m = sets.loaded
+    assert control.cause.shape == m.shape and control.replay_error[m].max() < 1e-9
+    assert np.all((control.dev_manifold <= control.periodicity + 1e-9)[m])
+    assert [r.split("|")[2].strip() for r in rows] == [f"{a:.2e}" for a in AMPLITUDES]
     assert len(rows) == sets.u.shape[0] and rows[0].startswith("| coupled N |")
     total = next(r for r in ctrl if r.startswith("| total |"))
     n_on = int((sets.on_manifold & m).sum())
@@ -133,6 +142,36 @@ def test_coupled_normal_load_departs_from_the_manifold(tmp_path):
     assert [p.name for p in figs] == ["deviation_map.png", "manifold_fraction.png",
                                       "element_loops.png"]
     assert all(p.stat().st_size > 10_000 for p in figs)
+
+
+@pytest.mark.slow
+def test_study_tables_do_not_depend_on_the_backbone_steps(tmp_path):
+    """The tables are read at the loop amplitudes, solved exactly there: a backbone with
+    half the step caps gives the same rows (the branch's own loop sets move with the
+    steps)."""
+    from jointsim.post import study_tables
+    rows = []
+    for name, steps in (("coarse", []), ("fine", ["analysis.epmc.step_max=0.1",
+                                                  "analysis.epmc.max_damping_change=0.001"])):
+        path = ROOT / "models" / "lap_joint_nodes.toml"
+        data = _toml.loads(path.read_text())
+        del data["analysis"]["hbm"]
+        data = apply_overrides(data, ["model.mesh='../meshes/lap_joint_coarse.msh'",
+                                      "analysis.modes.full_model=false",
+                                      "analysis.modes.monolithic=false",
+                                      f"analysis.epmc.loop_amplitudes={AMPLITUDES}",
+                                      "analysis.epmc.log10_amplitude_start=-6.5"] + steps,
+                               str(path))
+        out = run_scene(parse_scene(data, str(path), path.parent), tmp_path / f"{name}.h5")
+        with h5py.File(out, "r") as h5:
+            rows.append(study_tables.results_rows(h5))
+            branch = study.loop_points(h5, "epmc").parameter
+            exact = h5["epmc/at_amplitudes/frequency_hz"][()]
+        rows[-1].append(branch)
+        rows[-1].append(exact)
+    assert rows[0][:-2] == rows[1][:-2]
+    assert not np.array_equal(rows[0][-2], rows[1][-2])   # the branch points did move
+    np.testing.assert_allclose(rows[0][-1], rows[1][-1], rtol=1e-7)
 
 
 def test_figures_drawn_in_a_forked_process_equal_the_serial_ones(fixed, tmp_path, caplog):
