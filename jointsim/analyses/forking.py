@@ -10,11 +10,12 @@ import time
 log = logging.getLogger(__name__)
 
 
-def _in_daemon() -> bool:
-    """In a daemonic process (a dask or multiprocessing worker), which may not fork workers."""
+def _in_daemon(what: str = "branches and error indicators") -> bool:
+    """In a daemonic process (a dask or multiprocessing worker), which may not fork
+    workers; ``what`` names the work that then runs serially (logged)."""
     import multiprocessing as mp
     if mp.current_process().daemon:
-        log.info("in a daemonic worker process: branches and error indicators run serially")
+        log.info("in a daemonic worker process: %s run serially", what)
         return True
     return False
 

@@ -93,7 +93,7 @@ def make_figures(result, outdir=None, frequency: str = "Hz", parallel: bool = Tr
         heavy = [g for g in groups if g in HEAVY_PLOTTERS]
         light = [g for g in groups if g not in HEAVY_PLOTTERS]
         fork = parallel and bool(heavy and light) and (os.cpu_count() or 1) > 1 \
-            and _can_fork() and not _in_daemon()
+            and _can_fork() and not _in_daemon("figures")
         if not fork:
             drawn = _draw_open(h5, d, frequency, groups)
     if fork:   # forked with no file open: each process opens its own handle

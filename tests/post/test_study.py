@@ -194,6 +194,35 @@ def test_figures_drawn_in_a_forked_process_equal_the_serial_ones(fixed, tmp_path
         assert a.read_bytes() == b.read_bytes(), a.name
 
 
+def _figures_in_a_daemon(path, outdir):
+    """In a daemonic pool worker: ``make_figures`` with its log lines."""
+    import logging
+
+    from jointsim.post import make_figures
+    lines = []
+    handler = logging.Handler()
+    handler.emit = lambda record: lines.append(record.getMessage())
+    logger = logging.getLogger("jointsim")
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    return [p.name for p in make_figures(path, outdir, parallel=True)], lines
+
+
+def test_figures_in_a_daemonic_worker_are_drawn_serially(fixed, tmp_path):
+    """A daemonic process (a dask or pool worker) may not fork: the figures are drawn in
+    it, the same files as in a plain process, and the log says so."""
+    import multiprocessing as mp
+
+    from jointsim.post import make_figures
+    serial = make_figures(fixed, tmp_path / "serial", parallel=False)
+    with mp.get_context("fork").Pool(1) as pool:
+        names, lines = pool.apply(_figures_in_a_daemon, (fixed, tmp_path / "daemon"))
+    assert names == [p.name for p in serial]
+    assert "in a daemonic worker process: figures run serially" in lines
+    for p in serial:
+        assert (tmp_path / "daemon" / p.name).read_bytes() == p.read_bytes(), p.name
+
+
 def test_a_plotter_that_fails_in_the_forked_process_raises_here(fixed, tmp_path, monkeypatch):
     """An error of a heavy plotter drawn in the forked process reaches the caller, as in
     one process (the child is forked after the patch, so it runs the failing plotter)."""
