@@ -19,7 +19,9 @@ from .._scenes import ROOT
 AMPLITUDES = [3e-4, 1e-3, 3e-3]
 
 
-def coarse_study(tmp_path, name):
+def coarse_study(tmp_path, name, overrides=(), out=None):
+    """Run the committed scene ``name`` on the coarse mesh without its FRC (more
+    ``overrides`` last); the result file's path."""
     path = ROOT / "models" / f"{name}.toml"
     data = _toml.loads(path.read_text())
     del data["analysis"]["hbm"]  # the FRC is tested elsewhere
@@ -29,9 +31,9 @@ def coarse_study(tmp_path, name):
                                   f"analysis.epmc.loop_amplitudes={AMPLITUDES}",
                                   "analysis.epmc.log10_amplitude_start=-6.5",
                                   "analysis.qsma.log10_amplitude_start=-6.5",
-                                  "analysis.qsma.n_steps=160"], str(path))
+                                  "analysis.qsma.n_steps=160", *overrides], str(path))
     scene = parse_scene(data, str(path), path.parent)
-    return run_scene(scene, tmp_path / f"{name}.h5")
+    return run_scene(scene, tmp_path / (out or f"{name}.h5"))
 
 
 @pytest.fixture(scope="module")
@@ -147,31 +149,19 @@ def test_coupled_normal_load_departs_from_the_manifold(tmp_path):
 @pytest.mark.slow
 def test_study_tables_do_not_depend_on_the_backbone_steps(tmp_path):
     """The tables are read at the loop amplitudes, solved exactly there: a backbone with
-    half the step caps gives the same rows (the branch's own loop sets move with the
-    steps)."""
+    half the step caps gives the same rows, while the branch's own loop sets move."""
     from jointsim.post import study_tables
-    rows = []
-    for name, steps in (("coarse", []), ("fine", ["analysis.epmc.step_max=0.1",
-                                                  "analysis.epmc.max_damping_change=0.001"])):
-        path = ROOT / "models" / "lap_joint_nodes.toml"
-        data = _toml.loads(path.read_text())
-        del data["analysis"]["hbm"]
-        data = apply_overrides(data, ["model.mesh='../meshes/lap_joint_coarse.msh'",
-                                      "analysis.modes.full_model=false",
-                                      "analysis.modes.monolithic=false",
-                                      f"analysis.epmc.loop_amplitudes={AMPLITUDES}",
-                                      "analysis.epmc.log10_amplitude_start=-6.5"] + steps,
-                               str(path))
-        out = run_scene(parse_scene(data, str(path), path.parent), tmp_path / f"{name}.h5")
+    runs = {}
+    for name, steps in (("coarse", ()), ("fine", ("analysis.epmc.step_max=0.1",
+                                                  "analysis.epmc.max_damping_change=0.001"))):
+        out = coarse_study(tmp_path, "lap_joint_nodes", steps, out=f"{name}.h5")
         with h5py.File(out, "r") as h5:
-            rows.append(study_tables.results_rows(h5))
-            branch = study.loop_points(h5, "epmc").parameter
-            exact = h5["epmc/at_amplitudes/frequency_hz"][()]
-        rows[-1].append(branch)
-        rows[-1].append(exact)
-    assert rows[0][:-2] == rows[1][:-2]
-    assert not np.array_equal(rows[0][-2], rows[1][-2])   # the branch points did move
-    np.testing.assert_allclose(rows[0][-1], rows[1][-1], rtol=1e-7)
+            runs[name] = (study_tables.results_rows(h5), study.loop_points(h5, "epmc").parameter,
+                          h5["epmc/at_amplitudes/frequency_hz"][()])
+    (rows_c, branch_c, f_c), (rows_f, branch_f, f_f) = runs["coarse"], runs["fine"]
+    assert rows_c == rows_f
+    assert not np.array_equal(branch_c, branch_f)
+    np.testing.assert_allclose(f_c, f_f, rtol=1e-7)
 
 
 def test_figures_drawn_in_a_forked_process_equal_the_serial_ones(fixed, tmp_path, caplog):
