@@ -164,6 +164,18 @@ class EPMCAnalysis:
     max_frequency_change: float = spec(
         0.01, doc="step control: largest relative change of the frequency from one point "
                   "to the next; 0: no limit", ge=0)
+    max_excess_damping_growth: float = spec(
+        0.0, doc="step control: largest factor by which the damping ratio's excess over "
+                 "the linear mode's (viscous) value may grow from one point to the next, "
+                 "counted from 0.1 % of the viscous value: the step across the onset of "
+                 "friction dissipation lands just past it (the corner of the damping "
+                 "backbone on a log axis); 0: no limit, else > 1", ge=0)
+
+    def check(self):
+        if 0.0 < self.max_excess_damping_growth <= 1.0:
+            return [("max_excess_damping_growth", "must be 0 (no limit) or > 1 (a factor), "
+                                                  f"got {self.max_excess_damping_growth:g}")]
+        return []
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -71,6 +71,9 @@ def test_epmc_at_amplitudes_match_the_describing_function(tmp_path):
         # exactly at the amplitude: X_1c of the SDOF (m = 1) is the modal amplitude
         np.testing.assert_allclose(g["X"][:, 1, 0], amps, rtol=1e-9)
         assert g["frequency_hz"].attrs["unit"]
+        # the Newton residuals the solves reached, within the scene's tolerance
+        res = g["residual"][()]
+        assert np.all(np.isfinite(res)) and res.max() <= sc.analysis.epmc.tol
 
 
 def test_epmc_amplitudes_outside_the_branch_are_refused():
@@ -152,6 +155,38 @@ def test_amplitude_measures_and_loops_default(tmp_path):
 
 
 # -- items 4-6: key texts ---------------------------------------------------------
+def test_excess_damping_growth_lands_a_point_just_past_the_slip_onset(tmp_path):
+    """``analysis.epmc.max_excess_damping_growth``: from point to point the damping
+    ratio's excess over the linear mode's (here 0: no viscous damping, so counted from
+    ``EXCESS_DAMPING_MIN``) grows at most by the factor, so the first point past the slip
+    onset a_s = 0.8 lies where the excess is still tiny; without it that point's
+    excess is the describing function's a full step past the onset."""
+    from jointsim.analyses.epmc import EXCESS_DAMPING_MIN
+    growth = 50.0
+    res = {}
+    for name, extra in (("on", [f"analysis.epmc.max_excess_damping_growth={growth}"]),
+                        ("off", [])):
+        out = run_scene(load_scene(SDOF, extra), tmp_path / f"{name}.h5")
+        with h5py.File(out) as h:
+            assert h["epmc"].attrs["success"]
+            res[name] = (h["epmc/amplitude"][()], h["epmc/damping_ratio"][()])
+    a, z = res["on"]
+    excess = np.maximum(z, 0.0) + EXCESS_DAMPING_MIN
+    assert np.all(np.abs(np.diff(np.log(excess))) <= np.log(growth) * (1 + 1e-9))
+    a_s = 0.2 / 0.25
+    past = a > a_s * (1 + 1e-5)
+    z_onset = max(z[~past][-1], 0.0)     # the onset point: stuck, no dissipation yet
+    assert z_onset < EXCESS_DAMPING_MIN
+    assert z[past][0] <= growth * (z_onset + EXCESS_DAMPING_MIN) * (1 + 1e-9)
+    # the describing function at that amplitude: the same tiny damping (an oracle)
+    _W, Z = _describing_function(a[past][:1])
+    assert z[past][0] == pytest.approx(Z[0], rel=0.05, abs=1e-7)
+    a_o, z_o = res["off"]
+    assert z_o[a_o > a_s * (1 + 1e-5)][0] > 10 * z[past][0]
+    with pytest.raises(ValueError, match="max_excess_damping_growth"):
+        load_scene(SDOF, ["analysis.epmc.max_excess_damping_growth=0.5"])
+
+
 def test_key_texts_name_the_traps():
     text = key_table()
     row = {ln.split("|")[1].strip(" `"): ln for ln in text.splitlines() if ln.startswith("| `")}

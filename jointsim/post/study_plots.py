@@ -38,6 +38,15 @@ def plot_backbones(h5: h5py.File, outdir: Path) -> list[Path]:
         if np.any(neg):
             ax2.loglog(a[neg], -g["damping_ratio"][()][neg], "x", color=color, ms=4,
                        label=f"{group}: |negative| values")
+    exact = h5.get("epmc/at_amplitudes")
+    if exact is not None and "converged" in exact and exact["converged"][()].any():
+        # the EPMC solved at fixed amplitudes (the loop amplitudes: the study tables)
+        ok = exact["converged"][()]
+        a = exact["amplitude"][()][ok]
+        for ax, v in ((ax1, exact["frequency_hz"][()][ok]),
+                      (ax2, np.abs(exact["damping_ratio"][()][ok]))):
+            ax.plot(a, v, "o", color="tab:blue", mfc="none", ms=6,
+                    label="EPMC solved at fixed amplitudes")
     if "qsma" in h5 and "linear_frequency_hz" in h5["qsma"].attrs:
         ax1.axhline(float(h5["qsma"].attrs["linear_frequency_hz"]), color="0.5", lw=0.8,
                     label="linear, stuck joint")
