@@ -256,7 +256,7 @@ def refine(files: list[Path], targets: list[int], scene_path: Path, amps=None) -
 
     For each file and each target H' (above the file's H), the file's branch
     (``/epmc/y``) is interpolated in log10 a at each loop amplitude (the first
-    crossing, as :func:`jointsim.analyses.epmc.solve_at_amplitudes` does), the
+    crossing, as :func:`jointsim.analyses.epmc_exact.solve_at_amplitudes` does), the
     harmonics the file does not keep start at zero (``_embed`` of
     ``benchmarks/accuracy_cost.py``), and Newton solves the mode at H' with
     ``Nt = n_samples(H')`` (tolerance 1e-8 on ``max|R| / rscale``, at most 40

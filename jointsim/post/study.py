@@ -84,7 +84,7 @@ def exact_where_solved(g, amps, key, vals) -> np.ndarray:
     Parameters
     ----------
     g : h5py.Group
-        ``/epmc/at_amplitudes`` (:func:`jointsim.analyses.epmc.exact_amplitudes`):
+        ``/epmc/at_amplitudes`` (:func:`jointsim.analyses.epmc_exact.exact_amplitudes`):
         ``amplitude``, ``converged`` and ``key``.
     amps : ndarray, shape (n,)
         Modal amplitudes [sqrt(kg) m].
@@ -191,7 +191,7 @@ def loop_groups(h5: h5py.File) -> list[str]:
 
 
 #: Where the EPMC keeps the loop sets of its exact solutions at the loop amplitudes
-#: (:func:`jointsim.analyses.epmc.solve_at_amplitudes`).
+#: (:func:`jointsim.analyses.epmc_exact.solve_at_amplitudes`).
 EXACT_LOOPS = "epmc/at_amplitudes"
 
 
