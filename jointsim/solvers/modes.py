@@ -32,7 +32,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..fem.reduction import with_fixed_signs
+from ..fem.reduction import spd_lu, with_fixed_signs
 from ..results import SUCCESS, Convergence
 
 log = logging.getLogger(__name__)
@@ -87,8 +87,10 @@ def eigenmodes(K, M, n_modes: int):
     sparse_big = sp.issparse(K) and n > DENSE_MAX and m < n - 2
     if sparse_big:
         try:
+            # the shift-invert on the stiffness's own ordering (half SuperLU's default fill)
+            op = spla.LinearOperator(K.shape, matvec=spd_lu(K).solve, dtype=float)
             w2, phi = spla.eigsh(sp.csc_matrix(K), k=m, M=sp.csc_matrix(M), sigma=0.0,
-                                 which="LM", v0=np.ones(n))
+                                 which="LM", OPinv=op, v0=np.ones(n))
         except RuntimeError:  # singular K: the dense solver copes
             sparse_big = False
         else:
