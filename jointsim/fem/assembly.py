@@ -78,22 +78,70 @@ def assemble_plane_stress(basis, E: float, nu: float, rho: float, thickness: flo
         [N/m] and [kg].
     """
     from skfem import BilinearForm
-    from skfem.helpers import ddot, dot, eye, sym_grad, trace
+    from skfem.helpers import dot
     lam, mu = plane_stress_lame(E, nu)
-
-    @BilinearForm
-    def stiffness(u, v, w):
-        eps = sym_grad(u)
-        sig = 2.0 * mu * eps + lam * eye(trace(eps), 2)
-        return thickness * ddot(sig, sym_grad(v))
 
     @BilinearForm
     def mass(u, v, w):
         return rho * thickness * dot(u, v)
 
-    K = stiffness.assemble(basis).tocsr()
+    K = plane_stress_stiffness(basis, lam, mu, thickness)
     M = mass.assemble(basis).tocsr()
     return K, M
+
+
+#: Elements per block of :func:`plane_stress_stiffness` (bounds its work arrays: about
+#: 15 MB for the 18 local functions of a biquadratic quad at 25 quadrature points).
+STIFFNESS_BLOCK = 1024
+
+
+def plane_stress_stiffness(basis, lam: float, mu: float, thickness: float):
+    """``int t sigma(u) : eps(v)`` over the mesh, element matrices by batched products.
+
+    ``sigma = 2 mu eps + lam tr(eps) I``.  The same form as scikit-fem's
+    ``BilinearForm`` (the test's oracle, equal to 1e-13), but its element matrices come
+    from one batched product per block of elements, ``W_e E_e^T`` with ``E_e`` the
+    strains of the local basis functions at the quadrature points (stacked with the
+    Lame weights), instead of one form evaluation per pair of local functions (324
+    for a biquadratic vector element).  Measured (round 22, one run each): 3.49 ->
+    0.35 s for the default scene's 22,500 DOFs, 1.81 -> 0.33 s for 34,844 DOFs (120
+    Gauss points).
+
+    Parameters
+    ----------
+    basis : skfem.Basis
+        Vector basis (x and y displacement), :func:`vector_basis`.
+    lam, mu : float
+        Plane-stress Lame parameters [Pa] (:func:`plane_stress_lame`).
+    thickness : float
+        Out-of-plane depth [m].
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, shape (n_dof, n_dof)
+        [N/m].
+    """
+    dofs = np.asarray(basis.element_dofs)                 # (n_loc, n_el)
+    n_loc, n_el = dofs.shape
+    data = np.empty((n_el, n_loc, n_loc))
+    for e0 in range(0, n_el, STIFFNESS_BLOCK):
+        e1 = min(e0 + STIFFNESS_BLOCK, n_el)
+        G = np.stack([phi[0].grad[:, :, e0:e1] for phi in basis.basis])   # (a, i, j, e, q)
+        eps = 0.5 * (G + G.transpose(0, 2, 1, 3, 4))
+        tr = eps[:, 0, 0] + eps[:, 1, 1]                                  # (a, e, q)
+        w = thickness * np.asarray(basis.dx[e0:e1])                       # (e, q)
+        # per element: rows (a), columns (the strain entries i j and the trace, per q)
+        A = np.concatenate([eps.reshape(n_loc, 4, e1 - e0, -1), tr[:, None]], axis=1)
+        A = A.transpose(2, 0, 1, 3)                                       # (e, a, 5, q)
+        scale = np.array([2 * mu] * 4 + [lam])[None, None, :, None] * w[:, None, None, :]
+        data[e0:e1] = np.matmul((A * scale).reshape(e1 - e0, n_loc, -1),
+                                A.reshape(e1 - e0, n_loc, -1).transpose(0, 2, 1))
+    rows = np.broadcast_to(dofs.T[:, :, None], data.shape)
+    cols = np.broadcast_to(dofs.T[:, None, :], data.shape)
+    n = basis.N
+    K = sp.coo_matrix((data.ravel(), (rows.ravel(), cols.ravel())), shape=(n, n)).tocsr()
+    K.eliminate_zeros()
+    return K
 
 
 def point_dofs(basis, node: int) -> np.ndarray:

@@ -58,11 +58,21 @@ def results_rows(h5: h5py.File, label: str | None = None) -> list[str]:
         m = sets.loaded[i]
         out.append(
             f"| {label} | {r.amplitude:.2e} | {r.f_epmc:.2f} | {r.f_qsma:.2f} | "
-            f"{100 * r.df_rel:+.2f} % | {100 * r.zeta_epmc:.3f} % | {100 * r.zeta_qsma:.3f} % | "
-            f"{100 * r.dzeta_rel:+.1f} % | {man[i]:.2f} ({int((sets.on_manifold[i] & m).sum())}"
+            f"{_signed(100 * r.df_rel, 2)} % | {100 * r.zeta_epmc:.3f} % | "
+            f"{100 * r.zeta_qsma:.3f} % | {_signed(100 * r.dzeta_rel, 1)} % | "
+            f"{man[i]:.2f} ({int((sets.on_manifold[i] & m).sum())}"
             f"/{n[i]}) | {mas[i]:.2f} ({int((sets.on_masing[i] & m).sum())}/{n[i]}) | "
             f"{wm[i]:.2f} / {ws[i]:.2f} |")
     return out
+
+
+def _signed(x: float, digits: int) -> str:
+    """``x`` with its sign and ``digits`` decimals; a value that rounds to zero is
+    ``+0.0..`` (its sign is round-off: the fixed-N joint's EPMC and QSMA agree to 1e-12
+    at the lowest amplitude, and the sign of their difference changed with the model's
+    round-off)."""
+    v = round(float(x), digits)
+    return f"{0.0 if v == 0 else v:+.{digits}f}"
 
 
 def headline(h5: h5py.File) -> list[str]:

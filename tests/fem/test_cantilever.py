@@ -47,3 +47,28 @@ def test_cantilever_error_falls_under_refinement():
     assert np.all(np.diff(errs, axis=0) < 0), errs
     # quadratic elements: the third mode's error drops by more than 4x per halving
     assert np.all(errs[:-1, 2] / errs[1:, 2] > 4.0), errs[:, 2]
+
+
+def test_batched_stiffness_equals_the_scikit_fem_form(monkeypatch):
+    """The element matrices by batched products (``plane_stress_stiffness``) give
+    scikit-fem's ``BilinearForm`` of ``t sigma(u) : eps(v)`` (the oracle) to round-off,
+    on a beam mesh with two elements through the height; blocks of 7 elements (the
+    last one partial) give the same matrix."""
+    import jointsim.fem.assembly as asm
+    from skfem import BilinearForm
+    from skfem.helpers import ddot, eye, sym_grad, trace
+
+    b = vector_basis(from_meshio(beam_mesh(L, H, 0.01, 2)))
+    lam, mu = asm.plane_stress_lame(E, NU)
+
+    @BilinearForm
+    def form(u, v, w):
+        eps = sym_grad(u)
+        return DEPTH * ddot(2.0 * mu * eps + lam * eye(trace(eps), 2), sym_grad(v))
+    ref = form.assemble(b).tocsr()
+    K = asm.plane_stress_stiffness(b, lam, mu, DEPTH)
+    assert abs(K - ref).max() <= 1e-13 * abs(ref).max()
+    n_el = b.mesh.t.shape[1]
+    monkeypatch.setattr(asm, "STIFFNESS_BLOCK", 7)
+    assert n_el > 7 and n_el % 7
+    assert abs(asm.plane_stress_stiffness(b, lam, mu, DEPTH) - K).max() == 0.0

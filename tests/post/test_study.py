@@ -225,3 +225,12 @@ def test_a_plotter_that_fails_in_the_forked_process_raises_here(fixed, tmp_path,
     for parallel in (False, True):
         with pytest.raises(ValueError, match="broken plotter"):
             make_figures(fixed, tmp_path / str(parallel), parallel=parallel)
+
+
+def test_table_signs_of_values_that_round_to_zero_are_not_round_off():
+    """A relative difference that rounds to zero prints ``+0.00`` whatever the sign of
+    its round-off (the fixed-N joint's EPMC and QSMA agree to 1e-12 at 1e-4)."""
+    from jointsim.post.study_tables import _signed
+    assert [_signed(x, 2) for x in (-1e-12, 1e-12, -0.004, -0.006, 0.0)] == \
+        ["+0.00", "+0.00", "+0.00", "-0.01", "+0.00"]
+    assert _signed(-211.64, 1) == "-211.6" and _signed(527.66, 1) == "+527.7"
