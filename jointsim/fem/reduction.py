@@ -222,11 +222,33 @@ def _fixed_interface_modes(K_II, M_II, lu, n_modes: int):
         return np.zeros(0), np.zeros((n_i, 0))
     if n_i <= 400 or n_modes >= n_i - 1:
         return sla.eigh(K_II.toarray(), M_II.toarray(), subset_by_index=(0, n_modes - 1))
-    op = spla.LinearOperator(K_II.shape, matvec=lu.solve, dtype=float)
-    w2, Phi = spla.eigsh(K_II, k=n_modes, M=sp.csc_matrix(M_II), sigma=0.0,
-                         which="LM", OPinv=op, v0=np.ones(n_i))
+    return shift_invert_modes(K_II, M_II, n_modes, lu)
+
+
+def shift_invert_modes(K, M, n_modes: int, lu):
+    """The ``n_modes`` lowest modes of a sparse ``K phi = w^2 M phi`` by shift-invert
+    Lanczos about 0 on the factor ``lu`` of ``K`` (:func:`spd_lu`).
+
+    Parameters
+    ----------
+    K, M : sparse matrix, shape (n, n)
+        Symmetric, ``K`` nonsingular, ``M`` positive definite.
+    n_modes : int
+        Fewer than ``n - 1``.
+    lu : scipy.sparse.linalg.SuperLU
+
+    Returns
+    -------
+    w2 : ndarray, shape (n_modes,)
+        Eigenvalues ascending [rad^2/s^2].
+    Phi : ndarray, shape (n, n_modes)
+        Mass-normalised modes in columns (signs as the solver gives them).
+    """
+    n = K.shape[0]
+    op = spla.LinearOperator(K.shape, matvec=lu.solve, dtype=float)
+    w2, Phi = spla.eigsh(sp.csc_matrix(K), k=n_modes, M=sp.csc_matrix(M), sigma=0.0,
+                         which="LM", OPinv=op, v0=np.ones(n))
     order = np.argsort(w2)
     w2, Phi = w2[order], Phi[:, order]
     # normalise to unit modal mass (eigsh already does, to round-off)
-    mm = np.einsum("ij,ij->j", Phi, M_II @ Phi)
-    return w2, Phi / np.sqrt(mm)
+    return w2, Phi / np.sqrt(np.einsum("ij,ij->j", Phi, M @ Phi))

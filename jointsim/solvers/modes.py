@@ -30,9 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
-from ..fem.reduction import spd_lu, with_fixed_signs
+from ..fem.reduction import shift_invert_modes, spd_lu, with_fixed_signs
 from ..results import SUCCESS, Convergence
 
 log = logging.getLogger(__name__)
@@ -87,16 +86,10 @@ def eigenmodes(K, M, n_modes: int):
     sparse_big = sp.issparse(K) and n > DENSE_MAX and m < n - 2
     if sparse_big:
         try:
-            # the shift-invert on the stiffness's own ordering (half SuperLU's default fill)
-            op = spla.LinearOperator(K.shape, matvec=spd_lu(K).solve, dtype=float)
-            w2, phi = spla.eigsh(sp.csc_matrix(K), k=m, M=sp.csc_matrix(M), sigma=0.0,
-                                 which="LM", OPinv=op, v0=np.ones(n))
+            # on the stiffness's own ordering (half SuperLU's default fill)
+            w2, phi = shift_invert_modes(K, M, m, spd_lu(K))
         except RuntimeError:  # singular K: the dense solver copes
             sparse_big = False
-        else:
-            order = np.argsort(w2)
-            w2, phi = w2[order], phi[:, order]
-            phi = phi / np.sqrt(np.einsum("ij,ij->j", phi, M @ phi))
     if not sparse_big:
         Kd = K.toarray() if sp.issparse(K) else np.asarray(K)
         Md = M.toarray() if sp.issparse(M) else np.asarray(M)
