@@ -117,7 +117,7 @@ def test_constraint_modes_on_threads_equal_one_solve(coarse_structure, monkeypat
     blocked = craig_bampton(st.K, st.M, B, 12)
     monkeypatch.setattr(red, "CONSTRAINT_BLOCKS", 1)
     whole = craig_bampton(st.K, st.M, B, 12)
-    assert red.CONSTRAINT_BLOCKS == 1 and blocked.T.shape == whole.T.shape
+    assert B.size >= 2      # two non-empty column blocks: the comparison is not trivial
     psi = slice(0, B.size)
     scale = np.abs(whole.T[:, psi]).max()
     assert np.abs(blocked.T[:, psi] - whole.T[:, psi]).max() <= 1e-13 * scale
