@@ -17,7 +17,9 @@ as it comes back (:func:`jointsim.io.hbm_points.set_error_indicators`).
   is the one being computed.
 * A worker that dies loses the row it was computing (its row stays NaN; the runner
   warns, and ``--resume`` computes it); the rows queued behind it go to the others.
-  When no worker is left the remaining rows are lost the same way.
+  When no worker is left the parent computes the remaining rows itself once the
+  continuation is done (:meth:`IndicatorPool.drain`): nothing but the rows being
+  computed when the workers died is lost.
 * Workers die with the parent (:func:`jointsim.analyses.forking.die_with_parent`).
 
 Same numbers as serial on the direct path (bit for bit); on the Krylov path a worker's
@@ -108,6 +110,7 @@ class IndicatorPool:
         import multiprocessing as mp
 
         ctx = mp.get_context("fork")
+        self.fn = fn
         self.what = what
         self.lost: list[int] = []
         self._lost_out: list[tuple[int, None]] = []
@@ -146,9 +149,7 @@ class IndicatorPool:
 
     def _dispatch(self) -> None:
         live = [w for w in self.workers if w["alive"]]
-        if not live:
-            while self.backlog:
-                self._lose(self.backlog.popleft()[0], "no indicator worker is left")
+        if not live:       # the rows wait for the drain: this process computes them
             return
         while self.backlog:
             w = min(live, key=lambda w: len(w["rows"]))
@@ -212,15 +213,38 @@ class IndicatorPool:
             self.backlog.extendleft(reversed(rows[1:]))
 
     def drain(self, on_result, desc: str = "indicators") -> None:
-        """Wait for every pending row; ``on_result(row, result)`` for each (progress bar)."""
+        """Wait for every pending row; ``on_result(row, result)`` for each (progress bar).
+
+        When no worker is left, the rows still waiting are computed here, one at a
+        time (a row that raises is reported as ``(row, None)``, as from a worker).
+        """
         from tqdm import tqdm
 
         if not self.pending:
             return
+        here = 0
         with tqdm(total=self.pending, desc=f"{desc} ({self.n_workers} workers)", unit="pt",
                   disable=None, leave=False) as bar:
             while self.pending:
-                for row, res in self.poll(timeout=1.0):
+                if self.backlog and not any(w["alive"] for w in self.workers):
+                    if not here:
+                        log.warning("%s: no indicator worker is left; this process computes "
+                                    "the %d remaining point(s)", self.what, len(self.backlog))
+                    here += 1
+                    row, args = self.backlog.popleft()
+                    try:
+                        res = self.fn(*args)
+                    except Exception as exc:   # as in a worker: report, go on
+                        log.warning("%s: error indicators of point %d failed: %s: %s",
+                                    self.what, row, type(exc).__name__, exc)
+                        self.errors.append((row, f"{type(exc).__name__}: {exc}"))
+                        res = None
+                    on_result(row, res)
+                    bar.update(1)
+                    got = self.poll(timeout=0.0)
+                else:
+                    got = self.poll(timeout=1.0)
+                for row, res in got:
                     on_result(row, res)
                     bar.update(1)
 
@@ -326,7 +350,8 @@ class PointIndicators:
                 self._write(row, res)
 
     def finish(self) -> None:
-        """Wait for every submitted row and write it; warn about rows lost with a worker."""
+        """Wait for every submitted row and write it (computing them here when no worker
+        is left); warn about rows lost with a worker."""
         if self.pool is None:
             return
         self.pool.drain(self._write, desc=f"{self.prefix} error indicators")
