@@ -78,13 +78,17 @@ def _worker(tasks, conn, fn, parent_pid) -> None:
         msg = tasks.get()
         if msg is None:
             break
-        row, args = msg
-        try:
-            out = ("ok", row, fn(*args))
-        except Exception as exc:   # fn's own failures are its business; report, go on
-            out = ("error", row, f"{type(exc).__name__}: {exc}")
-        conn.send(out)
+        conn.send(_compute(fn, *msg))
     conn.close()
+
+
+def _compute(fn, row: int, args: tuple) -> tuple:
+    """``("ok", row, fn(*args))``, or ``("error", row, message)`` when ``fn`` raises (its
+    own failures are its business: reported, and the next row goes on)."""
+    try:
+        return "ok", row, fn(*args)
+    except Exception as exc:
+        return "error", row, f"{type(exc).__name__}: {exc}"
 
 
 class IndicatorPool:
@@ -189,18 +193,23 @@ class IndicatorPool:
                 done = [i for i, (r, _) in enumerate(w["rows"]) if r == row]
                 if done:
                     del w["rows"][done[0]]
-                if kind == "error":
-                    log.warning("%s: error indicators of point %d failed in a worker: %s",
-                                self.what, row, res)
-                    self.errors.append((row, res))
-                    res = None
-                out.append((row, res))
+                out.append(self._result(kind, row, res, "in a worker"))
             if dead:
                 self._died(w)
         self._dispatch()
         out += self._lost_out
         self._lost_out = []
         return out
+
+    def _result(self, kind: str, row: int, res, where: str) -> tuple[int, object]:
+        """``(row, result)`` of a :func:`_compute` message; a failure is logged, kept in
+        :attr:`errors` and reported as ``(row, None)``."""
+        if kind == "error":
+            log.warning("%s: error indicators of point %d failed %s: %s", self.what, row,
+                        where, res)
+            self.errors.append((row, res))
+            return row, None
+        return row, res
 
     def _died(self, w) -> None:
         """A worker has ended: its first row (being computed) is lost, the rest re-queued."""
@@ -232,14 +241,7 @@ class IndicatorPool:
                                     "the %d remaining point(s)", self.what, len(self.backlog))
                     here += 1
                     row, args = self.backlog.popleft()
-                    try:
-                        res = self.fn(*args)
-                    except Exception as exc:   # as in a worker: report, go on
-                        log.warning("%s: error indicators of point %d failed: %s: %s",
-                                    self.what, row, type(exc).__name__, exc)
-                        self.errors.append((row, f"{type(exc).__name__}: {exc}"))
-                        res = None
-                    on_result(row, res)
+                    on_result(*self._result(*_compute(self.fn, row, args), "here"))
                     bar.update(1)
                     got = self.poll(timeout=0.0)
                 else:

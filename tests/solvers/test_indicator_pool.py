@@ -176,6 +176,30 @@ def test_every_worker_dead_loses_only_their_rows_without_hanging():
     assert got == {r: (None if r in pool.lost else -r) for r in range(6)}
 
 
+def _fail_on_three(x):
+    if x == 3:
+        raise ValueError("three")
+    return x + 1
+
+
+@pytest.mark.parametrize("workers_alive", [True, False])
+def test_a_row_that_raises_is_reported_and_the_rest_go_on(workers_alive):
+    """In a worker or, once no worker is left, in this process: ``(row, None)``, the
+    message kept in ``errors``, every other row computed."""
+    with IndicatorPool(_fail_on_three, 2, "test") as pool:
+        if not workers_alive:
+            for w in pool.workers:
+                w["proc"].kill()
+                w["proc"].join()
+            assert pool.poll() == [] and not any(w["alive"] for w in pool.workers)
+        for r in range(6):
+            pool.submit(r, r)
+        got = {}
+        pool.drain(got.__setitem__)
+    assert got == {r: (None if r == 3 else r + 1) for r in range(6)}
+    assert pool.errors == [(3, "ValueError: three")] and pool.lost == []
+
+
 def test_epmc_whose_indicator_workers_all_die_computes_the_rest_itself(tmp_path,
                                                                         monkeypatch, caplog):
     """A real run: every indicator worker dies on its first point (a forked process
