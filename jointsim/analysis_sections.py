@@ -89,10 +89,11 @@ class HBMAnalysis:
     error_indicators: bool = spec(True, doc="compute the error indicators /hbm/error_* of "
                                             "every point (one extra linear solve each; "
                                             "jointsim.solvers.indicators)")
-    error_tol: float = spec(1e-2, doc="tolerance on /hbm/error_estimate (estimated relative "
-                                      "error of the retained harmonics): points above it are "
-                                      "marked on the FRC figure and warned about once per "
-                                      "branch; 0: never", ge=0)
+    error_tol: float = spec(1e-2, doc="tolerance on /hbm/error_curve (estimated relative "
+                                      "error of the retained harmonics across the branch, "
+                                      "solved where /hbm/error_estimate exceeds it): points "
+                                      "above it are marked on the FRC figure and warned about "
+                                      "once per branch; 0: never", ge=0)
 
     def check(self):
         if not self.force_scale:

@@ -586,7 +586,7 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         y0 = np.append(first.z, a.omega_start)
         t0, h0, solve_first, max_pts, n_stored = None, a.step, False, a.max_points, 0
     nz = system.n_z
-    estimator = ErrorEstimator(system, parallel=system.aft.parallel) \
+    estimator = _estimator(system, a, system.aft.parallel) \
         if a.error_indicators and not pooled else None
 
     def fun(y):
@@ -644,6 +644,14 @@ def _explain_failure(conv, system, F, a, lam):
     return Convergence(False, conv.status, f"{conv.message}; {r.describe()}", conv.iterations)
 
 
+def _estimator(system, a, parallel: bool) -> ErrorEstimator:
+    """The error estimator of the FRC points: their error across the branch is solved
+    where the fixed-frequency estimate exceeds ``a.error_tol`` (the points it would mark;
+    none when the tolerance is 0)."""
+    return ErrorEstimator(system, parallel=parallel,
+                          curve_above=a.error_tol if a.error_tol > 0 else np.inf)
+
+
 def _indicator_pool(writer, a, system, workers):
     """The error indicators of the FRC points computed in this process
     (:class:`~jointsim.analyses.indicator_pool.PointIndicators`): on ``workers``
@@ -659,7 +667,7 @@ def _indicator_pool(writer, a, system, workers):
     writer.h5["hbm"].attrs["indicator_workers"] = n
     if n == 1 and not missing.size:   # serial: each branch computes its own
         return PointIndicators(writer, "hbm", None, ToleranceWatch(a.error_tol, "hbm"), 1)
-    estimator = ErrorEstimator(system, parallel=n == 1 and system.aft.parallel)
+    estimator = _estimator(system, a, n == 1 and system.aft.parallel)
     forces = {ib: system.force_coefficients(fs) for ib, fs in enumerate(a.force_scale)}
     inds = PointIndicators(
         writer, "hbm", lambda z, w, ib: safe_indicators(estimator.hbm, z, w, forces[ib]),

@@ -58,6 +58,14 @@ ERROR_DATASETS = {
                        "finer, the force spectrum that folds back)", ("hbm", "epmc")),
     "error_force_tail": ("force_tail", "contact-force harmonics above H (up to the extended "
                          "set) against the retained ones h >= 1, ratio of norms", ("hbm", "epmc")),
+    "error_curve": ("curve", "estimated relative error of the retained harmonic coefficients "
+                    "across the branch: against the extended (converged) branch's nearest point, "
+                    "not at the same frequency (the FRC's steep flanks and folds); solved where "
+                    "error_estimate exceeds the scene's error_tol, else equal to it "
+                    "(jointsim.solvers.indicators.ErrorEstimator._across)", ("hbm",)),
+    "error_curve_frequency": ("curve_frequency", "|d omega| / omega from the point to that "
+                              "nearest point of the extended branch (0 where error_curve is "
+                              "error_estimate)", ("hbm",)),
     "error_frequency": ("frequency", "estimated relative error of the frequency (truncation "
                         "+ aliasing): its change in a Newton solve of the extended EPMC "
                         "system (jointsim.solvers.indicators)", ("epmc",)),

@@ -32,13 +32,34 @@ def excitation_amplitude(h5) -> float:
     return max(amps) if amps and max(amps) > 0 else float("nan")
 
 
-def error_flags(g) -> np.ndarray | None:
-    """Points of group ``g`` (``/hbm`` or ``/epmc``) whose ``error_estimate`` exceeds the
-    group's ``error_tol`` attribute (bool per point; None without indicators or tolerance)."""
-    tol = float(g.attrs.get("error_tol", 0.0))
-    if "error_estimate" not in g or not tol > 0:
+def marked_error(g) -> np.ndarray | None:
+    """The estimated error per point that the tolerance applies to: ``error_curve`` (the
+    FRC's, across the branch) where it is stored and finite, else ``error_estimate``
+    (None without indicators)."""
+    if "error_estimate" not in g:
         return None
     e = g["error_estimate"][()]
+    if "error_curve" in g:
+        c = _rows(g["error_curve"][()], e.shape[0])
+        e = np.where(np.isfinite(c), c, e)
+    return e
+
+
+def _rows(v, n: int) -> np.ndarray:
+    """``v`` (float, 1-D) cut or NaN-padded to ``n`` rows."""
+    out = np.full(n, np.nan)
+    out[:min(n, v.shape[0])] = v[:n]
+    return out
+
+
+def error_flags(g) -> np.ndarray | None:
+    """Points of group ``g`` (``/hbm`` or ``/epmc``) whose estimated error
+    (:func:`marked_error`) exceeds the group's ``error_tol`` attribute (bool per point;
+    None without indicators or tolerance)."""
+    tol = float(g.attrs.get("error_tol", 0.0))
+    e = marked_error(g)
+    if e is None or not tol > 0:
+        return None
     return np.isfinite(e) & (e > tol)
 
 
@@ -74,8 +95,17 @@ def error_lines(g, indent: str = "    ", groups=None) -> list[str]:
             out.append(f"{indent}{label}: error estimate not computed")
             continue
         i = int(np.argmax(em))
-        n_bad = int(np.sum(em > tol)) if tol > 0 else 0
+        marked = np.where(m, marked_error(g), np.nan)
+        n_bad = int(np.sum(np.isfinite(marked) & (marked > tol))) if tol > 0 else 0
         extra = ""
+        if "error_curve" in g:
+            c, cw = (_rows(g[k][()], e.shape[0]) for k in ("error_curve",
+                                                          "error_curve_frequency"))
+            c = np.where(m, c, np.nan)
+            if np.any(np.isfinite(c)):
+                j = int(np.nanargmax(c))
+                extra += (f", across the branch up to {c[j]:.1e} (frequency shift "
+                          f"{cw[j]:.1e}) at point {j}")
         for name, what in (("error_frequency", "frequency"), ("error_damping", "damping")):
             if name in g:
                 v = g[name][()][m]
@@ -97,7 +127,8 @@ def plot_frc(h5: h5py.File, outdir: Path, frequency: str = "Hz") -> list[Path]:
     where small and large force levels can be compared.  The frequency axis
     is in Hz (``frequency="rad/s"`` on request: ``jointsim post --rad-s``).
     A branch that gave up is marked with an x at its last point; points whose
-    ``error_estimate`` exceeds ``analysis.hbm.error_tol`` with red open squares.
+    estimated error (:func:`marked_error`: across the branch) exceeds
+    ``analysis.hbm.error_tol`` with red open squares.
 
     Parameters
     ----------

@@ -86,6 +86,19 @@ is unchanged to the bit.  On an FRC branch below the slip limit (force x 0.02) t
 is most points (69 of 78 on the default scene, the FRC 22.4 -> 17.9 s), which cost
 two extended GMRES solves each before.
 
+**FRC points: the error across the branch.**  The error at a fixed frequency
+mixes the discretisation error of the curve with its steepness: where the FRC is
+steep (the flanks of a sharp peak, a fold) a curve right to 1e-3 is far off at the
+same frequency (round 22: estimates of 35 and 1.4 on the 120-point lap joint, where
+the curve is 0.46 % and 0.18 % off).  Where the fixed-frequency estimate exceeds
+``curve_above`` (the runs: ``analysis.hbm.error_tol``), :meth:`ErrorEstimator.hbm`
+also measures it across the branch, against the linearised extended branch's point
+nearest to the point (:meth:`ErrorEstimator._across`; the direction of that branch
+is a third column of the same solve): ``curve`` (with its truncation and aliasing
+parts) and the relative frequency shift ``curve_frequency``.  Validated on the fold
+chain against the refined branch's point on the hyperplane normal to the branch
+(``tests/solvers/test_indicators.py``; README, "The FRC's error across the branch").
+
 The aliasing step measures the change ``N_t -> 4 N_t``, taken as the error of
 ``N_t`` itself: the convergence in ``N_t`` of a stick-slip march (a slip
 onset falls between samples) is erratic, and the error of ``4 N_t`` is
@@ -133,6 +146,11 @@ EPMC_CHANGE_TOL = 0.05
 #: 3,153 -> 2,031 and their time 0.72x; the EPMC's, by at most 4.6 % (one frequency
 #: estimate; median 6e-7).
 INDICATOR_RTOL = 1e-3
+#: Relative frequency step of the central difference of the reconstruction in
+#: :meth:`ErrorEstimator._across` (``X`` is smooth in ``omega``: the difference's
+#: truncation error is of order ``h^2`` and its round-off of order ``1e-16 / h``, both
+#: far below the digit or two an estimate needs).
+ACROSS_DOMEGA = 1e-6
 #: A point whose contact forces the extended discretisation changes (force harmonics
 #: above ``H``, and the retained ones on ``sample_factor N_t`` samples) by at most
 #: this share of its retained vibrating force harmonics is linear to round-off
@@ -158,6 +176,14 @@ class ErrorIndicators:
     frequency, damping : float
         EPMC only (NaN for HBM): estimated relative error of the frequency and
         of the damping ratio (truncation and aliasing together).
+    curve, curve_truncation, curve_aliasing : float
+        HBM only (NaN for EPMC): the error measured across the branch instead of at
+        the point's frequency (:meth:`ErrorEstimator.hbm`), its sum and parts; equal
+        to ``estimate`` and its parts where that is at most the estimator's
+        ``curve_above``.
+    curve_frequency : float
+        HBM only: ``|d omega| / omega`` of the extended branch's point across the
+        branch from this one (0 where ``curve`` is not solved).
     """
 
     truncation: float
@@ -166,6 +192,17 @@ class ErrorIndicators:
     force_tail: float
     frequency: float = float("nan")
     damping: float = float("nan")
+    curve: float = float("nan")
+    curve_truncation: float = float("nan")
+    curve_aliasing: float = float("nan")
+    curve_frequency: float = float("nan")
+
+    def across(self) -> tuple[float, float, float]:
+        """``(estimate, truncation, aliasing)`` across the branch where it was
+        computed (HBM), else at the point's own parameter (EPMC)."""
+        if np.isfinite(self.curve):
+            return self.curve, self.curve_truncation, self.curve_aliasing
+        return self.estimate, self.truncation, self.aliasing
 
 
 class ErrorEstimator:
@@ -181,11 +218,18 @@ class ErrorEstimator:
         The extended system samples ``sample_factor * N_t`` points per period.
     parallel : bool
         Numba threads for the extended AFT (False in worker processes).
+    curve_above : float
+        :meth:`hbm` measures the error across the branch (``curve``) at the points
+        whose fixed-frequency ``estimate`` exceeds this (0: every point that slips;
+        ``inf``: none).  When finite, the branch's direction is a third column of
+        every slipping point's extended solve (about 15 % of its time).  The runs
+        pass ``analysis.hbm.error_tol``: only a point it would mark needs it.
     """
 
     def __init__(self, system: HBMSystem, ext_factor: int = 2, sample_factor: int = 4,
-                 parallel: bool = True):
+                 parallel: bool = True, curve_above: float = 0.0):
         self.system = system
+        self.curve_above = float(curve_above)
         H = tuple(system.basis.harmonics)
         nx = int(sample_factor) * system.basis.n_samples
         h_ext = min(int(ext_factor) * max(H) + 1, (nx - 1) // 2)
@@ -265,19 +309,21 @@ class ErrorEstimator:
         change = float(np.linalg.norm(Fx[:, nc:]) + np.linalg.norm(Fx[:, :nc] - Fk))
         return ref > 0.0 and change <= LINEAR_FORCE_TOL * ref, aft
 
-    def _split_solve(self, A, r, n_rows):
-        """``-A^-1`` of the residual ``r`` split into (alias: rows < n_rows, tail: the rest).
+    def _split_solve(self, A, r, n_rows, dr_domega=None):
+        """``-A^-1`` of the residual ``r`` split into (alias: rows < n_rows, tail: the rest),
+        and ``w = -A^-1 dr_domega`` when that is given (else None).
 
-        One solve with the two right-hand sides as columns: the dense LU once, or the
-        Krylov path's GMRES on both columns in lockstep (each product and preconditioner
-        application reads the blocks once for both; :func:`~.gmres.gmres_columns`).
+        One solve with the right-hand sides as columns: the dense LU once, or the
+        Krylov path's GMRES on the columns in lockstep (each product and preconditioner
+        application reads the blocks once for all; :func:`~.gmres.gmres_columns`).
         """
         ra = np.zeros_like(r)
         rt = np.zeros_like(r)
         ra[:n_rows] = r[:n_rows]
         rt[n_rows:] = r[n_rows:]
-        d = solve(A, -np.column_stack([ra, rt]))
-        return d[:, 0], d[:, 1]
+        cols = [ra, rt] if dr_domega is None else [ra, rt, dr_domega]
+        d = solve(A, -np.column_stack(cols))
+        return d[:, 0], d[:, 1], (None if dr_domega is None else d[:, 2])
 
     def _rel(self, dX, X):
         ref = np.linalg.norm(np.asarray(X)[self._kept])
@@ -299,24 +345,34 @@ class ErrorEstimator:
         X : ndarray, shape (n_c, n_dof), optional
             Full coefficients (computed when not given) [m].
         xi : float
-            Self-excitation [1/s] (0 for a forced response).
+            Self-excitation [1/s] (0 for a forced response; the error across the
+            branch is measured for a forced response only).
 
         Returns
         -------
         ErrorIndicators
+            With the error across the branch (``curve``, ``curve_frequency``;
+            :meth:`_across`) where ``estimate`` exceeds ``curve_above``, else
+            ``curve`` equal to ``estimate``.
         """
         s, ext = self.system, self.ext
         if X is None:
             X = s.reconstruct(z, omega, F, xi)
         if not s.n_z:
-            return ErrorIndicators(0.0, 0.0, 0.0, 0.0)
+            return ErrorIndicators(0.0, 0.0, 0.0, 0.0, curve=0.0, curve_truncation=0.0,
+                                   curve_aliasing=0.0, curve_frequency=0.0)
         linear, aft = self._linear(z)        # the contact forces alone decide
         if linear:
-            return ErrorIndicators(0.0, 0.0, 0.0, force_tail=self._force_tail(aft))
+            return ErrorIndicators(0.0, 0.0, 0.0, force_tail=self._force_tail(aft),
+                                   curve=0.0, curve_truncation=0.0, curve_aliasing=0.0,
+                                   curve_frequency=0.0)
         ze = self._embed(np.asarray(z, dtype=float).reshape(s.n_c, s.n_r)).ravel()
-        ev = ext.evaluate(ze, omega, self._embed(F), xi=xi, wrt=())
+        across = np.isfinite(self.curve_above) and xi == 0.0
+        ev = ext.evaluate(ze, omega, self._embed(F), xi=xi,
+                          wrt=("omega",) if across else ())
         n_rows = s.n_c * s.n_r
-        da, dt = self._split_solve(ev.J, ev.R, n_rows)
+        da, dt, w = self._split_solve(ev.J, ev.R, n_rows,
+                                      ev.dR["omega"] if across else None)
         # the kept rows of X depend on the kept rows of z only: the main system
         # rebuilds them (half the harmonics of the extended reconstruction)
         zero = np.zeros_like(F)
@@ -324,8 +380,71 @@ class ErrorEstimator:
         dXt = s.reconstruct(dt[:n_rows], omega, zero, xi)
         ea = ALIAS_RICHARDSON * self._rel(dXa, X)
         et = self._rel(dXt, X)
+        ct, ca, cw = et, ea, 0.0
+        if across and et + ea > self.curve_above:
+            ct, ca, cw = self._across(z, omega, F, w, (dt, da))
         return ErrorIndicators(truncation=et, aliasing=ea, estimate=et + ea,
-                               force_tail=self._force_tail(ev.aft))
+                               force_tail=self._force_tail(ev.aft), curve=ct + ca,
+                               curve_truncation=ct, curve_aliasing=ca, curve_frequency=cw)
+
+    def _across(self, z, omega: float, F, w, steps):
+        """The error across the branch: ``(truncation, aliasing, |d omega| / omega)``.
+
+        At a fixed frequency the error of a point where the response is steep in
+        frequency is mostly the shift of the curve along it (near a resonance peak
+        or a fold of the FRC the fixed-frequency estimate can be hundreds of times
+        the distance between the curves).  The linearised extended branch through
+        the fixed-frequency step ``d`` is ``(z + d + w t, omega_0 + t)``, with
+        ``w = dz/domega = -J_x^-1 dR/domega`` its direction.  Its point nearest to
+        this one, in the retained coefficients relative to their vibration and the
+        frequency relative to ``omega_0``, minimises
+        ``||X(t) - X_0||^2 / ||X_0,vib||^2 + (t / omega_0)^2`` with ``X(t)`` linearised
+        in ``t`` (``X`` is linear in ``z``; its own dependence on ``omega`` by a central
+        difference): ``t = -(D . V) / (V . V + ||X_0,vib||^2 / omega_0^2)``, ``D`` the
+        change of ``X`` by the step, ``V = dX/dt``.  The change of the retained
+        coefficients at that point, reconstructed at ``omega_0 + t``, is the error.
+        It is computed for the truncation and the aliasing steps as in :meth:`hbm`;
+        ``t = 0`` gives back the fixed-frequency estimate, so the minimum is about at
+        most that.  Where ``J_x`` is singular (a fold) ``d`` and ``w`` grow together
+        and ``d + w t`` stays finite.
+
+        Parameters
+        ----------
+        z : ndarray, shape (n_z,)
+            Contact coefficients of the point [m].
+        omega : float
+            Its angular frequency [rad/s].
+        F : ndarray, shape (n_c, n_dof)
+            Its force coefficients [N].
+        w : ndarray, shape (n_z_ext,)
+            ``-J_x^-1 dR/domega`` at the point [m s/rad] (solved with the steps).
+        steps : tuple of ndarray, shape (n_z_ext,) each
+            The fixed-frequency steps (truncation, aliasing) [m].
+
+        Returns
+        -------
+        truncation, aliasing : float
+            Relative errors of the retained coefficients across the branch.
+        frequency : float
+            ``|d omega| / omega`` to the extended branch's nearest point.
+        """
+        s = self.system
+        n_rows = s.n_c * s.n_r
+        z = np.asarray(z, dtype=float)
+        X0 = s.reconstruct(z, omega, F)
+        ref2 = float(np.sum(X0[self._kept] ** 2))
+        h = ACROSS_DOMEGA * omega
+        wk = w[:n_rows]
+        V = (s.reconstruct(z + h * wk, omega + h, F)
+             - s.reconstruct(z - h * wk, omega - h, F))[:s.n_c] / (2.0 * h)
+        out, shift = [], 0.0
+        for d in steps:
+            D = s.reconstruct(z + d[:n_rows], omega, F) - X0
+            t = -float(np.sum(D * V)) / (float(np.sum(V * V)) + ref2 / omega ** 2)
+            Xt = s.reconstruct(z + d[:n_rows] + t * wk, omega + t, F)
+            out.append(self._rel(Xt - X0, X0))
+            shift += t
+        return out[0], ALIAS_RICHARDSON * out[1], abs(shift) / omega
 
     # -- EPMC ---------------------------------------------------------------------
     def epmc(self, ep: EPMCSystem, y, max_iter: int | None = None) -> ErrorIndicators:
@@ -461,7 +580,10 @@ class ErrorEstimator:
 
 
 class ToleranceWatch:
-    """Warns once per branch when a point's ``error_estimate`` exceeds the tolerance.
+    """Warns once per branch when a point's estimated error exceeds the tolerance.
+
+    The estimate is the error across the branch where it was solved (FRC points,
+    :meth:`ErrorIndicators.across`), else ``error_estimate``.
 
     Parameters
     ----------
@@ -490,17 +612,20 @@ class ToleranceWatch:
         where : str
             Where the point is (e.g. ``"omega = 960"``), for the message.
         """
-        if ind is None or not self.tol > 0 or not ind.estimate > self.tol:
+        if ind is None or not self.tol > 0:
+            return False
+        estimate, truncation, aliasing = ind.across()
+        if not estimate > self.tol:
             return False
         if branch not in self.warned:
             self.warned.add(branch)
             log.warning(
-                "%s branch %s: estimated discretisation error %.2g at point %d (%s) exceeds "
-                "%s.error_tol = %.2g (truncation %.2g: raise the harmonics; aliasing %.2g: "
-                "raise n_samples); further points of the branch are marked in /%s/error_* "
-                "and on the figure, not warned again", self.what, branch, ind.estimate,
-                point, where, f"analysis.{self.what}", self.tol, ind.truncation,
-                ind.aliasing, self.what)
+                "%s branch %s: estimated discretisation error %.2g%s at point %d (%s) "
+                "exceeds %s.error_tol = %.2g (truncation %.2g: raise the harmonics; aliasing "
+                "%.2g: raise n_samples); further points of the branch are marked in "
+                "/%s/error_* and on the figure, not warned again", self.what, branch,
+                estimate, " across the branch" if np.isfinite(ind.curve) else "", point,
+                where, f"analysis.{self.what}", self.tol, truncation, aliasing, self.what)
         return True
 
 
