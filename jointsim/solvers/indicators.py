@@ -382,12 +382,12 @@ class ErrorEstimator:
         et = self._rel(dXt, X)
         ct, ca, cw = et, ea, 0.0
         if across and et + ea > self.curve_above:
-            ct, ca, cw = self._across(z, omega, F, w, (dt, da))
+            ct, ca, cw = self._across(z, omega, F, X, w, ((dt, dXt), (da, dXa)))
         return ErrorIndicators(truncation=et, aliasing=ea, estimate=et + ea,
                                force_tail=self._force_tail(ev.aft), curve=ct + ca,
                                curve_truncation=ct, curve_aliasing=ca, curve_frequency=cw)
 
-    def _across(self, z, omega: float, F, w, steps):
+    def _across(self, z, omega: float, F, X, w, steps):
         """The error across the branch: ``(truncation, aliasing, |d omega| / omega)``.
 
         At a fixed frequency the error of a point where the response is steep in
@@ -416,10 +416,14 @@ class ErrorEstimator:
             Its angular frequency [rad/s].
         F : ndarray, shape (n_c, n_dof)
             Its force coefficients [N].
+        X : ndarray, shape (n_c, n_dof)
+            Its full coefficients [m].
         w : ndarray, shape (n_z_ext,)
             ``-J_x^-1 dR/domega`` at the point [m s/rad] (solved with the steps).
-        steps : tuple of ndarray, shape (n_z_ext,) each
-            The fixed-frequency steps (truncation, aliasing) [m].
+        steps : tuple of (ndarray, ndarray)
+            The fixed-frequency steps (truncation, aliasing): each ``d``, shape
+            (n_z_ext,), and the change of ``X`` it makes, shape (n_c, n_dof) [m]
+            (:meth:`hbm` has both).
 
         Returns
         -------
@@ -431,15 +435,14 @@ class ErrorEstimator:
         s = self.system
         n_rows = s.n_c * s.n_r
         z = np.asarray(z, dtype=float)
-        X0 = s.reconstruct(z, omega, F)
+        X0 = np.asarray(X, dtype=float)
         ref2 = float(np.sum(X0[self._kept] ** 2))
         h = ACROSS_DOMEGA * omega
         wk = w[:n_rows]
         V = (s.reconstruct(z + h * wk, omega + h, F)
              - s.reconstruct(z - h * wk, omega - h, F))[:s.n_c] / (2.0 * h)
         out, shift = [], 0.0
-        for d in steps:
-            D = s.reconstruct(z + d[:n_rows], omega, F) - X0
+        for d, D in steps:
             t = -float(np.sum(D * V)) / (float(np.sum(V * V)) + ref2 / omega ** 2)
             Xt = s.reconstruct(z + d[:n_rows] + t * wk, omega + t, F)
             out.append(self._rel(Xt - X0, X0))
