@@ -88,6 +88,9 @@ def error_lines(g, indent: str = "    ", groups=None) -> list[str]:
     tr = g["error_truncation"][()] if "error_truncation" in g else np.full_like(e, np.nan)
     al = g["error_aliasing"][()] if "error_aliasing" in g else np.full_like(e, np.nan)
     tol = float(g.attrs.get("error_tol", 0.0))
+    marked = marked_error(g)
+    across = [_rows(g[k][()], e.shape[0]) for k in ("error_curve", "error_curve_frequency")] \
+        if "error_curve" in g else None
     out = []
     for label, m in groups or [("all points", np.ones(e.shape, dtype=bool))]:
         em = np.where(m & np.isfinite(e), e, -np.inf)
@@ -95,13 +98,10 @@ def error_lines(g, indent: str = "    ", groups=None) -> list[str]:
             out.append(f"{indent}{label}: error estimate not computed")
             continue
         i = int(np.argmax(em))
-        marked = np.where(m, marked_error(g), np.nan)
-        n_bad = int(np.sum(np.isfinite(marked) & (marked > tol))) if tol > 0 else 0
+        n_bad = int(np.sum(m & np.isfinite(marked) & (marked > tol))) if tol > 0 else 0
         extra = ""
-        if "error_curve" in g:
-            c, cw = (_rows(g[k][()], e.shape[0]) for k in ("error_curve",
-                                                          "error_curve_frequency"))
-            c = np.where(m, c, np.nan)
+        if across is not None:
+            c, cw = np.where(m, across[0], np.nan), across[1]
             if np.any(np.isfinite(c)):
                 j = int(np.nanargmax(c))
                 extra += (f", across the branch up to {c[j]:.1e} (frequency shift "
