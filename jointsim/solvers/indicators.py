@@ -146,6 +146,18 @@ EPMC_CHANGE_TOL = 0.05
 #: 3,153 -> 2,031 and their time 0.72x; the EPMC's, by at most 4.6 % (one frequency
 #: estimate; median 6e-7).
 INDICATOR_RTOL = 1e-3
+#: Whether a point's extended solve may reuse the preconditioner built for the last
+#: point's (the chord policy of :class:`~.preconditioner.PreconditionerCache`).  Off:
+#: a fresh one solves to ``INDICATOR_RTOL`` in one GMRES iteration, the last point's
+#: needed 7 to 20 (the points of a branch are a step apart and their slip patterns
+#: differ), which cost more than the build they saved.  Measured on the 120-Gauss-point
+#: lap joint's stored points, one thread, alternating (load 1.9 to 2.5): the force-20
+#: FRC branch's indicators 35.2 / 33.9 s -> 27.5 / 26.9 s (19 -> 39 builds, 922 -> 117
+#: GMRES iterations), force 2 30.5 / 28.5 s -> 28.6 / 29.0 s, the EPMC's 27.3 / 27.5 s
+#: -> 23.2 / 22.5 s (the extended Newton's steps of one point still share one); the
+#: estimates move by at most 0.3 % (HBM) and 0.15 % (EPMC frequency), one EPMC
+#: damping estimate by 4.8 % (the GMRES tolerance's effect, ``INDICATOR_RTOL``).
+REUSE_ACROSS_POINTS = False
 #: Relative frequency step of the central difference of the reconstruction in
 #: :meth:`ErrorEstimator._across` (``X`` is smooth in ``omega``: the difference's
 #: truncation error is of order ``h^2`` and its round-off of order ``1e-16 / h``, both
@@ -366,6 +378,8 @@ class ErrorEstimator:
             return ErrorIndicators(0.0, 0.0, 0.0, force_tail=self._force_tail(aft),
                                    curve=0.0, curve_truncation=0.0, curve_aliasing=0.0,
                                    curve_frequency=0.0)
+        if not REUSE_ACROSS_POINTS:
+            ext.preconditioner.forget()
         ze = self._embed(np.asarray(z, dtype=float).reshape(s.n_c, s.n_r)).ravel()
         across = np.isfinite(self.curve_above) and xi == 0.0
         ev = ext.evaluate(ze, omega, self._embed(F), xi=xi,
@@ -489,6 +503,8 @@ class ErrorEstimator:
         epx = EPMCSystem(ext, ep.phi, self._embed(ep.F))
         zh = self._embed(y[:nz].reshape(s.n_c, s.n_r)).ravel()
         yx = np.concatenate([zh, [omega, xi, lam]])
+        if not REUSE_ACROSS_POINTS:
+            ext.preconditioner.forget()
         R, J, ev = epx.fun(yx)
         n_rows = s.n_c * s.n_r
         nzx = ext.n_z

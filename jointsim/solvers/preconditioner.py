@@ -282,8 +282,14 @@ class PreconditionerCache:
             if iterations > self.threshold():
                 self.exclusive = True
         elif iterations > self.threshold():
-            self.current = None
-            self.owner = None
+            self.forget()
+
+    def forget(self) -> None:
+        """Drop the current preconditioner: the next Jacobian builds its own (the error
+        indicators do this at every point, ``indicators.REUSE_ACROSS_POINTS``)."""
+        self.current = None
+        self.owner = None
+        self.exclusive = False
 
 
 def _project(Jb, ic, is_, h):
