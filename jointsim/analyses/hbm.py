@@ -28,14 +28,17 @@ File layout (all per solution point unless said otherwise):
 (:func:`response_amplitude`), named in the group attribute
 ``amplitude_measure`` and in ``amplitude_definition``.
 
-Branches run in forked worker processes when there are several (the parent
-writes every point as it arrives); a branch computed in the parent itself sends
-its error indicators to forked workers instead (:mod:`.indicator_pool`; the rows
-are NaN until they come back, ``--resume`` computes rows left NaN).  The runner returns the solution points
+Branches run in forked worker processes when there are several (the parent writes
+every point as it arrives, and computes the error indicators of the points the
+workers still running leave to it once a core is free); a branch computed in the
+parent itself sends its error indicators to forked workers instead
+(:mod:`.indicator_pool`; the rows are NaN until they come back, ``--resume`` computes
+rows left NaN).  The runner returns the solution points
 (:class:`~jointsim.solvers.crosscheck.HBMSolutions`) for later analyses.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import time
@@ -51,9 +54,7 @@ from ..masing import check_loops
 from ..solvers.continuation import TARGET_ITER, continue_branch, next_step
 from ..solvers.crosscheck import HBMSolutions
 from ..harmonics import harmonic_amplitude
-from ..results import Convergence
-from ..solvers.frc_diagnosis import (closing_advice, diagnose_failure, sampled_reclosing,
-                                     undamped_resonances)
+from ..solvers.frc_diagnosis import closing_advice, explain_branch_failure, sampled_reclosing
 from ..solvers.frc import first_point, frc_scales, refine_peak
 from ..solvers.hbm import HBMSystem
 from ..solvers.indicators import ErrorEstimator, ToleranceWatch, safe_indicators
@@ -106,8 +107,11 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
             # rows a killed run left NaN, before the branches fork: a serial pool
             # computes and writes each row as it is submitted, i.e. when it is made
             _indicator_pool(writer, a, system, 1).close()
+        # the indicators of the points a worker defers once a core is free
+        out.inds = _parent_indicators(writer, a, system, out.watch)
         failures = _run_branches_forked(todo, job_args, min(n_workers, len(todo)),
                                         out.write_point, out.finish_branch)
+        log.info("hbm: %d point(s)' error indicators computed here, on a free core", out.deferred)
     else:
         failures = []
         # the branches run here: their indicators on a pool of forked workers
@@ -183,13 +187,14 @@ def loop_rule(scene) -> str:
     return rule
 
 
-def _system(model, a, parallel: bool = True) -> HBMSystem:
-    """The condensed HBM system of ``[analysis.hbm]`` settings ``a``.
+def _system(model, a, parallel: bool = True, lin=None) -> HBMSystem:
+    """The condensed HBM system of ``[analysis.hbm]`` settings ``a`` (the condensation
+    ``lin`` of another system of the model when given).
 
     ``parallel=False`` keeps the AFT kernels off numba threads (worker processes).
     """
     return HBMSystem(model, a.harmonics, a.n_samples, a.min_periods, a.max_periods,
-                     parallel=parallel, linear_solver=a.linear_solver)
+                     parallel=parallel, linear_solver=a.linear_solver, lin=lin)
 
 
 def _response_dof(scene, model) -> int:
@@ -240,10 +245,9 @@ class _Output:
     """
 
     def __init__(self, writer, scene, model, system, dof):
-        a = scene.analysis.hbm
+        a = self.a = scene.analysis.hbm
         self.writer, self.scene, self.model, self.system, self.dof = \
             writer, scene, model, system, dof
-        self.a = a
         self.units = model.units
         self.rule = loop_rule(scene)
         self.masing_points = set(scene.analysis.masing.points) \
@@ -252,8 +256,9 @@ class _Output:
         self.peaks = {k: np.full(n_br, np.nan) for k in ("omega", "amplitude")}
         self.refined = np.zeros(n_br, dtype=bool)
         self.watch = ToleranceWatch(a.error_tol, "hbm")
-        #: the indicator pool of the points computed in this process (set by the runner)
-        self.inds = None
+        #: the indicator pool of the points computed in this process (set by the runner),
+        #: and the number of points whose indicators a branch worker left to it
+        self.inds, self.deferred = None, 0
         h5 = writer.h5
         for name in ("omega", "amplitude"):
             if f"hbm/peak_{name}" in h5:
@@ -298,8 +303,11 @@ class _Output:
                           "GMRES iterations summed over those solves (0: direct solver)")
             writer.append("hbm/preconditioners", np.int64(rec["preconditioners"]), "1",
                           "harmonic preconditioners factorised since the previous point")
+            # computed elsewhere: on the pool, or here for a point its worker deferred
+            deferred = rec.get("deferred", False)
+            self.deferred += deferred
             pooled = self.a.error_indicators and self.inds is not None \
-                and not self.inds.serial
+                and (not self.inds.serial or deferred)
             if self.a.error_indicators:
                 write_error_indicators(writer, "hbm", p, rec.get("errors"))
                 if not pooled:
@@ -558,9 +566,11 @@ def _point_record(system, F, y, info, ib, dof, want_aft, measure="fundamental",
 
 
 def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progress,
-                keep_orientation=False, pooled=False):
+                keep_orientation=False, pooled=False, defer=None):
     """Follow one FRC branch; every accepted point goes to ``on_record(record)``
-    (with its error indicators, unless ``pooled``: the caller's pool computes them).
+    (with its error indicators, unless ``pooled``: the caller's pool computes them;
+    or once the event ``defer`` is set: the record is marked ``deferred`` and the
+    parent computes them, :func:`_run_branches_forked`).
 
     Returns
     -------
@@ -603,8 +613,11 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
             return
         if i == 0 and job.start is None:
             info.iterations = first.iterations
-        on_record(_point_record(system, F, y, info, job.ib, dof, want_aft, a.amplitude,
-                                estimator))
+        deferred = estimator is not None and defer is not None and defer.is_set()
+        rec = _point_record(system, F, y, info, job.ib, dof, want_aft, a.amplitude,
+                            None if deferred else estimator)
+        rec["deferred"] = deferred
+        on_record(rec)
 
     br = continue_branch(
         fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,
@@ -617,31 +630,8 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
              job.fs, len(br.y), time.perf_counter() - t_branch)
     if len(br.y) >= max_pts:        # stopped at max_points: no physics to diagnose
         return br.convergence
-    return _explain_failure(br.convergence, system, F, a, float(br.y[-1][-1]))
-
-
-def _explain_failure(conv, system, F, a, lam):
-    """A failed branch's convergence, its message extended by the physical cause when it
-    stopped near an undamped resonance (:func:`~jointsim.solvers.frc_diagnosis.undamped_resonances`)."""
-    if conv.success:
-        return conv
-    res = undamped_resonances(system.model, system.basis, F, a.omega_start, a.omega_end)
-    if "grows without bound" in conv.message:
-        r = diagnose_failure(res, lam)
-        if r is not None and r.unbounded:   # the linearised systems say why
-            return Convergence(False, conv.status, f"{conv.message}; {r.describe()}",
-                               conv.iterations)
-        near = ", ".join(f"{r.joint} joint at omega = {r.omega:.6g}" for r in res
-                         if abs(r.omega - lam) <= 0.1 * r.omega)
-        return Convergence(False, conv.status, (
-            f"{conv.message}: a resonance of the joint at large amplitude that nothing "
-            f"damps (physics, not a numerical failure); add damping to model.C"
-            + (f" (undamped linearised resonances near it: {near})" if near else "")),
-            conv.iterations)
-    r = diagnose_failure(res, lam)
-    if r is None:
-        return conv
-    return Convergence(False, conv.status, f"{conv.message}; {r.describe()}", conv.iterations)
+    return explain_branch_failure(br.convergence, system, F, a.omega_start, a.omega_end,
+                                  float(br.y[-1][-1]))
 
 
 def _estimator(system, a, parallel: bool) -> ErrorEstimator:
@@ -684,19 +674,35 @@ def _indicator_pool(writer, a, system, workers):
     return inds
 
 
-def _branch_process(job, job_args, queue, parent_pid) -> None:
+def _parent_indicators(writer, a, system, watch):
+    """The indicators of the points the branch workers defer (:func:`_run_branches_forked`),
+    computed in this process as each point is written, on one thread (a serial copy of
+    ``system`` and its estimator, built on the first one); None without indicators."""
+    from .indicator_pool import PointIndicators
+
+    if not a.error_indicators or not system.n_z:
+        return None
+    forces = [system.force_coefficients(fs) for fs in a.force_scale]
+    est = functools.cache(lambda: _estimator(
+        _system(system.model, a, parallel=False, lin=system.lin), a, parallel=False))
+    return PointIndicators(writer, "hbm", lambda z, w, ib: safe_indicators(
+        est().hbm, z, w, forces[ib]), watch, 1)
+
+
+def _branch_process(job, job_args, queue, parent_pid, defer=None) -> None:
     """Body of a worker process: compute a branch, send its points to the parent.
 
     The workers are the parallelism: each builds its own system with
     ``parallel=False``, so its AFT kernels stay on one thread (no numba thread
     pool is started in a forked process, and the cores are not oversubscribed).
-    The worker dies with its parent (:func:`die_with_parent`).
+    Once the event ``defer`` is set the worker leaves its points' error indicators
+    to the parent.  The worker dies with its parent (:func:`die_with_parent`).
     """
     die_with_parent(parent_pid)
     try:
         serial = _system(job_args["system"].model, job_args["a"], parallel=False)
         conv = _run_branch(job, on_record=lambda rec: queue.put(("point", job.ib, rec)),
-                           progress=False, **dict(job_args, system=serial))
+                           progress=False, defer=defer, **dict(job_args, system=serial))
         queue.put(("done", job.ib, (conv.success, conv.message)))
     except BaseException as exc:  # reported to the parent, which keeps the file valid
         queue.put(("done", job.ib, (False, f"worker failed: {type(exc).__name__}: {exc}")))
@@ -709,6 +715,14 @@ def _run_branches_forked(todo, job_args, n_workers, write_point, finish_branch):
     grows point by point as in a serial run (rows of different branches
     interleave; ``/hbm/branch`` tells them apart).  A worker that dies without
     a word is reported as a failed branch.
+
+    Once no branch is left to start and a worker's core is free, the workers still
+    running leave the error indicators of their next points to the parent (the
+    record's ``deferred``; ``write_point`` computes them on that core): with three
+    branches on two workers the last one used to run alone, its indicators included.
+    A point's indicators do not depend on where or after which point they are
+    computed (:data:`~jointsim.solvers.indicators.REUSE_ACROSS_POINTS`), so the file
+    is the same.
     """
     import multiprocessing as mp
     import queue as queue_mod
@@ -716,6 +730,7 @@ def _run_branches_forked(todo, job_args, n_workers, write_point, finish_branch):
     from tqdm import tqdm
     ctx = mp.get_context("fork")
     q = ctx.Queue()
+    defer = ctx.Event()
     # the largest force scale first (longest branch first: gross slip costs the most
     # per point), so that the short ones fill the other workers; the branches and the
     # file's rows do not depend on the order (issue 10)
@@ -729,9 +744,13 @@ def _run_branches_forked(todo, job_args, n_workers, write_point, finish_branch):
             while pending and len(running) < n_workers:
                 job = pending.pop(0)
                 proc = ctx.Process(target=_branch_process,
-                                   args=(job, job_args, q, os.getpid()), daemon=True)
+                                   args=(job, job_args, q, os.getpid(), defer), daemon=True)
                 proc.start()
                 running[job.ib] = (job, proc)
+            if not pending and 0 < len(running) < n_workers and not defer.is_set():
+                defer.set()
+                log.info("hbm: a core is free: the error indicators of branch(es) %s are "
+                         "computed in this process", sorted(running))
             try:
                 kind, ib, payload = q.get(timeout=1.0)
             except queue_mod.Empty:

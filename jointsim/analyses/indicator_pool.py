@@ -22,10 +22,12 @@ as it comes back (:func:`jointsim.io.hbm_points.set_error_indicators`).
   computed when the workers died is lost.
 * Workers die with the parent (:func:`jointsim.analyses.forking.die_with_parent`).
 
-Same numbers as serial on the direct path (bit for bit); on the Krylov path a worker's
-extended solves reuse their preconditioner over a different sequence of points, and
-GMRES stops at ``INDICATOR_RTOL``: the indicators then differ by about that, relative
-(up to 1.4e-6 when it was 1e-6).  Measured side by side (2 cores, load 0.6 to 1.9; README, "How accurate is
+Same numbers as serial, on the direct and the Krylov path: a point's extended solve
+builds its own preconditioner (:data:`~jointsim.solvers.indicators.REUSE_ACROSS_POINTS`),
+so neither the worker nor the points before it change its indicators (before round 25
+a worker's solves reused preconditioners over a different sequence of points, and the
+indicators differed by about ``INDICATOR_RTOL``, relative).  Only the AFT kernels on
+numba threads (serial runs) and on one (workers) may differ in the last digits.  Measured side by side (2 cores, load 0.6 to 1.9; README, "How accurate is
 a point?"): the EPMC of the 121-pair joint 191.8 -> 104.0 s, one FRC branch of it
 103.8 -> 62.8 s, the main job 53.8 -> 41.0 s.
 """

@@ -7,13 +7,16 @@ linearised stuck and slipping systems and decides, by the work the force does
 per cycle against the most the sliders can dissipate (Den Hartog's balance),
 whether friction bounds the response; :func:`diagnose_failure` names the one
 nearest a failed branch's last frequency, so the message says what is physics
-and what the user can change.  Used by :mod:`jointsim.analyses.hbm`.
+and what the user can change (:func:`explain_branch_failure`).  Used by
+:mod:`jointsim.analyses.hbm`.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+
+from ..results import Convergence
 
 
 @dataclass
@@ -176,6 +179,38 @@ def diagnose_failure(resonances, lam: float, rel: float = 0.1):
         return None
     unb = [r for r in near if r.unbounded]
     return min(unb or near, key=lambda r: abs(r.omega - lam))
+
+
+def explain_branch_failure(conv, system, F, omega_lo: float, omega_hi: float, lam: float):
+    """A branch's convergence, its message extended by the physical cause when it failed
+    near an undamped resonance (:func:`undamped_resonances` of ``system``'s model in
+    ``[omega_lo, omega_hi]`` rad/s, force coefficients ``F``; ``lam`` the branch's last
+    frequency [rad/s]).
+
+    Returns
+    -------
+    jointsim.results.Convergence
+        ``conv`` itself when it succeeded or nothing explains it.
+    """
+    if conv.success:
+        return conv
+    res = undamped_resonances(system.model, system.basis, F, omega_lo, omega_hi)
+    if "grows without bound" in conv.message:
+        r = diagnose_failure(res, lam)
+        if r is not None and r.unbounded:   # the linearised systems say why
+            return Convergence(False, conv.status, f"{conv.message}; {r.describe()}",
+                               conv.iterations)
+        near = ", ".join(f"{r.joint} joint at omega = {r.omega:.6g}" for r in res
+                         if abs(r.omega - lam) <= 0.1 * r.omega)
+        return Convergence(False, conv.status, (
+            f"{conv.message}: a resonance of the joint at large amplitude that nothing "
+            f"damps (physics, not a numerical failure); add damping to model.C"
+            + (f" (undamped linearised resonances near it: {near})" if near else "")),
+            conv.iterations)
+    r = diagnose_failure(res, lam)
+    if r is None:
+        return conv
+    return Convergence(False, conv.status, f"{conv.message}; {r.describe()}", conv.iterations)
 
 
 def sampled_reclosing(joint, effects) -> bool:

@@ -89,7 +89,7 @@ def test_a_branch_stopped_at_max_points_is_not_diagnosed(monkeypatch):
 
     def forbidden(*args, **kw):
         raise AssertionError("a max_points stop was diagnosed")
-    monkeypatch.setattr(ah, "undamped_resonances", forbidden)
+    monkeypatch.setattr(ah, "explain_branch_failure", forbidden)
     scene = load_scene(MODELS / "hbm" / "chain2_jenkins.toml")
     a = dataclasses.replace(scene.analysis.hbm, max_points=4)
     system = ah._system(build_model(scene), a)

@@ -7,7 +7,9 @@ the last digits) and every other dataset bit for bit; an interrupted run resumed
 give the same indicators as an uninterrupted one; a worker that dies loses only the
 row it was computing.
 """
+import logging
 import os
+import re
 
 import h5py
 import numpy as np
@@ -299,6 +301,44 @@ def test_frc_pool_gives_the_serial_indicators(tmp_path):
     assert attrs["indicator_workers"] == 2
     with h5py.File(tmp_path / "p.h5", "r") as h5:
         assert h5["hbm/omega"].shape[0] > 50
+
+
+def test_frc_workers_leave_the_indicators_to_the_parent_once_a_core_is_free(
+        tmp_path, caplog, monkeypatch):
+    """Two branches on two workers: once one is done and a core is free, the worker still
+    running leaves its next points' indicators to the parent, which computes them as it
+    writes the points (their number is logged).  The lumped branches are too quick to
+    overlap reliably, so branch 0's worker starts its branch only once the parent has
+    signalled the free core (when branch 1 is done): every one of its points is left to
+    the parent.  Every row equals the serial run's (branch by branch: the rows of the two
+    runs interleave differently)."""
+    import jointsim.analyses.hbm as hbm_runner
+
+    ov = ["analysis.hbm.force_scale=[0.001, 0.2]", "analysis.hbm.harmonics=[0, 1, 3]",
+          "analysis.hbm.n_samples=32"]
+    run_scene(load_scene(CHAIN, ov + ["analysis.hbm.workers=1"]), tmp_path / "s.h5")
+    process = hbm_runner._branch_process
+
+    def late(job, job_args, queue, parent_pid, defer=None):
+        if job.ib == 0 and not defer.wait(120):
+            raise RuntimeError("no free core signalled")
+        process(job, job_args, queue, parent_pid, defer)
+    monkeypatch.setattr(hbm_runner, "_branch_process", late)
+    with caplog.at_level(logging.INFO, logger="jointsim.analyses.hbm"):
+        run_scene(load_scene(CHAIN, ov + ["analysis.hbm.workers=2"]), tmp_path / "p.h5")
+    assert "a core is free: the error indicators of branch(es) [0]" in caplog.text
+    n = re.findall(r"hbm: (\d+) point\(s\)' error indicators computed here", caplog.text)
+    a, _ = _datasets(tmp_path / "p.h5", "hbm")
+    b, _ = _datasets(tmp_path / "s.h5", "hbm")
+    assert n == [str(np.count_nonzero(a["branch"] == 0))], n
+    for branch in (0, 1):
+        ma, mb = a["branch"] == branch, b["branch"] == branch
+        for k in b:
+            if k.startswith("error_"):
+                assert not np.isnan(a[k]).any(), k
+                assert np.allclose(a[k][ma], b[k][mb], rtol=1e-9, atol=0), k
+            elif k in ("omega", "q", "X"):
+                assert np.array_equal(a[k][ma], b[k][mb]), k
 
 
 def test_frc_interrupted_with_indicators_pending_resumes_to_the_same_file(tmp_path,
