@@ -111,7 +111,9 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
         out.inds = _parent_indicators(writer, a, system, out.watch)
         failures = _run_branches_forked(todo, job_args, min(n_workers, len(todo)),
                                         out.write_point, out.finish_branch)
-        log.info("hbm: %d point(s)' error indicators computed here, on a free core", out.deferred)
+        if out.deferred:
+            log.info("hbm: %d point(s)' error indicators computed here, on a free core",
+                     out.deferred)
     else:
         failures = []
         # the branches run here: their indicators on a pool of forked workers

@@ -258,9 +258,9 @@ class ErrorEstimator:
             if system.n_z else None
         if self.ext is not None:
             # an estimate needs a few digits, not 1e-11: GMRES stops at INDICATOR_RTOL
-            # (changes the indicators by about that, relative); the preconditioner is
-            # kept from point to point while that is cheaper than building a new one
-            # (the cost model of PreconditionerCache)
+            # (changes the indicators by about that, relative); each point builds its
+            # own preconditioner (REUSE_ACROSS_POINTS), an EPMC point's Newton steps
+            # share it
             self.ext.krylov_rtol = INDICATOR_RTOL
         self._kept = system.basis.hk > 0
 
