@@ -27,7 +27,8 @@ builds its own preconditioner (:data:`~jointsim.solvers.indicators.REUSE_ACROSS_
 so neither the worker nor the points before it change its indicators (before round 25
 a worker's solves reused preconditioners over a different sequence of points, and the
 indicators differed by about ``INDICATOR_RTOL``, relative).  Only the AFT kernels on
-numba threads (serial runs) and on one (workers) may differ in the last digits.  Measured side by side (2 cores, load 0.6 to 1.9; README, "How accurate is
+numba threads (serial runs) and on one (workers) may differ in the last digits.
+Measured side by side (2 cores, load 0.6 to 1.9; README, "How accurate is
 a point?"): the EPMC of the 121-pair joint 191.8 -> 104.0 s, one FRC branch of it
 103.8 -> 62.8 s, the main job 53.8 -> 41.0 s.
 """
