@@ -67,7 +67,10 @@ class HBMAnalysis:
                                "processes; 0: one per core, up to the number of branches; "
                                "1: one after the other in this process; when the branches "
                                "run in this process (one branch), their error indicators "
-                               "go to that many workers beside the continuation", ge=0)
+                               "go to that many workers beside the continuation; once no "
+                               "branch is left to start and a core is free, the workers "
+                               "still running leave their points' indicators to this process",
+                      ge=0)
     loops: str = spec("auto", choices=("auto", "peaks", "all", "masing.points"),
                       doc="points whose element loops and Masing checks are kept: 'auto' "
                           "(default): those of analysis.masing.points when it is set, else "
