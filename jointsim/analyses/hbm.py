@@ -682,7 +682,7 @@ def _parent_indicators(writer, a, system, watch):
     ``system`` and its estimator, built on the first one); None without indicators."""
     from .indicator_pool import PointIndicators
 
-    if not a.error_indicators or not system.n_z:
+    if not a.error_indicators:
         return None
     forces = [system.force_coefficients(fs) for fs in a.force_scale]
     est = functools.cache(lambda: _estimator(

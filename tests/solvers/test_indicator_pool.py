@@ -303,19 +303,22 @@ def test_frc_pool_gives_the_serial_indicators(tmp_path):
         assert h5["hbm/omega"].shape[0] > 50
 
 
+@pytest.mark.parametrize("extra", [[], ["effects.friction=false"]],
+                         ids=["slipping", "no_contact_unknowns"])
 def test_frc_workers_leave_the_indicators_to_the_parent_once_a_core_is_free(
-        tmp_path, caplog, monkeypatch):
+        tmp_path, caplog, monkeypatch, extra):
     """Two branches on two workers: once one is done and a core is free, the worker still
     running leaves its next points' indicators to the parent, which computes them as it
     writes the points (their number is logged).  The lumped branches are too quick to
     overlap reliably, so branch 0's worker starts its branch only once the parent has
     signalled the free core (when branch 1 is done): every one of its points is left to
     the parent.  Every row equals the serial run's (branch by branch: the rows of the two
-    runs interleave differently)."""
+    runs interleave differently); without friction the chain has no contact unknowns
+    and every indicator is 0 (they were left NaN once)."""
     import jointsim.analyses.hbm as hbm_runner
 
     ov = ["analysis.hbm.force_scale=[0.001, 0.2]", "analysis.hbm.harmonics=[0, 1, 3]",
-          "analysis.hbm.n_samples=32"]
+          "analysis.hbm.n_samples=32"] + extra
     run_scene(load_scene(CHAIN, ov + ["analysis.hbm.workers=1"]), tmp_path / "s.h5")
     process = hbm_runner._branch_process
 
@@ -337,6 +340,7 @@ def test_frc_workers_leave_the_indicators_to_the_parent_once_a_core_is_free(
             if k.startswith("error_"):
                 assert not np.isnan(a[k]).any(), k
                 assert np.allclose(a[k][ma], b[k][mb], rtol=1e-9, atol=0), k
+                assert not extra or not a[k].any(), k
             elif k in ("omega", "q", "X"):
                 assert np.array_equal(a[k][ma], b[k][mb]), k
 
