@@ -35,7 +35,10 @@ Crash consistency (issue 11):
   same count: its committed points).  Rows beyond it belong to a point
   that was being written when the process died: readers
   (:func:`open_result`) and ``--resume`` ignore them, and a writer that
-  closes normally or resumes trims them.
+  closes normally or resumes trims them.  The writer holds the datasets it
+  writes open between commits and keeps their counts
+  (:mod:`.open_datasets`): a commit then costs a few link lookups, not a
+  reading of every dataset of its groups.
 * **Damaged files.**  A kill that lands inside the HDF5 library's own
   flush can leave metadata half written, which no ordering of jointsim's
   writes prevents.  Readers (:func:`open_result`) then raise
@@ -68,6 +71,7 @@ import h5py
 import numpy as np
 
 from .. import __version__
+from .open_datasets import OpenDatasets, append_rows as _append_rows
 
 log = logging.getLogger(__name__)
 
@@ -532,6 +536,7 @@ class ResultWriter:
         self.h5.flush()
         if not resume:
             os.replace(fresh, self.path)
+        self._open_datasets = OpenDatasets(self.h5, COMMITTED)
 
     # -- context management -------------------------------------------------
     def __enter__(self):
@@ -618,19 +623,14 @@ class ResultWriter:
 
     def _commit_now(self, names) -> None:
         self.h5.flush()
+        od = self._open_datasets
         groups = set()
         for name in sorted(names):
-            d = self.h5[name]
-            d.attrs[COMMITTED] = d.shape[0]
-            groups.add(d.parent.name)
+            od.set_count(name, od.get(name).id.shape[0])
+            groups.add(name.rpartition("/")[0] or "/")
         for gname in sorted(groups):
-            g = self.h5[gname]
-            counts = {int(o.attrs.get(COMMITTED, 0)) for o in g.values()
-                      if isinstance(o, h5py.Dataset) and o.maxshape and o.maxshape[0] is None}
-            if len(counts) == 1:
-                g.attrs[COMMITTED] = counts.pop()
-            elif COMMITTED in g.attrs:
-                del g.attrs[COMMITTED]
+            counts = od.group_counts(gname)
+            od.set_group_count(gname, counts.pop() if len(counts) == 1 else None)
         self.h5.flush()
 
     # -- writing --------------------------------------------------------------
@@ -655,14 +655,15 @@ class ResultWriter:
 
     def _extendable(self, name: str, shape: tuple, dtype, unit: str, doc: str, chunks):
         """The extendable dataset ``name`` for rows of ``shape`` (created on first use)."""
-        if name not in self.h5:
+        ds = self._open_datasets.get(_absolute(name))
+        if ds is None:
             ds = self.h5.create_dataset(name, shape=(0,) + shape, dtype=dtype,
                                         maxshape=(None,) + shape, chunks=chunks)
             ds.attrs["unit"] = unit
             if doc:
                 ds.attrs["doc"] = doc
-        ds = self.h5[name]
-        if ds.shape[1:] != shape:
+            ds = self._open_datasets.get(ds.name)
+        if ds.id.shape[1:] != shape:
             raise ValueError(f"{name}: a row of shape {shape} does not fit {ds.shape[1:]}")
         return ds
 
@@ -685,11 +686,9 @@ class ResultWriter:
         row = np.asarray(row)
         ds = self._extendable(name, row.shape, row.dtype, unit, doc,
                               (1,) + row.shape if row.size else True)
-        n = ds.shape[0]
-        ds.resize(n + 1, axis=0)
-        ds[n] = row
+        n = _append_rows(ds, row[np.newaxis])
         self._appended(ds)
-        return n + 1
+        return n
 
     def append_rows(self, name: str, rows, unit: str, doc: str = "") -> int:
         """Append a block of rows at once (one resize, one flush).
@@ -711,12 +710,11 @@ class ResultWriter:
         if rows.ndim == 0:
             raise ValueError(f"{name}: append_rows needs an array of rows, got a scalar")
         ds = self._extendable(name, rows.shape[1:], rows.dtype, unit, doc, True)
-        n = ds.shape[0]
-        if rows.shape[0]:
-            ds.resize(n + rows.shape[0], axis=0)
-            ds[n:] = rows
-            self._appended(ds)
-        return n + rows.shape[0]
+        if not rows.shape[0]:
+            return ds.id.shape[0]
+        n = _append_rows(ds, rows)
+        self._appended(ds)
+        return n
 
     def _appended(self, ds) -> None:
         """Record a group appended to; outside :meth:`commit` commit it at once."""
@@ -730,7 +728,9 @@ class ResultWriter:
 
         Inside :meth:`commit` the change is flushed with the point; outside, at once.
         """
-        ds = self.h5[name]
+        ds = self._open_datasets.get(_absolute(name))
+        if ds is None:
+            raise KeyError(f"{name}: no such dataset in {self.path}")
         if not 0 <= row < ds.shape[0]:
             raise IndexError(f"{name}: row {row} out of range (rows: {ds.shape[0]})")
         ds[row] = value
@@ -738,7 +738,13 @@ class ResultWriter:
 
     def rows(self, name: str) -> int:
         """Rows stored in an extendable dataset (0 if absent; committed rows outside a commit)."""
-        return self.h5[name].shape[0] if name in self.h5 else 0
+        ds = self._open_datasets.get(_absolute(name))
+        return 0 if ds is None else ds.shape[0]
+
+
+def _absolute(name: str) -> str:
+    """``name`` as a path from the file's root."""
+    return name if name.startswith("/") else "/" + name
 
 
 def read_attrs(path) -> dict:

@@ -102,6 +102,64 @@ def test_append_rows_matches_row_by_row_appends(tmp_path):
         assert h5["a"].maxshape == (None, 3)
 
 
+def test_rows_of_every_dtype_read_back_as_appended(tmp_path):
+    """The low-level appends (numeric rows) and h5py's (strings) store what was given."""
+    scene = load_scene(SEED / "const.toml")
+    rows = {"f": np.array([[1.5, -2.0], [3.0, 4.25]]), "i": np.array([[1, -2], [3, 4]]),
+            "b": np.array([[True, False], [False, True]]),
+            "c": np.array([[1 + 2j, -3j], [0.5, 2 - 1j]]),
+            "s": np.array([b"stick", b"slip"]), "u": np.zeros((2, 0))}
+    with ResultWriter(tmp_path / "r.h5", scene) as w:
+        for name, r in rows.items():
+            w.append(f"g/{name}", r[0], "1")
+            w.append_rows(f"g/{name}", r[1:], "1")
+        w.append("g/f", np.array([7, 8]), "1")          # ints into a float dataset
+    with h5py.File(tmp_path / "r.h5") as h5:
+        for name, r in rows.items():
+            assert h5[f"g/{name}"].dtype == r.dtype, name
+            assert np.array_equal(h5[f"g/{name}"][:2], r), name
+        assert h5["g/f"][2].tolist() == [7.0, 8.0]
+
+
+def _counts_from_the_file(h5):
+    """The committed counts as h5py reads them, object by object (the oracle)."""
+    from jointsim.io.hdf5 import COMMITTED
+    out = {}
+    h5.visititems(lambda name, o: out.__setitem__(name, o.attrs.get(COMMITTED)))
+    return out
+
+
+def test_a_dataset_replaced_behind_the_writer_is_written_and_counted_afresh(tmp_path):
+    """The writer holds its datasets open between commits.  A dataset deleted and made
+    again under the same name by other code (extendable, or not) gets the next rows and
+    its group the counts of what the group holds now, as a scan of the file gives."""
+    from jointsim.io.hdf5 import COMMITTED
+    scene = load_scene(SEED / "const.toml")
+    path = tmp_path / "r.h5"
+    with ResultWriter(path, scene) as w:
+        for k in range(2):
+            with w.commit():
+                w.append("g/a", np.float64(k), "1")
+                w.append("g/b", np.float64(k), "1")
+        assert int(w.h5["g"].attrs[COMMITTED]) == 2
+        del w.h5["g/b"]
+        w.h5.create_dataset("g/b", shape=(0,), maxshape=(None,), dtype=float)
+        with w.commit():
+            w.append("g/a", np.float64(2), "1")
+            w.append("g/b", np.float64(2), "1")
+        assert w.h5["g/b"][()].tolist() == [2.0] and w.rows("g/b") == 1
+        assert COMMITTED not in w.h5["g"].attrs             # a at 3 rows, b at 1
+        del w.h5["g/b"]
+        w.h5.create_dataset("g/b", data=np.zeros(5))      # not extendable: not counted
+        with w.commit():
+            w.append("g/a", np.float64(3), "1")
+        counts = _counts_from_the_file(w.h5)
+        assert counts["g"] == counts["g/a"] == 4 and counts["g/b"] is None
+    with h5py.File(path, "r") as h5:
+        assert h5["g/a"][()].tolist() == [0.0, 1.0, 2.0, 3.0]
+        assert int(h5["g"].attrs[COMMITTED]) == 4
+
+
 @pytest.mark.parametrize("stale", ["group", "dataset"])
 def test_a_half_committed_point_is_dropped_from_the_whole_group(tmp_path, stale):
     """A kill inside a commit's final flush can put some committed counts on disk and
