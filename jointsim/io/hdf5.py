@@ -626,11 +626,10 @@ class ResultWriter:
         od = self._open_datasets
         groups = set()
         for name in sorted(names):
-            od.set_count(name, od.get(name).id.shape[0])
+            od.advance(name)
             groups.add(name.rpartition("/")[0] or "/")
         for gname in sorted(groups):
-            counts = od.group_counts(gname)
-            od.set_group_count(gname, counts.pop() if len(counts) == 1 else None)
+            od.settle_group(gname)
         self.h5.flush()
 
     # -- writing --------------------------------------------------------------

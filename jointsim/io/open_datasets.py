@@ -18,7 +18,7 @@ its object address and, for an extendable dataset, its committed count:
   dataset deleted and created again under the same name (by the writer or by
   any other code) has another address, and is read afresh.
 * Once the writer has opened the file, only the writer sets the counts
-  (:meth:`set_count`), so a cached count stays true until it changes it.
+  (:meth:`advance`), so a cached count stays true until it changes it.
 
 Rows and counts are written with h5py's low-level calls: the same bytes as
 ``Dataset.resize`` and ``__setitem__``, without their selection machinery.
@@ -37,6 +37,7 @@ _NUMERIC = "biufc"
 
 @dataclass
 class _Seen:
+    """An object held open: its h5py object, object address, committed count."""
     obj: h5py.HLObject
     addr: int
     count: int | None  # committed rows of an extendable dataset; None for anything else
@@ -79,6 +80,7 @@ class OpenDatasets:
         return seen
 
     def _stored_count(self, obj) -> int | None:
+        """The count attribute of an extendable dataset (0 if unset); None otherwise."""
         if isinstance(obj, h5py.Dataset) and obj.maxshape and obj.maxshape[0] is None:
             return int(obj.attrs.get(self.attr, 0))
         return None
@@ -88,28 +90,25 @@ class OpenDatasets:
         seen = self._entry(path)
         return None if seen is None else seen.obj
 
-    def set_count(self, path: str, n: int) -> None:
-        """Set the committed count of the extendable dataset ``path`` to ``n``."""
+    def advance(self, path: str) -> None:
+        """Set the committed count of the extendable dataset ``path`` to its rows."""
         seen = self._entry(path)
+        n = seen.obj.id.shape[0]
         self._write_attr(seen.obj, n)
         seen.count = n
 
-    def group_counts(self, path: str) -> set[int]:
-        """The committed counts of the extendable datasets in group ``path``."""
+    def settle_group(self, path: str) -> None:
+        """Give group ``path`` the committed count its extendable datasets agree on, or
+        remove its count when they differ."""
         g = self.get(path)
         prefix = "" if path == "/" else path
-        out = set()
+        counts = set()
         for name in g.id:
             seen = self._entry(f"{prefix}/{name.decode()}")
             if seen is not None and seen.count is not None:
-                out.add(seen.count)
-        return out
-
-    def set_group_count(self, path: str, n: int | None) -> None:
-        """Set (or, for None, remove) the committed count of group ``path``."""
-        g = self.get(path)
-        if n is not None:
-            self._write_attr(g, n)
+                counts.add(seen.count)
+        if len(counts) == 1:
+            self._write_attr(g, counts.pop())
         elif h5a.exists(g.id, self._attr_b):
             del g.attrs[self.attr]
 
