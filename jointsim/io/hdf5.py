@@ -661,7 +661,6 @@ class ResultWriter:
             ds.attrs["unit"] = unit
             if doc:
                 ds.attrs["doc"] = doc
-            ds = self._open_datasets.get(ds.name)
         if ds.id.shape[1:] != shape:
             raise ValueError(f"{name}: a row of shape {shape} does not fit {ds.shape[1:]}")
         return ds

@@ -6,7 +6,7 @@ import pytest
 
 from jointsim import __version__
 from jointsim import _toml
-from jointsim.io.hdf5 import SCHEMA_VERSION, ResultWriter
+from jointsim.io.hdf5 import COMMITTED, SCHEMA_VERSION, ResultWriter
 from jointsim.run import run_scene
 from jointsim.scene import load_scene
 
@@ -121,19 +121,10 @@ def test_rows_of_every_dtype_read_back_as_appended(tmp_path):
         assert h5["g/f"][2].tolist() == [7.0, 8.0]
 
 
-def _counts_from_the_file(h5):
-    """The committed counts as h5py reads them, object by object (the oracle)."""
-    from jointsim.io.hdf5 import COMMITTED
-    out = {}
-    h5.visititems(lambda name, o: out.__setitem__(name, o.attrs.get(COMMITTED)))
-    return out
-
-
 def test_a_dataset_replaced_behind_the_writer_is_written_and_counted_afresh(tmp_path):
     """The writer holds its datasets open between commits.  A dataset deleted and made
     again under the same name by other code (extendable, or not) gets the next rows and
     its group the counts of what the group holds now, as a scan of the file gives."""
-    from jointsim.io.hdf5 import COMMITTED
     scene = load_scene(SEED / "const.toml")
     path = tmp_path / "r.h5"
     with ResultWriter(path, scene) as w:
@@ -153,7 +144,8 @@ def test_a_dataset_replaced_behind_the_writer_is_written_and_counted_afresh(tmp_
         w.h5.create_dataset("g/b", data=np.zeros(5))      # not extendable: not counted
         with w.commit():
             w.append("g/a", np.float64(3), "1")
-        counts = _counts_from_the_file(w.h5)
+        counts = {}                  # the oracle: h5py's reading, object by object
+        w.h5.visititems(lambda name, o: counts.__setitem__(name, o.attrs.get(COMMITTED)))
         assert counts["g"] == counts["g/a"] == 4 and counts["g/b"] is None
     with h5py.File(path, "r") as h5:
         assert h5["g/a"][()].tolist() == [0.0, 1.0, 2.0, 3.0]
