@@ -52,7 +52,9 @@ def _diag_serial(J, Ac, As, hk, sk, wk):
 @njit(cache=True, parallel=True)
 def _diag_parallel(J, Ac, As, hk, sk, wk):
     for e in prange(J.shape[0]):
-        _diag_one(e, J, Ac, As, hk, sk, wk)
+        # prange's index is uint64: cast, so the element kernel keeps the one
+        # compiled signature of the serial driver (a second costs 1 to 15 s cold)
+        _diag_one(np.int64(e), J, Ac, As, hk, sk, wk)
 
 
 def add_diag_products(J, Ac, As, hk, sk, wk, parallel=True):

@@ -206,8 +206,10 @@ def _manifold_serial(u, N, dNdg, k, g, P, Gam, min_periods, max_periods, tol, co
 def _manifold_parallel(u, N, dNdg, k, g, P, Gam, min_periods, max_periods, tol, coupled,
                        f, au, ag, Juu, Jug, periods, change):
     for e in prange(u.shape[0]):
-        _manifold_one(e, u, N, dNdg, k, g, P, Gam, min_periods, max_periods, tol, coupled,
-                      f, au, ag, Juu, Jug, periods, change)
+        # prange's index is uint64: cast, so the element kernel keeps the one
+        # compiled signature of the serial driver (a second costs 1 to 15 s cold)
+        _manifold_one(np.int64(e), u, N, dNdg, k, g, P, Gam, min_periods, max_periods, tol,
+                      coupled, f, au, ag, Juu, Jug, periods, change)
 
 
 def manifold_aft(u, N, dNdg, k, g, P, Gam, min_periods, max_periods, tol, coupled,
