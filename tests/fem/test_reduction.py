@@ -122,3 +122,27 @@ def test_constraint_modes_on_threads_equal_one_solve(coarse_structure, monkeypat
     scale = np.abs(whole.T[:, psi]).max()
     assert np.abs(blocked.T[:, psi] - whole.T[:, psi]).max() <= 1e-13 * scale
     np.testing.assert_array_equal(blocked.T[:, B.size:], whole.T[:, B.size:])
+
+
+def test_constraint_modes_and_projections_by_chunks_equal_whole_ones(coarse_structure,
+                                                                    monkeypatch):
+    """Solved ``SOLVE_COLUMNS`` right-hand sides at a time into ``T``, and projected
+    ``PROJECT_COLUMNS`` columns at a time (uneven chunks here), the basis and the
+    reduced matrices equal those of single chunks, and ``K``, ``M`` equal ``T^T A T``
+    formed whole, to round-off."""
+    import jointsim.fem.reduction as red
+    st = coarse_structure
+    B, _ = retained_dofs(st)
+    for name in ("SOLVE_COLUMNS", "PROJECT_COLUMNS"):
+        monkeypatch.setattr(red, name, 10 ** 6)
+    whole = craig_bampton(st.K, st.M, B, 12)
+    monkeypatch.setattr(red, "SOLVE_COLUMNS", 3)
+    monkeypatch.setattr(red, "PROJECT_COLUMNS", 7)
+    chunked = craig_bampton(st.K, st.M, B, 12)
+    assert B.size > 2 * 3 and whole.T.shape[1] > 2 * 7   # several chunks of each
+    scale = np.abs(whole.T).max()
+    assert np.abs(chunked.T - whole.T).max() <= 1e-13 * scale
+    for A, got in ((st.K, chunked.K), (st.M, chunked.M)):
+        ref = chunked.T.T @ (A @ chunked.T)
+        ref = 0.5 * (ref + ref.T)
+        assert np.abs(got - ref).max() <= 1e-13 * np.abs(ref).max()
