@@ -89,7 +89,9 @@ def test_coupled_normal_load_departs_from_the_manifold(tmp_path):
     """With N from the structure (and clapping lap ends) elements leave their
     manifold, more of them as the amplitude grows; the figures and the table
     come out of the file."""
-    out = coarse_study(tmp_path, "lap_joint_nodes")
+    # the EPMC's error indicators are not read here (their extended solves were 15 of
+    # the run's 21 s; tests/solvers/test_indicators.py checks them on this joint)
+    out = coarse_study(tmp_path, "lap_joint_nodes", ["analysis.epmc.error_indicators=false"])
     with h5py.File(out, "r") as h5:
         sets = study.loop_points(h5, "epmc")
         man, mas, n = study.manifold_fractions(sets)
@@ -164,7 +166,15 @@ def test_study_tables_do_not_depend_on_the_backbone_steps(tmp_path):
     np.testing.assert_allclose(f_c, f_f, rtol=1e-7)
 
 
-def test_figures_drawn_in_a_forked_process_equal_the_serial_ones(fixed, tmp_path, caplog):
+@pytest.fixture(scope="module")
+def serial_figures(fixed, tmp_path_factory):
+    """The figures of :func:`fixed` drawn in this process (``parallel=False``)."""
+    from jointsim.post import make_figures
+    return make_figures(fixed, tmp_path_factory.mktemp("serial"), parallel=False)
+
+
+def test_figures_drawn_in_a_forked_process_equal_the_serial_ones(fixed, serial_figures,
+                                                                 tmp_path, caplog):
     """``make_figures`` draws the Masing-study figures in a forked process beside the
     others (on a machine with two cores or more, as CI's): the same files, in the same
     order, byte for byte, as drawn in one process."""
@@ -172,7 +182,7 @@ def test_figures_drawn_in_a_forked_process_equal_the_serial_ones(fixed, tmp_path
     import os
 
     from jointsim.post import HEAVY_PLOTTERS, make_figures
-    serial = make_figures(fixed, tmp_path / "serial", parallel=False)
+    serial = serial_figures
     with caplog.at_level(logging.DEBUG, logger="jointsim.post"):
         forked = make_figures(fixed, tmp_path / "forked", parallel=True)
     if (os.cpu_count() or 1) > 1:
@@ -198,13 +208,12 @@ def _figures_in_a_daemon(path, outdir):
     return [p.name for p in make_figures(path, outdir, parallel=True)], lines
 
 
-def test_figures_in_a_daemonic_worker_are_drawn_serially(fixed, tmp_path):
+def test_figures_in_a_daemonic_worker_are_drawn_serially(fixed, serial_figures, tmp_path):
     """A daemonic process (a dask or pool worker) may not fork: the figures are drawn in
     it, the same files as in a plain process, and the log says so."""
     import multiprocessing as mp
 
-    from jointsim.post import make_figures
-    serial = make_figures(fixed, tmp_path / "serial", parallel=False)
+    serial = serial_figures
     with mp.get_context("fork").Pool(1) as pool:
         names, lines = pool.apply(_figures_in_a_daemon, (fixed, tmp_path / "daemon"))
     assert names == [p.name for p in serial]
