@@ -44,8 +44,9 @@ def test_parallel_false_gives_the_same_numbers_on_one_thread(reversal, monkeypat
         assert np.array_equal(getattr(threaded, name), getattr(serial, name)), name
     # both drivers call the element kernels with an int64 index: one compiled signature
     # each (prange's own index is uint64, and a second signature costs up to 15 s of
-    # compilation).  Seen where the kernels are compiled, not loaded from numba's cache:
-    # in a fresh clone (CI) or with an empty NUMBA_CACHE_DIR.
+    # compilation).  Seen where the kernels are compiled, not loaded from numba's cache
+    # (a cached driver does not call its kernels' dispatchers: no signatures then): in
+    # a fresh clone (CI) or with an empty NUMBA_CACHE_DIR.
     one = AK._anchor_one if reversal == "anchor" else AK._scaled_one
     for kernel in (one, HK._diag_one):
-        assert [str(sig[0]) for sig in kernel.signatures] == ["int64"], kernel.signatures
+        assert all(str(sig[0]) == "int64" for sig in kernel.signatures), kernel.signatures
