@@ -67,7 +67,8 @@ class HBMAnalysis:
                                "processes; 0: one per core, up to the number of branches; "
                                "1: one after the other in this process; when the branches "
                                "run in this process (one branch), their error indicators "
-                               "go to that many workers beside the continuation; once no "
+                               "go to that many workers beside the continuation (with 0, "
+                               "none below 200 unknowns: computed here); once no "
                                "branch is left to start and a core is free, the workers "
                                "still running leave their points' indicators to this process",
                       ge=0)
@@ -149,7 +150,9 @@ class EPMCAnalysis:
                                    ge=1)
     workers: int = spec(0, doc="worker processes computing the error indicators beside the "
                                "continuation (each point's are written when they come back); "
-                               "0: one per core; 1: each point's at once, in this process",
+                               "0: one per core (none below 200 unknowns: each point's "
+                               "cost less than a worker's round trip); 1: each point's at "
+                               "once, in this process",
                         ge=0)
     loop_amplitudes: tuple[float, ...] = spec(
         (), doc="modal amplitudes at which the element loops and Masing checks are kept "

@@ -129,7 +129,8 @@ def _indicators(writer, a, system, ep):
     missing = missing_error_indicators(writer.h5, "epmc") if writer.rows("epmc/y") \
         else np.zeros(0, dtype=np.int64)
     done = writer.h5["epmc"].attrs.get("branch_status", "") in ("complete", "gave up")
-    n = pool_workers(a.workers, len(missing) if done else None) if system.n_z else 1
+    n = pool_workers(a.workers, len(missing) if done else None, system.n_z) \
+        if system.n_z else 1
     # the workers never start numba threads (a forked process must not): parallel=False
     estimator = ErrorEstimator(system, parallel=n == 1)
     steps = a.error_newton_steps

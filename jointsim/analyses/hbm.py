@@ -655,7 +655,7 @@ def _indicator_pool(writer, a, system, workers):
     if not a.error_indicators or not system.n_z:
         return PointIndicators(writer, "hbm", None, ToleranceWatch(a.error_tol, "hbm"), 1)
     missing = missing_error_indicators(writer.h5, "hbm")
-    n = pool_workers(workers)
+    n = pool_workers(workers, n_unknowns=system.n_z)
     writer.h5["hbm"].attrs["indicator_workers"] = n
     if n == 1 and not missing.size:   # serial: each branch computes its own
         return PointIndicators(writer, "hbm", None, ToleranceWatch(a.error_tol, "hbm"), 1)

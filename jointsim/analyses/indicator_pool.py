@@ -43,13 +43,22 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
+#: Below this many unknowns of a point's system (``n_z``; the lumped scenes have 15 to
+#: 30, the coarse FE lap joint 510) ``workers = 0`` computes the indicators in the
+#: calling process: a point's take milliseconds there, and the pool's forks, pipes and
+#: dispatch cost as much.  Measured on the one-DOF scene of ``tests/test_converge.py``
+#: (EPMC and FRC, three runs each, alternating): the run 3.27 -> 2.99 s, the process's
+#: CPU 5.4 -> 4.3 s without the pools (round 27).
+POOL_MIN_UNKNOWNS = 200
 #: Rows assigned to one worker at once (one computed, one waiting: no idle gap while
 #: the parent is busy with the continuation and does not dispatch).
 DEPTH = 2
 
 
-def pool_workers(setting: int, n_rows_hint: int | None = None) -> int:
-    """Number of indicator workers for a ``workers`` setting (0: one per core).
+def pool_workers(setting: int, n_rows_hint: int | None = None,
+                 n_unknowns: int | None = None) -> int:
+    """Number of indicator workers for a ``workers`` setting (0: one per core, or 1 for
+    a system of fewer than :data:`POOL_MIN_UNKNOWNS` unknowns).
 
     1 (serial, in the calling process) when the platform cannot fork or the caller
     is itself a daemonic worker (dask, multiprocessing), exactly as the FRC branches
@@ -61,9 +70,14 @@ def pool_workers(setting: int, n_rows_hint: int | None = None) -> int:
         The scene's ``workers`` key (``analysis.epmc.workers``).
     n_rows_hint : int, optional
         Rows known to be computed (a bound on useful workers).
+    n_unknowns : int, optional
+        Unknowns of the points' system (``n_z``); an explicit ``setting`` is kept
+        whatever it is.
     """
     from .forking import _can_fork, _in_daemon
 
+    if not int(setting) and n_unknowns is not None and n_unknowns < POOL_MIN_UNKNOWNS:
+        return 1
     n = int(setting) or (os.cpu_count() or 1)
     if n_rows_hint is not None:
         n = min(n, max(int(n_rows_hint), 1))

@@ -61,6 +61,22 @@ def assert_same_run(pooled, serial, rtol=1e-9):
     return attrs
 
 
+def test_auto_workers_compute_a_small_systems_indicators_in_the_process(tmp_path):
+    """``workers = 0`` below ``POOL_MIN_UNKNOWNS`` (the one-DOF EPMC: 15 unknowns) starts
+    no pool, and gives the serial run's file; an explicit count is kept, and 0 on a
+    system of that size or more is one worker per core."""
+    from jointsim.analyses import indicator_pool as ip
+    run_scene(load_scene(SDOF, QUICK + ["analysis.epmc.workers=0"]), tmp_path / "auto.h5")
+    run_scene(load_scene(SDOF, QUICK + ["analysis.epmc.workers=1"]), tmp_path / "serial.h5")
+    attrs = assert_same_run(tmp_path / "auto.h5", tmp_path / "serial.h5")
+    assert attrs["indicator_workers"] == 1
+    with h5py.File(tmp_path / "auto.h5", "r") as h5:
+        assert h5["epmc/y"].shape[1] < ip.POOL_MIN_UNKNOWNS
+    assert ip.pool_workers(0, n_unknowns=ip.POOL_MIN_UNKNOWNS - 1) == 1
+    assert ip.pool_workers(2, n_unknowns=15) == 2
+    assert ip.pool_workers(0, n_unknowns=ip.POOL_MIN_UNKNOWNS) == (os.cpu_count() or 1)
+
+
 def test_pool_gives_the_serial_indicators_on_the_sdof_epmc(tmp_path):
     sc1 = load_scene(SDOF, QUICK + ["analysis.epmc.workers=1"])
     sc2 = load_scene(SDOF, QUICK + ["analysis.epmc.workers=2"])
