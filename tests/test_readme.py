@@ -16,16 +16,9 @@ def test_ci_runs_the_readme_test_command():
     assert commands[1].strip() in ci
 
 
-def test_every_scene_key_is_documented():
-    readme = (ROOT / "README.md").read_text()
-    keys = re.findall(r"^\| `([^`]+)` \|", key_table(), re.M)
-    missing = [k for k in keys if f"`{k}`" not in readme]
-    assert not missing, f"README lacks keys {missing}; paste the output of `jointsim keys`"
-
-
-def test_the_key_table_rows_are_the_code_s():
-    """Each key's row (default, unit, meaning) is the one ``jointsim keys`` prints, so
-    a changed default or doc string cannot leave the README's table behind."""
+def test_every_scene_key_is_documented_as_the_code_says():
+    """Each key's row (default, unit, meaning) is the one ``jointsim keys`` prints: a
+    missing key, a changed default or doc string cannot leave the README's table behind."""
     readme = set((ROOT / "README.md").read_text().splitlines())
     rows = [r for r in key_table().splitlines() if r.startswith("| `")]
     stale = [r.split("|")[1].strip() for r in rows if r not in readme]
