@@ -85,15 +85,22 @@ class OpenDatasets:
             return int(obj.attrs.get(self.attr, 0))
         return None
 
+    def address(self, path: str) -> int | None:
+        """The object address of ``path`` (absolute), or None when there is no object."""
+        seen = self._entry(path)
+        return None if seen is None else seen.addr
+
     def get(self, path: str):
         """The h5py object at ``path`` (absolute), or None."""
         seen = self._entry(path)
         return None if seen is None else seen.obj
 
-    def advance(self, path: str) -> None:
-        """Set the committed count of the extendable dataset ``path`` to its rows."""
+    def advance(self, path: str, n: int | None = None) -> None:
+        """Set the committed count of the extendable dataset ``path`` to ``n`` (default:
+        its rows)."""
         seen = self._entry(path)
-        n = seen.obj.id.shape[0]
+        if n is None:
+            n = seen.obj.id.shape[0]
         self._write_attr(seen.obj, n)
         seen.count = n
 

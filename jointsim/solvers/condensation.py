@@ -37,6 +37,10 @@ import scipy.linalg as sla
 
 #: Above this many structural DOFs the dense condensation is refused.
 MAX_DENSE_DOF = 6000
+#: Up to this many structural DOFs the direct path forms the linear part of every
+#: harmonic at once (:attr:`FrequencyBlocks.stacked`): the lumped models, whose
+#: per-harmonic blocks of a few numbers cost more in calls than in arithmetic.
+STACKED_MAX_DOF = 64
 
 
 def dense_array(A):
@@ -134,6 +138,7 @@ class ReducedLinear:
                                     self.K["yq"], self.M["yq"], self.C["yq"]])
             self.KMC_qy = np.hstack([self.K["qy"], self.M["qy"], self.C["qy"]])
         self._Mfull = M
+        self._transformed = None
 
     # -- blocks of the transformed dynamic stiffness --------------------------
     def blocks(self, nu: float, xi: float = 0.0, parts: str = "qq qy yq"):
@@ -165,6 +170,15 @@ class ReducedLinear:
         else:
             E = mat("yy")
         return A, B, Bp, E
+
+    @property
+    def transformed(self) -> tuple:
+        """``(K, M, C)`` in the coordinates ``(q, y)``, whole, real ``n x n`` (made once:
+        the stacked blocks of a small structure, :meth:`FrequencyBlocks.stacked`)."""
+        if self._transformed is None:
+            self._transformed = tuple(np.block([[X["qq"], X["qy"]], [X["yq"], X["yy"]]])
+                                      for X in (self.K, self.M, self.C))
+        return self._transformed
 
     def _real_product(self, b: str, v) -> tuple:
         """``(M_b v, C_b v)`` for a complex ``v`` by real products (the complex form of
@@ -402,6 +416,7 @@ class FrequencyBlocks:
         self.S = [None] * len(self.harmonics)
         self._blocks = [None] * len(self.harmonics)
         self._dynamic = None
+        self._stacked = None
 
     @property
     def formed(self) -> bool:
@@ -424,6 +439,21 @@ class FrequencyBlocks:
     def blocks(self) -> list:
         """Every harmonic's :meth:`block`."""
         return [self.block(i) for i in range(len(self.harmonics))]
+
+    @property
+    def stacked(self) -> np.ndarray:
+        """``D_h = K - nu^2 M + i nu (C - xi M)`` of every harmonic in the coordinates
+        ``(q, y)``, shape ``(n_h, n, n)`` complex (made once, read-only): ``A``, ``B``,
+        ``B'``, ``E`` are its blocks.  For a small structure
+        (:data:`STACKED_MAX_DOF`), whose per-harmonic blocks cost more in calls than
+        in arithmetic."""
+        if self._stacked is None:
+            K, M, C = self.lin.transformed
+            nu = np.asarray(self.harmonics, dtype=float)[:, None, None] * self.omega
+            D = K + (-nu * nu) * M + 1j * nu * (C - self.xi * M)
+            D.flags.writeable = False
+            self._stacked = D
+        return self._stacked
 
     @property
     def dynamic(self):

@@ -1,12 +1,15 @@
 """The result-file contract (DESIGN §4) and incremental writing."""
 
+import os
+
 import h5py
 import numpy as np
 import pytest
 
 from jointsim import __version__
 from jointsim import _toml
-from jointsim.io.hdf5 import COMMITTED, SCHEMA_VERSION, ResultWriter
+from jointsim.io import hdf5
+from jointsim.io.hdf5 import COMMITTED, SCHEMA_VERSION, ResultWriter, open_result
 from jointsim.run import run_scene
 from jointsim.scene import load_scene
 
@@ -121,10 +124,12 @@ def test_rows_of_every_dtype_read_back_as_appended(tmp_path):
         assert h5["g/f"][2].tolist() == [7.0, 8.0]
 
 
-def test_a_dataset_replaced_behind_the_writer_is_written_and_counted_afresh(tmp_path):
+def test_a_dataset_replaced_behind_the_writer_is_written_and_counted_afresh(tmp_path,
+                                                                           monkeypatch):
     """The writer holds its datasets open between commits.  A dataset deleted and made
     again under the same name by other code (extendable, or not) gets the next rows and
     its group the counts of what the group holds now, as a scan of the file gives."""
+    monkeypatch.setattr(hdf5, "COMMIT_INTERVAL_S", 0.0)   # every point committed at once
     scene = load_scene(SEED / "const.toml")
     path = tmp_path / "r.h5"
     with ResultWriter(path, scene) as w:
@@ -150,6 +155,57 @@ def test_a_dataset_replaced_behind_the_writer_is_written_and_counted_afresh(tmp_
     with h5py.File(path, "r") as h5:
         assert h5["g/a"][()].tolist() == [0.0, 1.0, 2.0, 3.0]
         assert int(h5["g"].attrs[COMMITTED]) == 4
+
+
+def test_fast_points_are_committed_together_and_none_is_lost_on_finish(tmp_path,
+                                                                        monkeypatch):
+    """Points that follow each other within ``COMMIT_INTERVAL_S`` are committed
+    together: until then their rows are in the file and uncommitted (a kill loses
+    them, as it loses a torn point); finishing, an interrupt's summary and a commit
+    outside a point commit them, each at the rows it had when it was whole."""
+    monkeypatch.setattr(hdf5, "COMMIT_INTERVAL_S", 1e9)
+    scene = load_scene(SEED / "const.toml")
+    w = ResultWriter(tmp_path / "held.h5", scene)
+    for k in range(3):
+        with w.commit():
+            w.append("g/a", np.float64(k), "1")
+            w.append("g/b", np.full(2, float(k)), "1")
+    # the first point is committed at once (no commit before it), the next two are held
+    assert int(w.h5["g/a"].attrs[COMMITTED]) == 1 and int(w.h5["g"].attrs[COMMITTED]) == 1
+    # a point torn after them: committing what is held keeps its rows out
+    w._txn = set()
+    w.append("g/a", 9.0, "1")
+    assert "committed points: g 3" in w.committed_summary()
+    assert int(w.h5["g/a"].attrs[COMMITTED]) == int(w.h5["g/b"].attrs[COMMITTED]) == 3
+    w._txn = None
+    w.finish("interrupted", "stopped")
+    with open_result(tmp_path / "held.h5") as h5:
+        assert h5["g/a"][()].tolist() == [0.0, 1.0, 2.0]
+        assert h5["g/b"].shape == (3, 2) and h5.attrs["status"] == "interrupted"
+
+    # a kill while points are held loses them (and nothing else); resume trims them
+    w = ResultWriter(tmp_path / "killed.h5", scene)
+    for k in range(3):
+        with w.commit():
+            w.append("g/a", np.float64(k), "1")
+    w.h5.flush()
+    os.close(w._lock_fd)  # what the kernel does when the process dies
+    w.h5.close()
+    with open_result(tmp_path / "killed.h5") as h5:
+        assert h5["g/a"][()].tolist() == [0.0]
+    with ResultWriter(tmp_path / "killed.h5", scene, resume=True) as w2:
+        assert w2.rows("g/a") == 1
+
+    # a held dataset deleted before the commit (a rewritten group) is not counted
+    w = ResultWriter(tmp_path / "gone.h5", scene)
+    for k in range(2):
+        with w.commit():
+            w.append("g/a", np.float64(k), "1")
+            w.append("h/c", np.float64(k), "1")
+    del w.h5["h"]
+    w.finish("complete", "")
+    with h5py.File(tmp_path / "gone.h5", "r") as h5:
+        assert "h" not in h5 and int(h5["g"].attrs[COMMITTED]) == 2
 
 
 @pytest.mark.parametrize("stale", ["group", "dataset"])

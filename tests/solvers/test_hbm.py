@@ -499,7 +499,8 @@ def test_refine_peak_of_a_slipping_branch_is_a_solved_maximum(tmp_path, monkeypa
     monkeypatch.setattr(frc, "solve_point", solve)
     w2, a2, ok2, st2 = frc.refine_peak(s, F, om, Z, amp, dof, 1e-10)
     assert ok2 and st2["failed"] == 0 and st2["solves"] >= 2 * len(tried)
-    assert (w2, a2) == pytest.approx((w, a), rel=1e-9)
+    # the same maximum to the search's tolerance (other starts, other round-off)
+    assert (w2, a2) == pytest.approx((w, a), rel=frc.PEAK_XTOL)
 
     # a largest computed point at the peak to round-off is confirmed (refined, that
     # point returned); one clearly above what the search finds is not

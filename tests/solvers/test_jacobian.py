@@ -62,6 +62,34 @@ def test_structured_products_equal_the_dense_jacobian(law, normal):
     assert np.abs(xb - xd).max() <= 1e-7 * np.abs(xd).max()
 
 
+@pytest.mark.parametrize("normal,damping,kind", [("fixed", "diagonal", "modal"),
+                                                 ("fixed", "full", "direct"),
+                                                 ("coupled", "diagonal", "direct")])
+def test_stacked_linear_part_equals_the_per_harmonic_one(normal, damping, kind):
+    """A small structure's linear part of every harmonic at once (the blocks stacked)
+    against the per-harmonic blocks: the residual, the dense Jacobian and the
+    derivatives by omega and xi.  Diagonal ``E`` (modal condensation), full ``E`` (a
+    damping that couples the modes) and no ``E`` (the coupled joint: every DOF a
+    contact coordinate)."""
+    C = ([[0.03, 0.01, 0, 0], [0.01, 0.02, 0.005, 0], [0, 0.005, 0.02, 0], [0, 0, 0, 0.01]]
+         if damping == "full" else None)
+    s = HBMSystem(build_model(four_dof("jenkins", "anchor", normal, C=C)), (0, 1, 2, 3, 5), 64,
+                  linear_solver="direct")
+    assert s.stacked and s.lin.kind == kind
+    assert s.lin.n_y == (0 if normal == "coupled" else 2)
+    F = s.force_coefficients(0.3)
+    z = np.random.default_rng(4).normal(size=s.n_z) * 0.4
+    got = s.evaluate(z, 1.1, F, xi=0.05, wrt=("omega", "xi"))
+    s.stacked = False
+    s.omega_cache.clear()
+    ref = s.evaluate(z, 1.1, F, xi=0.05, wrt=("omega", "xi"))
+    assert np.abs(got.R - ref.R).max() <= 1e-14 * np.abs(ref.R).max()
+    assert np.abs(got.J - ref.J).max() <= 1e-14 * np.abs(ref.J).max()
+    for p in ("omega", "xi"):
+        assert np.abs(got.dR[p] - ref.dR[p]).max() <= 1e-14 * np.abs(ref.dR[p]).max()
+    assert np.abs(ref.dR["xi"]).max() > 0
+
+
 def test_preconditioner_is_exact_for_linear_contact():
     """With a constant contact tangent (stuck law, fixed normal load) the harmonic
     preconditioner is the inverse of J: GMRES converges in one iteration."""
