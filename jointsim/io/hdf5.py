@@ -624,9 +624,12 @@ class ResultWriter:
             touched = self._txn
         finally:
             self._txn = None
-        self._hold(touched)
-        if time.monotonic() - self._committed_at >= COMMIT_INTERVAL_S:
-            self._commit_pending()
+        # a signal may not land between the records of one point's datasets: committed
+        # with the points before it, part of a point would misalign its group
+        with _signals_deferred():
+            self._hold(touched)
+            if time.monotonic() - self._committed_at >= COMMIT_INTERVAL_S:
+                self._commit_pending()
 
     def _hold(self, names) -> None:
         """Record the rows the datasets ``names`` hold now as whole points to commit
@@ -638,8 +641,9 @@ class ResultWriter:
 
     def _commit(self, names) -> None:
         """Commit the datasets ``names`` at their rows now, with the points held."""
-        self._hold(names)
-        self._commit_pending()
+        with _signals_deferred():
+            self._hold(names)
+            self._commit_pending()
 
     def _commit_pending(self) -> None:
         """Flush, then advance :data:`COMMITTED` of every dataset held to its recorded

@@ -208,6 +208,44 @@ def test_fast_points_are_committed_together_and_none_is_lost_on_finish(tmp_path,
         assert "h" not in h5 and int(h5["g"].attrs[COMMITTED]) == 2
 
 
+def test_a_signal_while_a_point_is_recorded_waits_until_it_is_whole(tmp_path, monkeypatch):
+    """SIGINT arriving while a finished point's datasets are recorded for their commit
+    (the second of three here) is raised once the record is complete: the interrupted
+    file then holds whole points only, every dataset at its group's count."""
+    import signal
+
+    from jointsim.io.open_datasets import OpenDatasets
+    monkeypatch.setattr(hdf5, "COMMIT_INTERVAL_S", 1e9)
+    old = signal.signal(signal.SIGINT, hdf5.interrupt_handler)
+    calls = {"n": 0}
+    real_get = OpenDatasets.get
+
+    def get(self, path):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            os.kill(os.getpid(), signal.SIGINT)
+        return real_get(self, path)
+    path = tmp_path / "sig.h5"
+    try:
+        with pytest.raises(KeyboardInterrupt, match="SIGINT"):
+            with ResultWriter(path, load_scene(SEED / "const.toml")) as w:
+                with w.commit():
+                    for name in ("g/a", "g/b", "g/c"):
+                        w.append(name, np.float64(1.0), "1")
+                monkeypatch.setattr(OpenDatasets, "get", get)
+                calls["n"] = -3          # the appends' own lookups of the next point
+                with w.commit():
+                    for name in ("g/a", "g/b", "g/c"):
+                        w.append(name, np.float64(2.0), "1")
+                raise AssertionError("the signal was not raised")
+    finally:
+        signal.signal(signal.SIGINT, old)
+    with h5py.File(path, "r") as h5:
+        assert h5.attrs["status"] == "interrupted"
+        assert int(h5["g"].attrs[COMMITTED]) == 2
+        assert all(h5[f"g/{n}"].shape == (2,) for n in "abc")
+
+
 @pytest.mark.parametrize("stale", ["group", "dataset"])
 def test_a_half_committed_point_is_dropped_from_the_whole_group(tmp_path, stale):
     """A kill inside a commit's final flush can put some committed counts on disk and

@@ -225,12 +225,14 @@ def test_figures_in_a_daemonic_worker_are_drawn_serially(fixed, serial_figures, 
 def test_a_plotter_that_fails_in_the_forked_process_raises_here(fixed, tmp_path, monkeypatch):
     """An error of a heavy plotter drawn in the forked process reaches the caller, as in
     one process (the child is forked after the patch, so it runs the failing plotter)."""
-    import jointsim.post.study_plots as sp
+    import jointsim.post as post
     from jointsim.post import make_figures
 
     def broken(h5, d):
         raise ValueError("broken plotter")
-    monkeypatch.setattr(sp, "plot_masing_study", broken)
+    # one light plotter beside the broken heavy one: the fork needs both kinds
+    table = post.plotters()
+    monkeypatch.setattr(post, "plotters", lambda: {"qsma": table["qsma"], "contacts": broken})
     for parallel in (False, True):
         with pytest.raises(ValueError, match="broken plotter"):
             make_figures(fixed, tmp_path / str(parallel), parallel=parallel)
