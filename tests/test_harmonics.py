@@ -79,3 +79,21 @@ def test_the_three_load_views_agree():
     np.testing.assert_array_equal(f.static(), static_load(m))
     f0 = LoadFunction(m, 0.0)
     np.testing.assert_array_equal(f0.coefficients, static_load(m)[None, :])
+
+
+def test_complex_amplitudes_of_every_harmonic_and_back():
+    """``to_complex`` gives ``X_hc - i X_hs`` (``X_0`` at h = 0) harmonic by harmonic,
+    as a sampled signal's DFT does; ``from_complex`` writes the rows back."""
+    b = HarmonicBasis((0, 1, 3, 4), 32)
+    X = np.random.default_rng(2).normal(size=(b.n_coeff, 3, 2))
+    Y = b.to_complex(X)
+    assert Y.shape == (4, 3, 2)
+    x = b.samples(X)                                   # (n_t, 3, 2)
+    dft = np.fft.fft(x, axis=0) / b.n_samples
+    for j, h in enumerate(b.harmonics):
+        # x(t) = Re(sum Y_h e^{i h t}) with Y_h = X_hc - i X_hs: the DFT's bin h is Y_h / 2
+        ref = dft[0] if h == 0 else 2.0 * dft[h]
+        np.testing.assert_allclose(Y[j], ref, rtol=0, atol=1e-14)
+    back = np.zeros_like(X)
+    b.from_complex(Y, back)
+    assert np.array_equal(back, X)

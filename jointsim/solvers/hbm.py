@@ -131,11 +131,6 @@ class HBMSystem:
         self.krylov = linear_solver == "krylov"
         #: a small structure: the direct path's linear part of every harmonic at once
         self.stacked = not self.krylov and model.n_dof <= STACKED_MAX_DOF
-        H = np.asarray(self.basis.harmonics)
-        self._h = H.astype(float)
-        self._ic = np.array([self.basis.index[h][0] for h in H], dtype=np.int64)
-        self._pos = H > 0
-        self._is = np.array([self.basis.index[h][1] for h in H[self._pos]], dtype=np.int64)
         self.stats = LinearStats()
         self.preconditioner = PreconditionerCache()
         #: ``(omega, xi) -> (blocks, S)`` of the last ``OMEGA_CACHE`` frequencies
@@ -313,28 +308,29 @@ class HBMSystem:
         nr, ny = self.n_r, self.lin.n_y
         D = fb.stacked
         A, B, Bp, E = D[:, :nr, :nr], D[:, :nr, nr:], D[:, nr:, :nr], D[:, nr:, nr:]
-        q = self._stack(Q)[..., None]                                    # (n_h, n_r, 1)
+        b = self.basis
+        q = b.to_complex(Q)[..., None]                                   # (n_h, n_r, 1)
         try:
             if ny and dense:
-                both = np.linalg.solve(E, np.concatenate([self._stack(FZ)[..., None] - Bp @ q,
+                both = np.linalg.solve(E, np.concatenate([b.to_complex(FZ)[..., None] - Bp @ q,
                                                           Bp], axis=2))
                 y, EinvBp = both[..., :1], both[..., 1:]
             elif ny:
-                y = np.linalg.solve(E, self._stack(FZ)[..., None] - Bp @ q)
+                y = np.linalg.solve(E, b.to_complex(FZ)[..., None] - Bp @ q)
             else:
                 y = np.zeros((q.shape[0], 0, 1), dtype=complex)
         except np.linalg.LinAlgError:
             raise np.linalg.LinAlgError(
                 "the structure with welded contacts is singular at this frequency (an "
                 "undamped resonance or an unrestrained rigid-body motion)") from None
-        self._unstack(R, (A @ q + B @ y)[..., 0] - self._stack(FPsi))
+        b.from_complex((A @ q + B @ y)[..., 0] - b.to_complex(FPsi), R)
         if dense:
             self._fill_blocks(J, A - B @ EinvBp if ny else A)
         if dR:
             _, M, C = self.lin.transformed
             w = np.concatenate([q, y], axis=1)[..., 0]                   # (n_h, n)
             Mw, Cw = w @ M.T, w @ C.T
-            h = self._h
+            h = np.asarray(b.harmonics, dtype=float)
             nu = h * fb.omega
             for p in dR:
                 # dD/domega = h (-(2 nu + i xi) M + i C), dD/dxi = -i nu M (0 at h = 0)
@@ -344,29 +340,16 @@ class HBMSystem:
                 v = dw[:, :nr]
                 if ny:
                     v = v - (B @ np.linalg.solve(E, dw[:, nr:, None]))[..., 0]
-                self._unstack(dR[p], v)
-
-    def _stack(self, X):
-        """Complex amplitudes of every kept harmonic, shape (n_h, k), from coefficient
-        rows ``X`` (n_c, k) (:meth:`_complex` of each harmonic)."""
-        out = X[self._ic].astype(complex)
-        out[self._pos] -= 1j * X[self._is]
-        return out
-
-    def _unstack(self, out, V):
-        """Coefficient rows of ``out`` (n_c, k) from amplitudes ``V`` (n_h, k)
-        (:meth:`_store` of each harmonic)."""
-        out[self._ic] = V.real
-        out[self._is] = -V.imag[self._pos]
+                b.from_complex(v, dR[p])
 
     def _fill_blocks(self, J, S):
         """Write ``S_h`` (n_h, n_r, n_r) into the dense ``J`` as the real blocks
         ``[[Re, Im], [-Im, Re]]`` of each harmonic's cosine and sine rows."""
-        r = np.arange(self.n_r)
-        rc = (self._ic * self.n_r)[:, None] + r                         # (n_h, n_r)
-        rs = (self._is * self.n_r)[:, None] + r
-        Sp = S[self._pos]
-        rcp = rc[self._pos]
+        b, r = self.basis, np.arange(self.n_r)
+        rc = (b._ic * self.n_r)[:, None] + r                            # (n_h, n_r)
+        rs = (b._is * self.n_r)[:, None] + r
+        Sp = S[b._pos]
+        rcp = rc[b._pos]
         J[rc[:, :, None], rc[:, None, :]] = S.real
         J[rcp[:, :, None], rs[:, None, :]] = Sp.imag
         J[rs[:, :, None], rcp[:, None, :]] = -Sp.imag
@@ -378,12 +361,11 @@ class HBMSystem:
         complex per-harmonic blocks are not formed."""
         lin, dyn = self.lin, fb.dynamic
         H = self.basis.harmonics
-        cq = np.stack([self._complex(Q, h) for h in H], axis=1)          # (n_r, n_h)
-        cF = np.stack([self._complex(FPsi, h) for h in H], axis=1)
-        cFy = np.stack([self._complex(FZ, h) for h in H], axis=1)        # (n_y, n_h)
+        cq = self.basis.to_complex(Q).T                                  # (n_r, n_h)
+        cF = self.basis.to_complex(FPsi).T
+        cFy = self.basis.to_complex(FZ).T                                # (n_y, n_h)
         lhs, y = dyn.parts(cq, cFy)
-        for j, h in enumerate(H):
-            self._store(R, h, lhs[:, j] - cF[:, j])
+        self.basis.from_complex((lhs - cF).T, R)
         for p in dR:
             dq = np.zeros_like(cq)
             dy = np.zeros_like(y)

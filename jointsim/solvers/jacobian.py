@@ -215,14 +215,10 @@ class HBMJacobian:
         return out
 
     def _to_complex(self, V):
-        X = V[self._ic] - 1j * V[self._is]
-        X[self._h0] = V[self._ic[self._h0]]
-        return X
+        return self.basis.to_complex(V)
 
     def _from_complex(self, Y, out):
-        out[self._ic] = Y.real
-        hs = ~self._h0
-        out[self._is[hs]] = -Y[hs].imag
+        self.basis.from_complex(Y, out)
 
     def _elements(self, V, out, transpose: bool):
         """Add the element tangents' product to ``out``; ``V``, ``out`` (n_c, n_r[, k])."""
