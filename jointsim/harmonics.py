@@ -272,11 +272,13 @@ class HarmonicBasis:
         self.cosm = np.cos(np.outer(theta, m))
         self.sinm = np.sin(np.outer(theta, m))
         self.index = {h: coefficient_index(harmonics, h) for h in harmonics}
-        # rows of the cosine (the constant) and sine coefficients, harmonic by harmonic
         H = np.asarray(harmonics)
-        self._ic = np.array([self.index[h][0] for h in harmonics], dtype=np.int64)
-        self._pos = H > 0
-        self._is = np.array([self.index[h][1] for h in H[self._pos]], dtype=np.int64)
+        #: row of each kept harmonic's cosine coefficient (of the constant for h = 0)
+        self.rows_cos = np.array([self.index[h][0] for h in harmonics], dtype=np.int64)
+        #: which kept harmonics have a sine coefficient (h > 0)
+        self.has_sine = H > 0
+        #: row of the sine coefficient of each harmonic with one
+        self.rows_sin = np.array([self.index[h][1] for h in H[self.has_sine]], dtype=np.int64)
 
     def to_complex(self, X):
         """Complex amplitudes ``X_hc - i X_hs`` of every kept harmonic (``X_0`` for h = 0).
@@ -290,15 +292,15 @@ class HarmonicBasis:
         -------
         ndarray, shape (n_h, ...), complex
         """
-        out = X[self._ic].astype(complex)
-        out[self._pos] -= 1j * X[self._is]
+        out = X[self.rows_cos].astype(complex)
+        out[self.has_sine] -= 1j * X[self.rows_sin]
         return out
 
     def from_complex(self, Y, out) -> None:
         """Write the coefficient rows of amplitudes ``Y`` (n_h, ...) into ``out`` (n_c, ...)
         (the inverse of :meth:`to_complex`; the imaginary part of h = 0 is dropped)."""
-        out[self._ic] = Y.real
-        out[self._is] = -Y.imag[self._pos]
+        out[self.rows_cos] = Y.real
+        out[self.rows_sin] = -Y.imag[self.has_sine]
 
     def samples(self, X):
         """Samples over one period of coefficient arrays ``X`` (n_c, ...) -> (n_t, ...)."""

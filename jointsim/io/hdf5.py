@@ -635,9 +635,8 @@ class ResultWriter:
         """Record the rows the datasets ``names`` hold now as whole points to commit
         (with their object addresses: a dataset deleted or replaced since is not
         committed by the record)."""
-        od = self._open_datasets
         for name in names:
-            self._pending[name] = (od.address(name), od.get(name).id.shape[0])
+            self._pending[name] = self._open_datasets.rows(name)
 
     def _commit(self, names) -> None:
         """Commit the datasets ``names`` at their rows now, with the points held."""
@@ -666,10 +665,8 @@ class ResultWriter:
         groups = set()
         for name in sorted(rows):
             addr, n = rows[name]
-            if od.address(name) != addr:   # deleted or replaced since it was held
-                continue
-            od.advance(name, n)
-            groups.add(name.rpartition("/")[0] or "/")
+            if od.advance(name, n, addr):   # not if deleted or replaced since it was held
+                groups.add(name.rpartition("/")[0] or "/")
         for gname in sorted(groups):
             od.settle_group(gname)
         self.h5.flush()

@@ -85,24 +85,28 @@ class OpenDatasets:
             return int(obj.attrs.get(self.attr, 0))
         return None
 
-    def address(self, path: str) -> int | None:
-        """The object address of ``path`` (absolute), or None when there is no object."""
+    def rows(self, path: str) -> tuple[int, int]:
+        """``(object address, rows)`` of the extendable dataset ``path`` (absolute)."""
         seen = self._entry(path)
-        return None if seen is None else seen.addr
+        return seen.addr, seen.obj.id.shape[0]
 
     def get(self, path: str):
         """The h5py object at ``path`` (absolute), or None."""
         seen = self._entry(path)
         return None if seen is None else seen.obj
 
-    def advance(self, path: str, n: int | None = None) -> None:
+    def advance(self, path: str, n: int | None = None, addr: int | None = None) -> bool:
         """Set the committed count of the extendable dataset ``path`` to ``n`` (default:
-        its rows)."""
+        its rows).  With ``addr``, only if ``path`` is still that object (not deleted or
+        replaced since): whether the count was set."""
         seen = self._entry(path)
+        if addr is not None and (seen is None or seen.addr != addr):
+            return False
         if n is None:
             n = seen.obj.id.shape[0]
         self._write_attr(seen.obj, n)
         seen.count = n
+        return True
 
     def settle_group(self, path: str) -> None:
         """Give group ``path`` the committed count its extendable datasets agree on, or

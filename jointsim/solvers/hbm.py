@@ -28,7 +28,7 @@ from ..harmonics import HarmonicBasis
 from .aft import AFT, AFTResult
 from .condensation import STACKED_MAX_DOF, FrequencyBlocks, ReducedLinear, dense_array
 from .jacobian import (KRYLOV_MIN_UNKNOWNS, KRYLOV_RTOL, LINEAR_SOLVERS, HBMJacobian, LinearStats,
-                       add_element_blocks, solve)
+                       add_element_blocks, fill_harmonic_blocks, solve)
 from .preconditioner import PreconditionerCache
 from .newton import LINEAR_FORCING, NewtonOptions, newton
 
@@ -270,6 +270,7 @@ class HBMSystem:
         to ``dR`` and, when ``dense``, ``S_h`` into ``J``: harmonic by harmonic from the
         blocks (a full ``E``, or the dense Jacobian)."""
         nr, lin = self.n_r, self.lin
+        Ss = []
         for h, (A, B, Bp, Ef) in zip(self.basis.harmonics, fb.blocks):
             nu = h * fb.omega
             qh = self._complex(Q, h)
@@ -284,15 +285,7 @@ class HBMSystem:
                 y, EinvBp = np.zeros(0, complex), np.zeros((0, nr), complex)
             self._store(R, h, A @ qh + B @ y - Fq)
             if dense:
-                S = A - B @ EinvBp
-                ic, is_ = self.basis.index[h]
-                rc = ic * nr + np.arange(nr)
-                J[np.ix_(rc, rc)] = S.real
-                if h:
-                    rs = is_ * nr + np.arange(nr)
-                    J[np.ix_(rc, rs)] = S.imag
-                    J[np.ix_(rs, rc)] = -S.imag
-                    J[np.ix_(rs, rs)] = S.real
+                Ss.append(A - B @ EinvBp)
             for p in dR:
                 if h == 0 and p == "omega":
                     continue
@@ -300,6 +293,8 @@ class HBMSystem:
                 if lin.n_y:
                     v = v + B @ -lin.solve_E(Ef, dy)
                 self._store(dR[p], h, v)
+        if dense:
+            fill_harmonic_blocks(J, np.stack(Ss), self.basis)
 
     def _linear_part_stacked(self, fb, Q, FPsi, FZ, R, dR, J, dense):
         """:meth:`_linear_part` with the blocks of every harmonic stacked
@@ -325,7 +320,7 @@ class HBMSystem:
                 "undamped resonance or an unrestrained rigid-body motion)") from None
         b.from_complex((A @ q + B @ y)[..., 0] - b.to_complex(FPsi), R)
         if dense:
-            self._fill_blocks(J, A - B @ EinvBp if ny else A)
+            fill_harmonic_blocks(J, A - B @ EinvBp if ny else A, self.basis)
         if dR:
             _, M, C = self.lin.transformed
             w = np.concatenate([q, y], axis=1)[..., 0]                   # (n_h, n)
@@ -341,19 +336,6 @@ class HBMSystem:
                 if ny:
                     v = v - (B @ np.linalg.solve(E, dw[:, nr:, None]))[..., 0]
                 b.from_complex(v, dR[p])
-
-    def _fill_blocks(self, J, S):
-        """Write ``S_h`` (n_h, n_r, n_r) into the dense ``J`` as the real blocks
-        ``[[Re, Im], [-Im, Re]]`` of each harmonic's cosine and sine rows."""
-        b, r = self.basis, np.arange(self.n_r)
-        rc = (b._ic * self.n_r)[:, None] + r                            # (n_h, n_r)
-        rs = (b._is * self.n_r)[:, None] + r
-        Sp = S[b._pos]
-        rcp = rc[b._pos]
-        J[rc[:, :, None], rc[:, None, :]] = S.real
-        J[rcp[:, :, None], rs[:, None, :]] = Sp.imag
-        J[rs[:, :, None], rcp[:, None, :]] = -Sp.imag
-        J[rs[:, :, None], rs[:, None, :]] = Sp.real
 
     def _linear_part_all(self, fb, Q, FPsi, FZ, R, dR):
         """:meth:`_linear_part` for every harmonic at once by

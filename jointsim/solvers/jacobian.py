@@ -263,15 +263,8 @@ class HBMJacobian:
         """The dense ``J diag(col)`` (n_z, n_z): the reference path and tests only."""
         nr = self.n_r
         J = np.zeros(self.shape)
-        for i, h in enumerate(self.basis.harmonics):
-            S = self.schur(i)
-            rc = self._ic[i] * nr + np.arange(nr)
-            J[np.ix_(rc, rc)] = S.real
-            if h:
-                rs = self._is[i] * nr + np.arange(nr)
-                J[np.ix_(rc, rs)] = S.imag
-                J[np.ix_(rs, rc)] = -S.imag
-                J[np.ix_(rs, rs)] = S.real
+        fill_harmonic_blocks(J, np.stack([self.schur(i) for i in range(len(self._ic))]),
+                             self.basis)
         add_element_blocks(J, nr, self.n_c, self.t_row, self.n_row, self.Juu, self.Jug,
                            self.JNN)
         return J * self.col[None, :]
@@ -354,6 +347,29 @@ class HBMJacobian:
         :attr:`rtol`; see :func:`krylov_solve`)."""
         return krylov_solve(self, self.matvec, np.asarray(b, dtype=float),
                             lambda P: (lambda v: P.apply(v, self)), rtol=rtol)
+
+
+def fill_harmonic_blocks(J, S, basis) -> None:
+    """Write ``S_h`` of every kept harmonic into the dense ``J`` (n_z, n_z), index
+    ``k n_r + r``: the real blocks ``[[Re, Im], [-Im, Re]]`` of its cosine and sine
+    rows (``Re`` alone for h = 0).
+
+    Parameters
+    ----------
+    J : ndarray, shape (n_c n_r, n_c n_r)
+        Written in place (any other entry is left as it is).
+    S : ndarray, shape (n_h, n_r, n_r), complex
+    basis : jointsim.harmonics.HarmonicBasis
+    """
+    nr = S.shape[1]
+    r = np.arange(nr)
+    rc = (basis.rows_cos * nr)[:, None] + r                              # (n_h, n_r)
+    rs = (basis.rows_sin * nr)[:, None] + r
+    Sp, rcp = S[basis.has_sine], rc[basis.has_sine]
+    J[rc[:, :, None], rc[:, None, :]] = S.real
+    J[rcp[:, :, None], rs[:, None, :]] = Sp.imag
+    J[rs[:, :, None], rcp[:, None, :]] = -Sp.imag
+    J[rs[:, :, None], rs[:, None, :]] = Sp.real
 
 
 def add_element_blocks(J, nr, nc, t_row, n_row, Juu, Jug, JNN):
