@@ -179,11 +179,9 @@ def _run(writer, scene, model, a, system, ep, em, F, xi0, g, inds, t_start) -> N
         if cause:
             conv = dataclasses.replace(conv, message=f"{conv.message}; {cause}")
     _report_range(writer)
-    g.attrs["time_s"] = g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start
-    g.attrs["n_points"] = writer.rows("epmc/omega")
-    g.attrs["branch_status"] = "complete" if conv.success else "gave up"
-    for k, v in conv.as_attrs().items():
-        g.attrs[k] = v
+    writer.group("epmc", time_s=g.attrs.get("time_s", 0.0) + time.perf_counter() - t_start,
+                 n_points=writer.rows("epmc/omega"),
+                 branch_status="complete" if conv.success else "gave up", **conv.as_attrs())
     log.info("epmc mode %d: %s", a.mode, conv.message)
     exact = exact_amplitudes(a)
     if exact:

@@ -441,7 +441,6 @@ class _Output:
     def finish_branch(self, ib, fs, success, message) -> str | None:
         """Status, peak and peak loops of a finished branch; the failure, if any."""
         a, system, writer, units = self.a, self.system, self.writer, self.units
-        g = writer.h5["hbm"]
         F = system.force_coefficients(fs)
         rows = np.flatnonzero(np.asarray(self.points["branch"]) == ib) \
             if self.points["branch"] else np.zeros(0, dtype=np.int64)
@@ -486,10 +485,9 @@ class _Output:
                                      self._explain(message, F, rows))
         # the status last: a branch marked finished has its peak and loops in the file
         # ("worker died" is not final: --resume computes the branch on)
-        g.attrs[f"branch{ib}_message"] = message
-        g.attrs[f"branch{ib}_status"] = "complete" if success else \
-            ("worker died" if message.startswith("worker process ended") else "gave up")
-        writer.h5.flush()
+        writer.group("hbm", **{f"branch{ib}_message": message, f"branch{ib}_status":
+                               "complete" if success else ("worker died" if message.startswith(
+                                   "worker process ended") else "gave up")})
         log.info("hbm branch %d (force scale %g): %s; peak %.6g at omega = %.6g", ib, fs,
                  message, self.peaks["amplitude"][ib], self.peaks["omega"][ib])
         return None if success else f"branch {ib} (force scale {fs:g}): {message}"

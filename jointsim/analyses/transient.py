@@ -253,11 +253,7 @@ def run_transient(scene, model, writer, results=None) -> None:
     else:
         conv = _run_free_decay(scene, model, writer, tr, history)
     history.close()
-    for k, v in conv.as_attrs().items():
-        writer.h5["transient"].attrs[k] = v
-    if conv.success:
-        writer.h5["transient"].attrs["complete"] = True
-        writer.h5.flush()
+    writer.group("transient", **conv.as_attrs(), **({"complete": True} if conv.success else {}))
     log.info("transient: %s", conv.message)
     if conv.status == INTERRUPTED:
         raise KeyboardInterrupt(conv.message)

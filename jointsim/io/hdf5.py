@@ -673,10 +673,18 @@ class ResultWriter:
 
     # -- writing --------------------------------------------------------------
     def group(self, name: str, **attrs) -> h5py.Group:
-        """Get or create a group and set attributes on it."""
+        """Get or create a group and set attributes on it.
+
+        The points held for the next commit are committed first: an attribute set
+        after a point (a branch's status) never reaches the file before it.
+        """
         g = self.h5.require_group(name)
-        for k, v in attrs.items():
-            g.attrs[k] = v
+        if attrs:
+            with _signals_deferred():
+                self._commit_pending()
+                for k, v in attrs.items():
+                    g.attrs[k] = v
+                self.h5.flush()
         return g
 
     def write(self, name: str, data, unit: str, doc: str = "", **attrs) -> None:
