@@ -52,6 +52,42 @@ def run(*args, timeout: float = 120) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(p.args, p.returncode, out, err)
 
 
+class Window:
+    """When an uninterrupted run wrote: from its output file's appearance to its end.
+
+    Kill times drawn as fractions of this window land while the run works on its
+    file, however long the interpreter's start and the imports take on the machine
+    (round 30: after round 28 made the small runs faster, start-up was over half of
+    a run, and fractions of the whole wall time missed the work).
+    """
+
+    def __init__(self, file_s: float, end_s: float):
+        self.file_s, self.end_s = file_s, end_s
+
+    def at(self, fraction: float) -> float:
+        """Seconds after the start at ``fraction`` (0..1) of the writing window."""
+        return self.file_s + fraction * (self.end_s - self.file_s)
+
+
+def run_timed(out, *args, timeout: float = 120) -> tuple[subprocess.CompletedProcess, Window]:
+    """Run ``jointsim ARGS -o OUT`` to its end; also time when ``out`` appeared."""
+    t0 = time.perf_counter()
+    p = start(*args, "-o", str(out))
+    file_s = None
+    while p.poll() is None:
+        if file_s is None and os.path.exists(out):
+            file_s = time.perf_counter() - t0
+        if time.perf_counter() - t0 > timeout:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.communicate()
+            raise subprocess.TimeoutExpired(p.args, timeout)
+        time.sleep(0.005)
+    end_s = time.perf_counter() - t0
+    stdout, stderr = p.communicate()
+    window = Window(end_s if file_s is None else file_s, end_s)
+    return subprocess.CompletedProcess(p.args, p.returncode, stdout, stderr), window
+
+
 def group_alive(pgid: int) -> list[int]:
     """Pids of the live (not zombie) processes of a process group (Linux /proc)."""
     pids = []

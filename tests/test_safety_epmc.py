@@ -14,7 +14,6 @@ from __future__ import annotations
 import os
 import random
 import signal
-import time
 
 import numpy as np
 import pytest
@@ -36,12 +35,11 @@ def _points(path) -> dict[str, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
-    """The uninterrupted run and its wall time [s], process start included."""
+    """The uninterrupted run and its writing window (:class:`tests._safety.Window`)."""
     out = tmp_path_factory.mktemp("ref") / "epmc.h5"
-    t0 = time.perf_counter()
-    r = S.run("run", EPMC, "-o", str(out))
+    r, window = S.run_timed(out, "run", EPMC)
     assert r.returncode == 0, r.stderr
-    return out, time.perf_counter() - t0
+    return out, window
 
 
 def _kill_and_resume(out, ref, delay, sig):
@@ -77,10 +75,10 @@ def _kill_and_resume(out, ref, delay, sig):
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["KILL", "INT"])
 def test_epmc_killed_mid_branch_resumes_to_the_same_points(sig, reference, tmp_path):
-    ref, seconds = reference
+    ref, window = reference
     # earlier and earlier until the signal lands mid-branch (machine load varies)
     for i, fraction in enumerate((0.8, 0.65, 0.5, 0.35)):
-        status = _kill_and_resume(tmp_path / f"e{i}.h5", ref, fraction * seconds, sig)
+        status = _kill_and_resume(tmp_path / f"e{i}.h5", ref, window.at(fraction), sig)
         if status in ("running", "interrupted"):
             return
     pytest.fail("no kill landed mid-branch")
@@ -90,9 +88,9 @@ def test_epmc_killed_mid_branch_resumes_to_the_same_points(sig, reference, tmp_p
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGINT],
                          ids=["KILL", "TERM", "INT"])
 def test_epmc_killed_at_random_times(sig, reference, tmp_path):
-    ref, seconds = reference
+    ref, window = reference
     rng = random.Random(11 + int(sig))
-    seen = [_kill_and_resume(tmp_path / f"e{i}.h5", ref, rng.uniform(0.2, 0.95) * seconds, sig)
+    seen = [_kill_and_resume(tmp_path / f"e{i}.h5", ref, window.at(rng.uniform(0.05, 0.95)), sig)
             for i in range(10)]
     assert sum(s in ("running", "interrupted") for s in seen) >= 3, seen
 
@@ -107,22 +105,25 @@ def test_epmc_killed_while_indicators_are_on_workers_resumes_to_the_same_indicat
         reference, tmp_path):
     """SIGKILL while points wait for their indicators on the worker pool
     (``analysis.epmc.workers``, issue 10): the file is valid, those rows are NaN, and
-    ``--resume`` computes them: every ``error_*`` row as in the uninterrupted run."""
-    ref, seconds = reference
+    ``--resume`` computes them: every ``error_*`` row as in the uninterrupted run
+    (serial there: a model this small computes its indicators in the main process
+    unless the workers are set, :data:`~jointsim.analyses.indicator_pool.POOL_MIN_UNKNOWNS`)."""
+    pool = ("--set", "analysis.epmc.workers=2")
+    ref, window = reference
     want = _indicators(ref)
     assert len(want) == 6 and not any(np.isnan(v).any() for v in want.values())
     pending_seen = 0
     for i, fraction in enumerate((0.9, 0.75, 0.6, 0.45, 0.3)):
         out = tmp_path / f"e{i}.h5"
-        p = S.start("run", EPMC, "-o", str(out))
-        assert S.kill_after(p, fraction * seconds, signal.SIGKILL) < 2.0
+        p = S.start("run", EPMC, "-o", str(out), *pool)
+        assert S.kill_after(p, window.at(fraction), signal.SIGKILL) < 2.0
         if not out.exists() or S.status(out) == "complete":
             continue
         S.consistent(out)
         with open_result(out) as h5:
             if "epmc/error_estimate" in h5:
                 pending_seen += int(np.isnan(h5["epmc/error_estimate"][()]).any())
-        r = S.run("run", EPMC, "-o", str(out), "--resume")
+        r = S.run("run", EPMC, "-o", str(out), "--resume", *pool)
         assert r.returncode == 0, r.stderr
         assert S.status(out) == "complete"
         got = _indicators(out)

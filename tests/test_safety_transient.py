@@ -19,7 +19,6 @@ from __future__ import annotations
 import os
 import random
 import signal
-import time
 
 import h5py
 import pytest
@@ -113,7 +112,8 @@ def test_an_interrupted_march_resumes_to_the_uninterrupted_file(tmp_path, monkey
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
-    """``reference(scene, args)``: the uninterrupted run and its wall time [s]."""
+    """``reference(scene, args)``: the uninterrupted run and its writing window
+    (:class:`tests._safety.Window`)."""
     d = tmp_path_factory.mktemp("ref")
     refs = {}
 
@@ -121,10 +121,9 @@ def reference(tmp_path_factory):
         key = (scene, args)
         if key not in refs:
             out = d / f"ref{len(refs)}.h5"
-            t0 = time.perf_counter()
-            r = S.run("run", scene, "-o", str(out), *args)
+            r, window = S.run_timed(out, "run", scene, *args)
             assert r.returncode == 0, r.stderr
-            refs[key] = (out, time.perf_counter() - t0)
+            refs[key] = (out, window)
         return refs[key]
     return get
 
@@ -150,20 +149,20 @@ def _kill_and_resume(out, scene, args, names, ref, delay, sig):
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGINT])
 def test_a_killed_march_resumes_to_the_uninterrupted_one(tmp_path, reference, sig):
-    ref, duration = reference(TR, LONG)
+    ref, window = reference(TR, LONG)
     rng = random.Random(7000 + int(sig))
     seen = [_kill_and_resume(tmp_path / f"k{k}.h5", TR, LONG, STEADY, ref,
-                             rng.uniform(0.15, 0.95) * duration, sig) for k in range(10)]
+                             window.at(rng.uniform(0.0, 0.9)), sig) for k in range(10)]
     assert sum(s in ("running", "interrupted") for s in seen) >= 3, seen
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
 def test_a_killed_free_decay_is_marched_again_by_resume(tmp_path, reference, sig):
-    ref, duration = reference(DECAY, DECAY_LONG)
+    ref, window = reference(DECAY, DECAY_LONG)
     rng = random.Random(8000 + int(sig))
     seen = [_kill_and_resume(tmp_path / f"d{k}.h5", DECAY, DECAY_LONG, DECAY_SETS, ref,
-                             rng.uniform(0.3, 0.95) * duration, sig) for k in range(5)]
+                             window.at(rng.uniform(0.0, 0.9)), sig) for k in range(5)]
     assert any(s in ("running", "interrupted") for s in seen), seen
 
 
