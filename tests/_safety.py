@@ -169,6 +169,12 @@ def status(path) -> str:
         return str(h5.attrs["status"])
 
 
+def read_message(path) -> str:
+    """The file's ``message`` attribute (what a failed assertion should show)."""
+    with h5py.File(path, "r") as h5:
+        return str(h5.attrs.get("message", ""))
+
+
 def consistent(path) -> None:
     """Every extendable dataset of every group has the group's committed rows."""
     from jointsim.io.hdf5 import COMMITTED, open_result

@@ -50,7 +50,7 @@ def _kill_and_resume(out, ref, delay, sig):
         return None
     status = S.status(out)
     if p.returncode != 0 and sig != signal.SIGKILL and status != "complete":
-        assert status == "interrupted", status
+        assert status == "interrupted", (status, S.read_message(out))
     S.consistent(out)
     info = S.run("info", str(out))
     assert info.returncode == 0, info.stderr

@@ -59,10 +59,11 @@ def write_control(writer, prefix: str, law, tol: float, units: str) -> bool:
         rows.append(r)
     g = f"{prefix}/control"
     one, Fu = "1", unit("force", units)
-    with writer.commit():
-        writer.group(g, law="bank_manifold", tol=float(tol),
-                     doc="the loops' (u, N) replayed through the manifold reversal law "
-                         "(seed condition 5 with Masing's memory rule) and the physical law")
+    # read as a whole (:func:`jointsim.post.study.control_sets`): all or nothing
+    with writer.whole_group(g, law="bank_manifold", tol=float(tol),
+                            doc="the loops' (u, N) replayed through the manifold reversal "
+                                "law (seed condition 5 with Masing's memory rule) and the "
+                                "physical law") as g:
         writer.write(f"{g}/f", np.stack([r.f for r in rows]), Fu,
                      "manifold-law force over the replayed steady period")
         writer.write(f"{g}/dev_manifold", np.stack([r.report.dev_manifold for r in rows]), one,

@@ -62,7 +62,6 @@ from __future__ import annotations
 
 import contextlib
 import datetime
-import errno
 import fcntl
 import io
 import logging
@@ -75,6 +74,7 @@ import h5py
 import numpy as np
 
 from .. import __version__
+from .lock import FileLockedError, acquire_lock, lock_path, release_lock  # noqa: F401 (API)
 from .open_datasets import OpenDatasets, append_rows as _append_rows
 
 log = logging.getLogger(__name__)
@@ -91,10 +91,8 @@ COMMIT_INTERVAL_S = 0.25
 #: Root attribute (1) of files whose groups carry :data:`COMMITTED`: a group
 #: without it there has no committed point yet.
 COMMITS = "commits_points"
-
-
-class FileLockedError(OSError):
-    """Another process is writing the result file."""
+#: Suffix of a group being written whole (:meth:`ResultWriter.whole_group`).
+PARTIAL = ".partial"
 
 
 class NotAResultError(ValueError):
@@ -187,61 +185,6 @@ def rewrite(path) -> None:
         fresh.unlink(missing_ok=True)
         raise
     os.replace(fresh, path)
-
-
-def lock_path(path) -> Path:
-    """The side file whose ``flock`` makes a process the writer of ``path``."""
-    path = Path(path)
-    return path.with_name(path.name + ".lock")
-
-
-def acquire_lock(path) -> int:
-    """Become the only writer of ``path``: an exclusive, non-blocking ``flock``.
-
-    The lock is on the side file :func:`lock_path` (the result file itself
-    is not opened, so a refused writer changes nothing).  The kernel drops
-    the lock when the process dies, however it dies.
-
-    Returns
-    -------
-    int
-        The file descriptor holding the lock (give it to :func:`release_lock`).
-
-    Raises
-    ------
-    FileLockedError
-        When another process holds the lock.
-    """
-    lp = lock_path(path)
-    while True:
-        fd = os.open(lp, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as exc:
-            os.close(fd)
-            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                raise FileLockedError(f"{path}: another jointsim process is writing this "
-                                      f"file (lock {lp.name} is held); nothing was changed")
-                raise
-            raise
-        # the holder before us may have removed the side file after we opened it:
-        # then our lock is on a dead inode, and we try again on the new one
-        try:
-            same = os.stat(lp).st_ino == os.fstat(fd).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            os.ftruncate(fd, 0)
-            os.write(fd, f"{os.getpid()}\n".encode())
-            return fd
-        os.close(fd)
-
-
-def release_lock(path, fd: int) -> None:
-    """Remove the side file and drop the lock taken by :func:`acquire_lock`."""
-    with contextlib.suppress(FileNotFoundError):
-        os.unlink(lock_path(path))
-    os.close(fd)
 
 
 #: Lock descriptors and HDF5 file descriptors of the writers of this process.
@@ -686,6 +629,36 @@ class ResultWriter:
                     g.attrs[k] = v
                 self.h5.flush()
         return g
+
+    @contextlib.contextmanager
+    def whole_group(self, name: str, **attrs):
+        """Write the group ``name`` whole or not at all; yields the path to write into.
+
+        The datasets go to a side group ``<name>.partial``, which replaces ``name``
+        in one link move (signals deferred) when the block ends without an exception.
+        A signal or a SIGKILL in the block leaves ``name`` as it was (the side group
+        is removed, or ignored and replaced by the next write): readers never see
+        half of a group that is read as a whole (round 30: ``info`` failed on an
+        ``/epmc/control`` cut between two of its datasets by SIGINT).
+        """
+        tmp = name + PARTIAL
+        if tmp in self.h5:
+            del self.h5[tmp]
+        g = self.h5.create_group(tmp)
+        for k, v in attrs.items():
+            g.attrs[k] = v
+        try:
+            yield tmp
+        except BaseException:
+            with contextlib.suppress(Exception):
+                del self.h5[tmp]
+            raise
+        with _signals_deferred():
+            self._commit_pending()
+            if name in self.h5:
+                del self.h5[name]
+            self.h5.move(tmp, name)
+            self.h5.flush()
 
     def write(self, name: str, data, unit: str, doc: str = "", **attrs) -> None:
         """Write (or replace) a whole dataset with its unit."""

@@ -178,6 +178,44 @@ def test_a_status_set_after_held_points_reaches_the_file_after_them(tmp_path, mo
         assert h5["hbm/omega"][()].tolist() == [0.0, 1.0, 2.0]
 
 
+def test_a_group_written_whole_is_all_old_or_all_new_whatever_stops_it(tmp_path):
+    """``whole_group``: a group read as a whole (``/epmc/control``) is replaced in one
+    link move.  An interrupt between two of its datasets leaves the old group and no
+    side group; a kill there (the file closed as the process left it) leaves the old
+    group and a side group that the next write replaces.  Before this, SIGINT between
+    two datasets left ``/epmc/control`` without ``dev_manifold`` and ``info`` failed."""
+    scene = load_scene(SEED / "const.toml")
+    path = tmp_path / "whole.h5"
+    w = ResultWriter(path, scene)
+    with w.whole_group("epmc/control", tol=0.01) as g:
+        w.write(f"{g}/f", np.zeros(3), "N")
+        w.write(f"{g}/dev_manifold", np.ones(3), "1")
+    assert sorted(w.h5["epmc"]) == ["control"] and w.h5["epmc/control"].attrs["tol"] == 0.01
+    with pytest.raises(KeyboardInterrupt):
+        with w.whole_group("epmc/control", tol=0.02) as g:
+            w.write(f"{g}/f", np.full(3, 5.0), "N")
+            raise KeyboardInterrupt("stopped by SIGINT")
+    assert sorted(w.h5["epmc"]) == ["control"]
+    assert w.h5["epmc/control/f"][()].tolist() == [0.0] * 3
+    cm = w.whole_group("epmc/control", tol=0.03)
+    g = cm.__enter__()
+    w.write(f"{g}/f", np.full(3, 7.0), "N")
+    os.close(w._lock_fd)  # killed here: what the kernel does when the process dies
+    w.h5.close()
+    with open_result(path) as h5:
+        c = h5["epmc/control"]
+        assert c.attrs["tol"] == 0.01 and sorted(c) == ["dev_manifold", "f"]
+        assert c["f"][()].tolist() == [0.0] * 3
+    w = ResultWriter(path, scene, resume=True)
+    with w.whole_group("epmc/control", tol=0.04) as g:
+        w.write(f"{g}/f", np.full(3, 8.0), "N")
+        w.write(f"{g}/dev_manifold", np.ones(3), "1")
+    w.finish("complete", "done")
+    with open_result(path) as h5:
+        assert sorted(h5["epmc"]) == ["control"] and h5["epmc/control"].attrs["tol"] == 0.04
+        assert h5["epmc/control/f"][()].tolist() == [8.0] * 3
+
+
 def test_fast_points_are_committed_together_and_none_is_lost_on_finish(tmp_path,
                                                                         monkeypatch):
     """Points that follow each other within ``COMMIT_INTERVAL_S`` are committed
