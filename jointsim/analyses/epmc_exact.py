@@ -145,22 +145,23 @@ def solve_at_amplitudes(writer, a, system, ep, F, scale, rscale, amplitudes=None
 def _write_exact(writer, units: str, out: dict) -> None:
     """``/epmc/at_amplitudes/*`` of :func:`solve_at_amplitudes`'s ``out``."""
     amp_unit = "m kg^0.5" if units == "SI" else "length mass^0.5"
-    g = "epmc/at_amplitudes"
-    writer.write(f"{g}/amplitude", out["amplitude"], amp_unit,
-                 "modal amplitude asked for (analysis.epmc.amplitudes and "
-                 "loop_amplitudes)")
-    writer.write(f"{g}/omega", out["omega"], unit("angular_frequency", units),
-                 "angular frequency (NaN: not converged)")
-    writer.write(f"{g}/frequency_hz", out["omega"] / (2 * np.pi), unit("frequency", units),
-                 "frequency of the nonlinear mode")
-    writer.write(f"{g}/damping_ratio", out["damping_ratio"], "1", "xi / (2 omega)")
-    writer.write(f"{g}/xi", out["xi"], unit("angular_frequency", units),
-                 "self-excitation (negative mass-proportional damping)")
-    writer.write(f"{g}/X", out["X"], unit("displacement", units),
-                 "harmonic coefficients [n_amp, n_coeff, n_dof]")
-    writer.write(f"{g}/converged", out["converged"], "1", "Newton converged at the amplitude")
-    writer.write(f"{g}/iterations", out["iterations"], "1", "Newton iterations")
-    writer.write(f"{g}/residual", out["residual"], "1", "max |R| / residual scale")
+    # read as a whole: all of it or the previous run's (its loops are rewritten next)
+    with writer.whole_group("epmc/at_amplitudes") as g:
+        writer.write(f"{g}/amplitude", out["amplitude"], amp_unit,
+                     "modal amplitude asked for (analysis.epmc.amplitudes and "
+                     "loop_amplitudes)")
+        writer.write(f"{g}/omega", out["omega"], unit("angular_frequency", units),
+                     "angular frequency (NaN: not converged)")
+        writer.write(f"{g}/frequency_hz", out["omega"] / (2 * np.pi), unit("frequency", units),
+                     "frequency of the nonlinear mode")
+        writer.write(f"{g}/damping_ratio", out["damping_ratio"], "1", "xi / (2 omega)")
+        writer.write(f"{g}/xi", out["xi"], unit("angular_frequency", units),
+                     "self-excitation (negative mass-proportional damping)")
+        writer.write(f"{g}/X", out["X"], unit("displacement", units),
+                     "harmonic coefficients [n_amp, n_coeff, n_dof]")
+        writer.write(f"{g}/converged", out["converged"], "1", "Newton converged at the amplitude")
+        writer.write(f"{g}/iterations", out["iterations"], "1", "Newton iterations")
+        writer.write(f"{g}/residual", out["residual"], "1", "max |R| / residual scale")
 
 
 def _write_exact_loops(writer, system, ep, F, out, sets, loops) -> None:
