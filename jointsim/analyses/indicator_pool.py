@@ -101,10 +101,17 @@ def _worker(tasks, conn, fn, parent_pid) -> None:
 
 def _compute(fn, row: int, args: tuple) -> tuple:
     """``("ok", row, fn(*args))``, or ``("error", row, message)`` when ``fn`` raises (its
-    own failures are its business: reported, and the next row goes on)."""
+    own failures are its business: reported, and the next row goes on).  An interrupt
+    handled inside a numba call (a ``SystemError`` caused by ``KeyboardInterrupt``,
+    :func:`jointsim.results.interrupt_cause`) is not a failure of ``fn``: it goes on up
+    (in the parent, which computes the rows no worker is left for)."""
+    from ..results import interrupt_cause
+
     try:
         return "ok", row, fn(*args)
     except Exception as exc:
+        if interrupt_cause(exc) is not None:
+            raise
         return "error", row, f"{type(exc).__name__}: {exc}"
 
 

@@ -194,6 +194,26 @@ def test_every_worker_dead_loses_only_their_rows_without_hanging():
     assert got == {r: (None if r in pool.lost else -r) for r in range(6)}
 
 
+def _interrupted_in_numba(x):
+    # what a signal handled while a numba kernel runs looks like to the caller
+    try:
+        raise KeyboardInterrupt("stopped by SIGINT")
+    except KeyboardInterrupt as e:
+        raise SystemError("returned a result with an exception set") from e
+
+
+def test_an_interrupt_inside_a_row_is_not_a_failed_row():
+    """A row whose computation is interrupted (the parent computing the rows no worker
+    is left for) raises the interrupt instead of reporting the row as failed and going
+    on; a row's own error is still reported."""
+    from jointsim.analyses.indicator_pool import _compute
+
+    assert _compute(_fail_on_three, 3, (3,)) == ("error", 3, "ValueError: three")
+    with pytest.raises(SystemError) as info:
+        _compute(_interrupted_in_numba, 0, (0,))
+    assert isinstance(info.value.__cause__, KeyboardInterrupt)
+
+
 def _fail_on_three(x):
     if x == 3:
         raise ValueError("three")
