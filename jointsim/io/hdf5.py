@@ -413,15 +413,28 @@ class ResultWriter:
         self._h5_fd = None
         self._lock_fd = acquire_lock(self.path)
         try:
-            self._open(scene, resume, overwrite)
-        except BaseException:
-            if getattr(self, "h5", None) is not None and self.h5.id.valid:
-                self.h5.close()
-            release_lock(self.path, self._lock_fd)
+            # a signal while the file is opened waits until it is whole and registered,
+            # and is then raised here: the file is marked interrupted, not left running
+            with _signals_deferred():
+                self._open(scene, resume, overwrite)
+                with contextlib.suppress(Exception):
+                    self._h5_fd = int(self.h5.id.get_vfd_handle())
+                _OPEN_WRITERS[id(self)] = self
+        except KeyboardInterrupt as exc:
+            if _OPEN_WRITERS.get(id(self)) is self:
+                self.__exit__(KeyboardInterrupt, exc, None)
+            else:
+                self._abandon()
             raise
-        with contextlib.suppress(Exception):
-            self._h5_fd = int(self.h5.id.get_vfd_handle())
-        _OPEN_WRITERS[id(self)] = self
+        except BaseException:
+            self._abandon()
+            raise
+
+    def _abandon(self) -> None:
+        """Close what a failed open left open, and drop the lock."""
+        if getattr(self, "h5", None) is not None and self.h5.id.valid:
+            self.h5.close()
+        release_lock(self.path, self._lock_fd)
 
     def _open(self, scene, resume, overwrite):
         self.h5 = None

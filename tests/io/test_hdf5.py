@@ -178,6 +178,29 @@ def test_a_status_set_after_held_points_reaches_the_file_after_them(tmp_path, mo
         assert h5["hbm/omega"][()].tolist() == [0.0, 1.0, 2.0]
 
 
+def test_a_signal_while_the_file_is_opened_marks_it_interrupted(tmp_path, monkeypatch):
+    """SIGINT that arrives while the writer opens the file (after the file is in place,
+    before the ``with`` block runs) waits until the file is whole, then marks it
+    ``interrupted`` and drops the lock; before, the file was left ``running``."""
+    import signal
+
+    opened = ResultWriter._open
+
+    def open_then_signal(self, *args):
+        opened(self, *args)
+        hdf5.interrupt_handler(signal.SIGINT, None)   # held: inside the open
+
+    monkeypatch.setattr(ResultWriter, "_open", open_then_signal)
+    path = tmp_path / "opening.h5"
+    with pytest.raises(KeyboardInterrupt):
+        ResultWriter(path, load_scene(SEED / "const.toml"))
+    with open_result(path) as h5:
+        assert h5.attrs["status"] == "interrupted"
+        assert "stopped by SIGINT" in h5.attrs["message"]
+    assert not hdf5.lock_path(path).exists()
+    assert not [w for w in hdf5._OPEN_WRITERS.values() if w.path == path]
+
+
 def test_a_group_written_whole_is_all_old_or_all_new_whatever_stops_it(tmp_path):
     """``whole_group``: a group read as a whole (``/epmc/control``) is replaced in one
     link move.  An interrupt between two of its datasets leaves the old group and no
