@@ -41,6 +41,8 @@ from collections import deque
 
 import numpy as np
 
+from ..results import interrupt_cause
+
 log = logging.getLogger(__name__)
 
 #: Below this many unknowns of a point's system (``n_z``; the lumped scenes have 15 to
@@ -105,8 +107,6 @@ def _compute(fn, row: int, args: tuple) -> tuple:
     handled inside a numba call (a ``SystemError`` caused by ``KeyboardInterrupt``,
     :func:`jointsim.results.interrupt_cause`) is not a failure of ``fn``: it goes on up
     (in the parent, which computes the rows no worker is left for)."""
-    from ..results import interrupt_cause
-
     try:
         return "ok", row, fn(*args)
     except Exception as exc:
