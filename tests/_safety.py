@@ -169,6 +169,18 @@ def status(path) -> str:
         return str(h5.attrs["status"])
 
 
+def writer_killed(writer) -> None:
+    """Leave ``writer`` as its process's death would: the lock dropped (the kernel does
+    that), the file closed as it is, and the writer forgotten by this process, so that
+    a worker forked later does not close its old descriptor numbers
+    (:func:`jointsim.io.hdf5.release_inherited`), which other files reuse by then."""
+    from jointsim.io import hdf5
+
+    os.close(writer._lock_fd)
+    writer.h5.close()
+    hdf5._OPEN_WRITERS.pop(id(writer), None)
+
+
 def read_message(path) -> str:
     """The file's ``message`` attribute (what a failed assertion should show)."""
     with h5py.File(path, "r") as h5:

@@ -138,8 +138,7 @@ def test_a_torn_point_is_ignored_by_readers_and_removed_by_resume(tmp_path, monk
     w._txn = set()
     w.append("hbm/omega", 9.0, "1")
     w.h5.flush()
-    os.close(w._lock_fd)  # what the kernel does when the process dies
-    w.h5.close()
+    S.writer_killed(w)  # killed here
     with h5py.File(out, "r") as h5:
         assert h5["hbm/omega"].shape == (4,) and h5["hbm/X"].shape == (3, 2, 2)
     with open_result(out) as h5:

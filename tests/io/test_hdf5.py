@@ -13,6 +13,7 @@ from jointsim.io.hdf5 import COMMITTED, SCHEMA_VERSION, ResultWriter, open_resul
 from jointsim.run import run_scene
 from jointsim.scene import load_scene
 
+from .. import _safety as S
 from .._scenes import ROOT
 
 SEED = ROOT / "models" / "seed_fig3"
@@ -171,8 +172,7 @@ def test_a_status_set_after_held_points_reaches_the_file_after_them(tmp_path, mo
             w.append("hbm/omega", np.float64(k), "rad/s")
     assert int(w.h5["hbm/omega"].attrs[COMMITTED]) == 1          # two points held
     w.group("hbm", branch0_status="complete")
-    os.close(w._lock_fd)  # killed here: what the kernel does when the process dies
-    w.h5.close()
+    S.writer_killed(w)  # killed here
     with open_result(tmp_path / "status.h5") as h5:
         assert h5["hbm"].attrs["branch0_status"] == "complete"
         assert h5["hbm/omega"][()].tolist() == [0.0, 1.0, 2.0]
@@ -223,8 +223,7 @@ def test_a_group_written_whole_is_all_old_or_all_new_whatever_stops_it(tmp_path)
     cm = w.whole_group("epmc/control", tol=0.03)
     g = cm.__enter__()
     w.write(f"{g}/f", np.full(3, 7.0), "N")
-    os.close(w._lock_fd)  # killed here: what the kernel does when the process dies
-    w.h5.close()
+    S.writer_killed(w)  # killed here
     with open_result(path) as h5:
         c = h5["epmc/control"]
         assert c.attrs["tol"] == 0.01 and sorted(c) == ["dev_manifold", "f"]
@@ -271,8 +270,7 @@ def test_fast_points_are_committed_together_and_none_is_lost_on_finish(tmp_path,
         with w.commit():
             w.append("g/a", np.float64(k), "1")
     w.h5.flush()
-    os.close(w._lock_fd)  # what the kernel does when the process dies
-    w.h5.close()
+    S.writer_killed(w)  # killed here
     with open_result(tmp_path / "killed.h5") as h5:
         assert h5["g/a"][()].tolist() == [0.0]
     with ResultWriter(tmp_path / "killed.h5", scene, resume=True) as w2:
