@@ -181,12 +181,6 @@ def writer_killed(writer) -> None:
     hdf5._OPEN_WRITERS.pop(id(writer), None)
 
 
-def read_message(path) -> str:
-    """The file's ``message`` attribute (what a failed assertion should show)."""
-    with h5py.File(path, "r") as h5:
-        return str(h5.attrs.get("message", ""))
-
-
 def consistent(path) -> None:
     """Every extendable dataset of every group has the group's committed rows."""
     from jointsim.io.hdf5 import COMMITTED, open_result

@@ -18,7 +18,7 @@ import signal
 import numpy as np
 import pytest
 
-from jointsim.io.hdf5 import open_result
+from jointsim.io.hdf5 import open_result, read_attrs
 
 from . import _safety as S
 
@@ -50,7 +50,7 @@ def _kill_and_resume(out, ref, delay, sig):
         return None
     status = S.status(out)
     if p.returncode != 0 and sig != signal.SIGKILL and status != "complete":
-        assert status == "interrupted", (status, S.read_message(out))
+        assert status == "interrupted", (status, read_attrs(out).get("message"))
     S.consistent(out)
     info = S.run("info", str(out))
     assert info.returncode == 0, info.stderr
