@@ -129,6 +129,10 @@ class ReducedLinear:
         if self.kind == "lowrank":
             self.U, self.cw = lowrank
             self.Cyy = self.C["yy"]
+        # C = W diag(c) W^T of low rank in (q, y): S_h of a forced response by one
+        # real product (:meth:`schur_low_rank_damping`)
+        self.damping_factors = _low_rank_factors(Ct, n_r) \
+            if self.kind == "lowrank" and n_r and self.n_y else None
         if self.kind in ("modal", "lowrank") and n_r and self.n_y:
             # K, M, C side by side for the products of every harmonic at once
             # (:class:`DynamicProducts`)
@@ -170,6 +174,59 @@ class ReducedLinear:
         else:
             E = mat("yy")
         return A, B, Bp, E
+
+    def schur_low_rank_damping(self, nu: float) -> np.ndarray:
+        """``S_h = A - B E^-1 B'`` at ``nu`` without self-excitation, for a damping of
+        low rank (:attr:`damping_factors` set).
+
+        With ``xi = 0`` only the damping makes the blocks complex, and it has rank
+        ``r`` (``C = W diag(c) W^T``, ``W = [W_q; W_y]``): ``B = B_0 + i nu W_q c
+        W_y^T``, ``E = D + i nu W_y c W_y^T`` with ``B_0 = K_qy - nu^2 M_qy`` real and
+        ``D`` real diagonal.  Woodbury's formula for ``E^-1`` then gives
+
+            S_h = A_0 + i nu C_qq - B_0 D^-1 B'_0 - i nu (W_q c P_r + P_l c W_q^T)
+                  + nu^2 W_q c Q c W_q^T + G_l K_c^-1 G_r,
+
+        ``P_l = B_0 D^-1 W_y``, ``P_r = W_y^T D^-1 B'_0``, ``Q = W_y^T D^-1 W_y``,
+        ``G_l = P_l + i nu W_q c Q``, ``G_r = P_r + i nu Q c W_q^T`` and ``K_c =
+        (i nu c)^-1 + Q``: one real ``n_r x n_y x n_r`` product (a quarter of the flops
+        of the complex one) and products of rank ``r``.  Equal to the complex path to
+        round-off (``tests/solvers/test_condensation.py``).
+
+        Parameters
+        ----------
+        nu : float
+            Angular frequency of the harmonic [rad/s].
+
+        Returns
+        -------
+        ndarray, shape (n_r, n_r), complex [N/m]
+        """
+        Wq, Wy, c = self.damping_factors
+        nu2 = nu * nu
+        d = self.lam - nu2 * self.myy
+        if np.any(d == 0):
+            raise np.linalg.LinAlgError("the structure with welded contacts is singular at "
+                                        "this frequency (an undamped resonance or an "
+                                        "unrestrained rigid-body motion)")
+        B0 = self.K["qy"] - nu2 * self.M["qy"]
+        B0p = self.K["yq"] - nu2 * self.M["yq"]
+        B0d = B0 / d
+        S = np.empty((self.n_r, self.n_r), dtype=complex)
+        S.real = self.K["qq"] - nu2 * self.M["qq"] - B0d @ B0p
+        if nu == 0.0:
+            S.imag = 0.0
+            return S
+        S.imag = nu * self.C["qq"]
+        Wyd = Wy.T / d                                   # (r, n_y)
+        Pl, Pr, Q = B0d @ Wy, Wyd @ B0p, Wyd @ Wy
+        Wc = Wq * c                                      # (n_r, r)
+        Gl = Pl + 1j * nu * (Wc @ Q)
+        Gr = Pr + 1j * nu * (Q @ Wc.T)
+        Kc = np.diag(1.0 / (1j * nu * c)) + Q
+        S -= 1j * nu * (Wc @ Pr + Pl @ Wc.T)
+        S += nu2 * ((Wc @ Q) @ Wc.T) + Gl @ np.linalg.solve(Kc, Gr)
+        return S
 
     @property
     def transformed(self) -> tuple:
@@ -435,6 +492,18 @@ class FrequencyBlocks:
             self._blocks[i] = (A, B, Bp, lin.factor_E(E) if lin.n_y else E)
         return self._blocks[i]
 
+    def schur(self, i: int) -> np.ndarray:
+        """``S_h = A - B E^-1 B'`` of the ``i``-th harmonic (complex n_r x n_r, a new
+        array): by real products for a forced response with low-rank damping
+        (:meth:`ReducedLinear.schur_low_rank_damping`), else from :meth:`block`."""
+        lin = self.lin
+        if lin.damping_factors is not None and self.xi == 0.0:
+            return lin.schur_low_rank_damping(self.harmonics[i] * self.omega)
+        A, B, Bp, Ef = self.block(i)
+        if not lin.n_y:
+            return np.array(A, dtype=complex)
+        return A - B @ lin.solve_E(Ef, Bp)
+
     @property
     def blocks(self) -> list:
         """Every harmonic's :meth:`block`."""
@@ -500,6 +569,33 @@ class _LowRankE:
         if self._small_inv is None:      # no damping term (harmonic 0)
             return x
         return x - (self.U @ (self._small_inv @ (self.U.T @ x))) / d
+
+
+def _low_rank_factors(C, n_r: int, seed: int = 0):
+    """``(W_q, W_y, c)`` with ``C = W diag(c) W^T`` (``W`` (n, r) split after its first
+    ``n_r`` rows) for a symmetric ``C`` of rank ``r <= n / 3``, or None when ``C`` is
+    not of such a rank to round-off.
+
+    The range of ``C`` from its product with a random block of 64 columns, else of
+    ``n / 3`` (a randomised range finder, exact for a rank below the block's), then the
+    eigen-decomposition of ``C`` on it: ``O(n^2)`` per column instead of an ``n x n``
+    eigen-problem; the reconstruction is checked to ``1e-11`` of ``max |C|``.
+    """
+    n = C.shape[0]
+    ref = float(np.abs(C).max(initial=0.0))
+    if ref == 0.0:
+        return None
+    rng = np.random.default_rng(seed)
+    for k in sorted({min(64, max(n // 3, 1)), max(n // 3, 1)}):
+        Q, _ = np.linalg.qr(C @ rng.standard_normal((n, k)))
+        c, V = np.linalg.eigh(Q.T @ C @ Q)
+        keep = np.abs(c) > 1e-12 * max(float(np.abs(c).max()), 1e-300)
+        if keep.sum() < k:
+            W, c = Q @ V[:, keep], c[keep]
+            if float(np.abs((W * c) @ W.T - C).max()) > 1e-11 * ref:
+                return None
+            return np.ascontiguousarray(W[:n_r]), np.ascontiguousarray(W[n_r:]), c
+    return None
 
 
 def _blocks(r, y):

@@ -180,9 +180,7 @@ class HBMJacobian:
         like the preconditioner's build, copy it into their own storage).
         """
         if self._S[i] is None:
-            A, B, Bp, Ef = self.freq.block(i)
-            S = np.array(A, dtype=complex) if not self.lin.n_y \
-                else A - B @ self.lin.solve_E(Ef, Bp)
+            S = self.freq.schur(i)
             S.flags.writeable = False
             self._S[i] = S
         return self._S[i]

@@ -5,7 +5,8 @@ differences, and ``E^-1`` against a dense solve."""
 import numpy as np
 import pytest
 
-from jointsim.solvers.condensation import DynamicProducts, ReducedLinear, _LowRankE
+from jointsim.solvers.condensation import (DynamicProducts, FrequencyBlocks, ReducedLinear,
+                                          _LowRankE)
 
 
 def _structure(kind: str, n: int = 14, n_r: int = 4, seed: int = 0):
@@ -91,3 +92,29 @@ def test_solve_E_is_the_inverse(kind):
     reft = np.linalg.solve(Ed.T, b[:, 1])
     assert np.abs(lin.solve_E(Ef, b[:, 1], trans=True) - reft).max() \
         <= 1e-10 * np.abs(reft).max()
+
+
+@pytest.mark.parametrize("n, n_r", [(14, 4), (40, 12)])
+def test_low_rank_damping_schur_equals_the_complex_blocks(n, n_r):
+    """``S_h`` of a forced response with low-rank damping by one real product
+    (``schur_low_rank_damping``) against ``A - B E^-1 B'`` of the complex blocks, at
+    harmonic 0, off and near a resonance of the welded structure; with
+    self-excitation (EPMC) and without a low-rank damping the blocks serve."""
+    lin = ReducedLinear(*_structure("lowrank", n=n, n_r=n_r))
+    Wq, Wy, c = lin.damping_factors
+    assert c.size == 2 and Wq.shape == (n_r, 2) and Wy.shape == (n - n_r, 2)
+    near = 0.999 * np.sqrt(lin.lam[0] / lin.myy[0])       # a welded-structure mode
+    for nu in (0.0, 0.37, 1.7, 5.0, near):
+        A, B, Bp, E = lin.blocks(nu)
+        ref = A - B @ lin.solve_E(lin.factor_E(E), Bp)
+        S = lin.schur_low_rank_damping(nu)
+        assert np.abs(S - ref).max() <= 1e-11 * np.abs(ref).max(), nu
+    harmonics, omega = (0, 1, 3), 1.1
+    for xi in (0.0, 0.05):
+        fb = FrequencyBlocks(lin, harmonics, omega, xi)
+        for i, h in enumerate(harmonics):
+            A, B, Bp, E = lin.blocks(h * omega, xi)
+            ref = A - B @ lin.solve_E(lin.factor_E(E), Bp)
+            assert np.abs(fb.schur(i) - ref).max() <= 1e-11 * np.abs(ref).max()
+    assert ReducedLinear(*_structure("modal")).damping_factors is None
+    assert ReducedLinear(*_structure("direct")).damping_factors is None

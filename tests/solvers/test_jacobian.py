@@ -248,6 +248,31 @@ def test_lowrank_product_by_harmonics_equals_the_dense_one(normal):
     assert np.abs(fast - dense).max() <= 1e-13 * np.abs(dense).max()
 
 
+@pytest.mark.parametrize("normal", ["coupled", "fixed"])
+def test_loose_solves_keep_single_precision_factors_of_the_harmonic_stage(normal):
+    """For a Jacobian solved to a loose tolerance (the error indicators' extended
+    systems) the harmonic stage keeps single-precision LU factors instead of inverses
+    (``FACTORED_LOOSE_STAGE``): its columns and its preconditioner equal the inverses'
+    to single precision, and, exact on this state, it solves ``J x = b`` to the dense
+    solution's 1e-5 with the same low-rank stage."""
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", normal)))
+    F = sd.force_coefficients(0.3)
+    z = np.random.default_rng(5).normal(size=sd.n_z) * 0.4
+    tight = HarmonicPreconditioner(sk.evaluate(z, 1.1, F).J)
+    sk.krylov_rtol = 1e-3
+    Jl = sk.evaluate(z, 1.1, F).J
+    loose = HarmonicPreconditioner(Jl)
+    assert tight.Plu is None and loose.Pinv is None and len(loose.Plu) == 4
+    cols = np.array([0, sk.n_r - 1])
+    ref = tight._inverse_columns(cols)
+    assert np.abs(loose._inverse_columns(cols) - ref).max() <= 1e-5 * np.abs(ref).max()
+    assert loose.lowrank is not None and not loose.truncated
+    b = np.random.default_rng(6).normal(size=sd.n_z)
+    xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, b)
+    for P in (tight, loose):
+        assert np.abs(P.solve(b) - xd).max() <= 1e-5 * np.abs(xd).max()
+
+
 def test_lowrank_stage_keeps_only_the_rows_that_couple_harmonics():
     """An element that slips but stays closed has a constant normal tangent: the
     low-rank stage keeps its slip rows only (one row block of n_c coordinates, against
