@@ -350,10 +350,10 @@ class HarmonicPreconditioner:
         bordered EPMC solve uses it where ``J`` itself is singular (the linear range:
         the mode is its null vector), see :class:`~jointsim.solvers.jacobian.BorderedJacobian`.
     base : HarmonicPreconditioner, optional
-        Share its harmonic stage (``Pinv`` or ``Plu``, the tangent projections ``proj``, ``S``,
-        built at its ``omega`` and ``xi``; not with a shift): ``J`` is then ``P + L``
-        with ``L`` the whole difference of ``jac``'s tangent from ``base``'s projection
-        plus the change of ``S_h`` with the frequency.  The low-rank stage corrects
+        Share its harmonic stage (``Pinv`` or ``Plu``, the tangent projections
+        ``proj``, ``S``, built at its ``omega`` and ``xi``; not with a shift): ``J`` is
+        then ``P + L`` with ``L`` the whole difference of ``jac``'s tangent from
+        ``base``'s projection plus the change of ``S_h`` with the frequency.  The low-rank stage corrects
         for the first exactly; GMRES does the rest (``partial``,
         ``SHARE_HARMONIC_STAGE``).
     """
