@@ -32,6 +32,8 @@ The harmonic balance built on it is :mod:`jointsim.solvers.hbm`.
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import scipy.linalg as sla
 
@@ -129,10 +131,6 @@ class ReducedLinear:
         if self.kind == "lowrank":
             self.U, self.cw = lowrank
             self.Cyy = self.C["yy"]
-        # C = W diag(c) W^T of low rank in (q, y): S_h of a forced response by one
-        # real product (:meth:`schur_low_rank_damping`)
-        self.damping_factors = _low_rank_factors(Ct, n_r) \
-            if self.kind == "lowrank" and n_r and self.n_y else None
         if self.kind in ("modal", "lowrank") and n_r and self.n_y:
             # K, M, C side by side for the products of every harmonic at once
             # (:class:`DynamicProducts`)
@@ -174,6 +172,17 @@ class ReducedLinear:
         else:
             E = mat("yy")
         return A, B, Bp, E
+
+    @functools.cached_property
+    def damping_factors(self):
+        """``(W_q, W_y, c)`` with ``C = W diag(c) W^T`` in the coordinates ``(q, y)``
+        (``W = [W_q; W_y]``, ``c`` (r,)) for a low-rank condensation with both kinds of
+        coordinates, else None (:func:`_low_rank_factors`; found on first use: only a
+        forced response's :meth:`schur_low_rank_damping` needs them)."""
+        if self.kind != "lowrank" or not self.n_r or not self.n_y:
+            return None
+        C = self.C
+        return _low_rank_factors(np.block([[C["qq"], C["qy"]], [C["yq"], C["yy"]]]), self.n_r)
 
     def schur_low_rank_damping(self, nu: float) -> np.ndarray:
         """``S_h = A - B E^-1 B'`` at ``nu`` without self-excitation, for a damping of
