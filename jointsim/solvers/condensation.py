@@ -230,11 +230,15 @@ class ReducedLinear:
         Wyd = Wy.T / d                                   # (r, n_y)
         Pl, Pr, Q = B0d @ Wy, Wyd @ B0p, Wyd @ Wy
         Wc = Wq * c                                      # (n_r, r)
-        Gl = Pl + 1j * nu * (Wc @ Q)
-        Gr = Pr + 1j * nu * (Q @ Wc.T)
+        WcQ = Wc @ Q
+        Gl = Pl + 1j * nu * WcQ
+        Gr = Pr + 1j * nu * WcQ.T
         Kc = np.diag(1.0 / (1j * nu * c)) + Q
-        S -= 1j * nu * (Wc @ Pr + Pl @ Wc.T)
-        S += nu2 * ((Wc @ Q) @ Wc.T) + Gl @ np.linalg.solve(Kc, Gr)
+        # the rank-r terms as one product: [-i nu Wc, -i nu Pl, nu^2 Wc Q, Gl] times
+        # [Pr; Wc^T; Wc^T; Kc^-1 Gr]
+        left = np.hstack([-1j * nu * Wc, -1j * nu * Pl, nu2 * WcQ, Gl])
+        right = np.vstack([Pr, Wc.T, Wc.T, np.linalg.solve(Kc, Gr)])
+        S += left @ right
         return S
 
     @property
