@@ -37,6 +37,9 @@ import functools
 import numpy as np
 import scipy.linalg as sla
 
+#: Why ``E`` (the structure with its contact coordinates held) has no inverse.
+WELDED_SINGULAR = ("the structure with welded contacts is singular at this frequency (an "
+                   "undamped resonance or an unrestrained rigid-body motion)")
 #: Above this many structural DOFs the dense condensation is refused.
 MAX_DENSE_DOF = 6000
 #: Up to this many structural DOFs the direct path forms the linear part of every
@@ -215,9 +218,7 @@ class ReducedLinear:
         nu2 = nu * nu
         d = self.lam - nu2 * self.myy
         if np.any(d == 0):
-            raise np.linalg.LinAlgError("the structure with welded contacts is singular at "
-                                        "this frequency (an undamped resonance or an "
-                                        "unrestrained rigid-body motion)")
+            raise np.linalg.LinAlgError(WELDED_SINGULAR)
         B0 = self.K["qy"] - nu2 * self.M["qy"]
         B0p = self.K["yq"] - nu2 * self.M["yq"]
         B0d = B0 / d
@@ -320,9 +321,7 @@ class ReducedLinear:
             E = E.T
         if E.ndim == 1:
             if np.any(E == 0):
-                raise np.linalg.LinAlgError("the structure with welded contacts is singular "
-                                            "at this frequency (an undamped resonance or an "
-                                            "unrestrained rigid-body motion)")
+                raise np.linalg.LinAlgError(WELDED_SINGULAR)
             return rhs / (E[:, None] if rhs.ndim == 2 else E)
         return np.linalg.solve(E, rhs)
 
@@ -372,9 +371,7 @@ class DynamicProducts:
         if lin.kind == "modal":
             d = d + lin.cyy[:, None] * self.cc[None, :]
             if np.any(d == 0):
-                raise np.linalg.LinAlgError("the structure with welded contacts is singular "
-                                            "at this frequency (an undamped resonance or an "
-                                            "unrestrained rigid-body motion)")
+                raise np.linalg.LinAlgError(WELDED_SINGULAR)
         else:
             # E_h = diag(d_h) + U diag(s_h) U^T: per harmonic the Woodbury matrix of
             # _LowRankE, inverted once (none for nu = 0: E is diagonal there)
@@ -567,9 +564,7 @@ class _LowRankE:
         if self._factored:
             return
         if np.any(self.d == 0):
-            raise np.linalg.LinAlgError("the structure with welded contacts is singular at "
-                                        "this frequency (an undamped resonance or an "
-                                        "unrestrained rigid-body motion)")
+            raise np.linalg.LinAlgError(WELDED_SINGULAR)
         if np.any(self.s != 0):
             small = np.diag(1.0 / self.s) + self.U.T @ (self.U / self.d[:, None])
             self._small_inv = np.linalg.inv(small)

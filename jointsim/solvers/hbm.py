@@ -26,7 +26,8 @@ import numpy as np
 
 from ..harmonics import HarmonicBasis
 from .aft import AFT, AFTResult
-from .condensation import STACKED_MAX_DOF, FrequencyBlocks, ReducedLinear, dense_array
+from .condensation import (STACKED_MAX_DOF, WELDED_SINGULAR, FrequencyBlocks, ReducedLinear,
+                           dense_array)
 from .jacobian import (KRYLOV_MIN_UNKNOWNS, KRYLOV_RTOL, LINEAR_SOLVERS, HBMJacobian, LinearStats,
                        add_element_blocks, fill_harmonic_blocks, solve)
 from .preconditioner import PreconditionerCache
@@ -315,9 +316,7 @@ class HBMSystem:
             else:
                 y = np.zeros((q.shape[0], 0, 1), dtype=complex)
         except np.linalg.LinAlgError:
-            raise np.linalg.LinAlgError(
-                "the structure with welded contacts is singular at this frequency (an "
-                "undamped resonance or an unrestrained rigid-body motion)") from None
+            raise np.linalg.LinAlgError(WELDED_SINGULAR) from None
         b.from_complex((A @ q + B @ y)[..., 0] - b.to_complex(FPsi), R)
         if dense:
             fill_harmonic_blocks(J, A - B @ EinvBp if ny else A, self.basis)

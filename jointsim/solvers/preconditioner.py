@@ -353,9 +353,9 @@ class HarmonicPreconditioner:
         Share its harmonic stage (``Pinv`` or ``Plu``, the tangent projections
         ``proj``, ``S``, built at its ``omega`` and ``xi``; not with a shift): ``J`` is
         then ``P + L`` with ``L`` the whole difference of ``jac``'s tangent from
-        ``base``'s projection plus the change of ``S_h`` with the frequency.  The low-rank stage corrects
-        for the first exactly; GMRES does the rest (``partial``,
-        ``SHARE_HARMONIC_STAGE``).
+        ``base``'s projection plus the change of ``S_h`` with the frequency.  The
+        low-rank stage corrects for the first exactly; GMRES does the rest
+        (``partial``, ``SHARE_HARMONIC_STAGE``).
     """
 
     def __init__(self, jac, shift=None, base=None):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jointsim.solvers.condensation import (DynamicProducts, FrequencyBlocks, ReducedLinear,
-                                          _LowRankE)
+                                          _LowRankE, _low_rank_factors)
 
 
 def _structure(kind: str, n: int = 14, n_r: int = 4, seed: int = 0):
@@ -118,3 +118,21 @@ def test_low_rank_damping_schur_equals_the_complex_blocks(n, n_r):
             assert np.abs(fb.schur(i) - ref).max() <= 1e-11 * np.abs(ref).max()
     assert ReducedLinear(*_structure("modal")).damping_factors is None
     assert ReducedLinear(*_structure("direct")).damping_factors is None
+
+
+def test_low_rank_factors_reproduce_a_low_rank_matrix_and_refuse_a_full_one():
+    """``_low_rank_factors``: a symmetric indefinite matrix of rank 5 (n = 90) is
+    rebuilt from its factors to round-off, split after ``n_r`` rows; one of full rank
+    and one of rank 40 (above n / 3 = 30) give None, as does a zero matrix."""
+    rng = np.random.default_rng(7)
+    n, n_r = 90, 20
+    U = rng.normal(size=(n, 5))
+    C = U @ np.diag([3.0, -1.0, 0.5, 2.0, -0.2]) @ U.T
+    Wq, Wy, c = _low_rank_factors(C, n_r)
+    assert c.size == 5 and Wq.shape == (n_r, 5) and Wy.shape == (n - n_r, 5)
+    W = np.vstack([Wq, Wy])
+    assert np.abs((W * c) @ W.T - C).max() <= 1e-12 * np.abs(C).max()
+    A = rng.normal(size=(n, n))
+    V = rng.normal(size=(n, 40))
+    for full in (A + A.T, V @ V.T, np.zeros((n, n))):
+        assert _low_rank_factors(full, n_r) is None
