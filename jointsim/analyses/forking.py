@@ -58,3 +58,60 @@ def die_with_parent(parent_pid: int) -> None:
                 time.sleep(0.5)
             os._exit(1)
         threading.Thread(target=watch, daemon=True).start()
+
+
+#: Points whose error indicators the parent may hold from the branch workers at once
+#: (being computed or waiting, :class:`Deferral`).
+DEFER_BACKLOG = 2
+
+
+class Deferral:
+    """Which points' error indicators the FRC branch workers leave to the parent.
+
+    Once a core is free (:meth:`start`: no branch is left to start), a worker leaves a
+    point's indicators to the parent (:func:`jointsim.analyses.hbm._run_branches_forked`)
+    while the parent holds fewer than :data:`DEFER_BACKLOG` of them, and computes them
+    itself otherwise: the parent and the last worker share the last branch's
+    indicators and finish together (before round 32 every point was left to the
+    parent, whose backlog then outlasted the branch).  No lock: each worker counts the
+    points it left in its own slot of a shared array, the parent the ones it has
+    computed in a shared integer, and each count has one writer (a worker killed at
+    any moment blocks nobody; two workers reading the same count may both leave a
+    point, one more than the bound).
+
+    Parameters
+    ----------
+    ctx : multiprocessing context
+        The fork context of the workers.
+    n_slots : int
+        Workers' slots (one per branch index).
+    """
+
+    def __init__(self, ctx, n_slots: int):
+        self._on = ctx.Event()
+        self._left = ctx.Array("i", max(int(n_slots), 1), lock=False)
+        self._computed = ctx.Value("i", 0, lock=False)
+
+    def start(self) -> None:
+        """A core is free: from now on the workers may leave indicators (parent)."""
+        self._on.set()
+
+    @property
+    def started(self) -> bool:
+        return self._on.is_set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait until :meth:`start` (True), or ``timeout`` seconds (False)."""
+        return self._on.wait(timeout)
+
+    def take(self, slot: int) -> bool:
+        """Whether the worker of ``slot`` leaves its next point's indicators (worker)."""
+        if not self._on.is_set() or \
+                sum(self._left) - self._computed.value >= DEFER_BACKLOG:
+            return False
+        self._left[slot] += 1
+        return True
+
+    def computed(self) -> None:
+        """The parent has computed a left point's indicators (parent)."""
+        self._computed.value += 1

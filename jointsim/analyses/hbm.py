@@ -59,7 +59,7 @@ from ..solvers.frc import first_point, frc_scales, refine_peak
 from ..solvers.hbm import HBMSystem
 from ..solvers.indicators import ErrorEstimator, ToleranceWatch, safe_indicators
 from ..solvers.jacobian import BorderedJacobian
-from .forking import _can_fork, _in_daemon, die_with_parent
+from .forking import Deferral, _can_fork, _in_daemon, die_with_parent
 
 log = logging.getLogger(__name__)
 
@@ -569,8 +569,9 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
                 keep_orientation=False, pooled=False, defer=None):
     """Follow one FRC branch; every accepted point goes to ``on_record(record)``
     (with its error indicators, unless ``pooled``: the caller's pool computes them;
-    or once the event ``defer`` is set: the record is marked ``deferred`` and the
-    parent computes them, :func:`_run_branches_forked`).
+    or when the :class:`~jointsim.analyses.forking.Deferral` ``defer`` lets it: the
+    record is marked ``deferred`` and the parent computes them,
+    :func:`_run_branches_forked`).
 
     Returns
     -------
@@ -613,7 +614,7 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
             return
         if i == 0 and job.start is None:
             info.iterations = first.iterations
-        deferred = estimator is not None and defer is not None and defer.is_set()
+        deferred = estimator is not None and defer is not None and defer.take(job.ib)
         rec = _point_record(system, F, y, info, job.ib, dof, want_aft, a.amplitude,
                             None if deferred else estimator)
         rec["deferred"] = deferred
@@ -695,8 +696,9 @@ def _branch_process(job, job_args, queue, parent_pid, defer=None) -> None:
     The workers are the parallelism: each builds its own system with
     ``parallel=False``, so its AFT kernels stay on one thread (no numba thread
     pool is started in a forked process, and the cores are not oversubscribed).
-    Once the event ``defer`` is set the worker leaves its points' error indicators
-    to the parent.  The worker dies with its parent (:func:`die_with_parent`).
+    Once a core is free the worker leaves some of its points' error indicators to
+    the parent (``defer``, :class:`~jointsim.analyses.forking.Deferral`).  The
+    worker dies with its parent (:func:`die_with_parent`).
     """
     die_with_parent(parent_pid)
     try:
@@ -717,9 +719,11 @@ def _run_branches_forked(todo, job_args, n_workers, write_point, finish_branch):
     a word is reported as a failed branch.
 
     Once no branch is left to start and a worker's core is free, the workers still
-    running leave the error indicators of their next points to the parent (the
-    record's ``deferred``; ``write_point`` computes them on that core): with three
-    branches on two workers the last one used to run alone, its indicators included.
+    running leave the error indicators of some of their next points to the parent
+    (the record's ``deferred``; ``write_point`` computes them on that core; at most
+    :data:`~jointsim.analyses.forking.DEFER_BACKLOG` at a time,
+    :class:`~jointsim.analyses.forking.Deferral`): with three branches on two workers
+    the last one used to run alone, its indicators included.
     A point's indicators do not depend on where or after which point they are
     computed (:data:`~jointsim.solvers.indicators.REUSE_ACROSS_POINTS`), so the file
     is the same.
@@ -730,7 +734,7 @@ def _run_branches_forked(todo, job_args, n_workers, write_point, finish_branch):
     from tqdm import tqdm
     ctx = mp.get_context("fork")
     q = ctx.Queue()
-    defer = ctx.Event()
+    defer = Deferral(ctx, 1 + max(job.ib for job in todo))
     # the largest force scale first (longest branch first: gross slip costs the most
     # per point), so that the short ones fill the other workers; the branches and the
     # file's rows do not depend on the order (issue 10)
@@ -747,8 +751,8 @@ def _run_branches_forked(todo, job_args, n_workers, write_point, finish_branch):
                                    args=(job, job_args, q, os.getpid(), defer), daemon=True)
                 proc.start()
                 running[job.ib] = (job, proc)
-            if not pending and 0 < len(running) < n_workers and not defer.is_set():
-                defer.set()
+            if not pending and 0 < len(running) < n_workers and not defer.started:
+                defer.start()
                 log.info("hbm: a core is free: the error indicators of branch(es) %s are "
                          "computed in this process", sorted(running))
             try:
@@ -763,6 +767,8 @@ def _run_branches_forked(todo, job_args, n_workers, write_point, finish_branch):
                 continue
             if kind == "point":
                 write_point(payload)
+                if payload.get("deferred"):
+                    defer.computed()
                 bar.update(1)
             else:
                 job, proc = running.pop(ib)

@@ -95,6 +95,26 @@ SINGLE_LU_RTOL = 1e-6
 #: pairs 37.3 -> 29.5 s (2,545 -> 2,660); the same Newton iterations and
 #: preconditioner builds, X equal to 3.8e-13 and 1.8e-13.
 SINGLE_LU_MIN = 1000
+#: For Jacobians solved to a loose tolerance (``SINGLE_LU_RTOL``: the error indicators'
+#: extended systems) whose low-rank correction exceeds ``LOOSE_SPLIT_MIN`` coordinates,
+#: the low-rank stage keeps every row block and splits its correction by ``g``
+#: contiguous groups of harmonics, ``g`` the least power of two (at most the number of
+#: harmonics) that leaves each group at most ``LOOSE_GROUP_MAX`` coordinates.  The terms
+#: of ``L`` between two groups are left to GMRES; ``I + L_r G`` is then block-diagonal
+#: (``G`` couples a harmonic with itself only), and its LUs cost ``m^3 / g^2``.  The
+#: slipping elements' tangent couples near harmonics most (the Fourier coefficients of
+#: a stick window decay with the harmonic distance), and a power of two splits the
+#: extended system's ``0..2H+1`` at ``H | H+1``, the retained and the missing
+#: harmonics.  0: one group, truncated beyond ``LOWRANK_MAX`` as for a tight solve.
+#: Measured on 4 gross-slip points of the 240-Gauss-point FRC (force scale 20; ``m``
+#: about 6,900 of 31 coefficients), one thread, per point: truncated at
+#: ``LOWRANK_MAX`` 3.10 s (124 GMRES iterations, the three columns), 2 groups about
+#: 2.2 s (60), 3 about 2.1, 4 1.51 s (92), 5 1.69 s, 6 1.64 s (119); the estimates
+#: move by at most 0.4 %.  On microslip points (force 2, ``m`` about 2,450), 2 groups
+#: instead of one exact LU: 0.544 against 0.518 s (23 against 6 iterations), hence
+#: ``LOOSE_SPLIT_MIN`` (round 32).
+LOOSE_GROUP_MAX = 2000
+LOOSE_SPLIT_MIN = 3000
 #: Elements whose harmonic coupling ``|L_e|`` is below this fraction of the largest
 #: tangent entry are left out of the low-rank stage (in the stuck range the AFT's
 #: round-off, about 1e-12, used to fill it: 1,260 coordinates at 121 pairs).
@@ -138,9 +158,14 @@ class LowRankStage(NamedTuple):
     block_element : ndarray of int, shape (n_rb,)
         Column element (index into the ``n_l``) of each row block.
     Lr : ndarray, shape (n_rb, n_c, nb n_c)
-        ``L`` on each row block, over its element's coordinates [N/m].
-    lu : tuple
-        ``scipy.linalg.lu_factor`` of ``I + L_r G`` (``m = n_rb n_c`` square; single
+        ``L`` on each row block, over its element's coordinates [N/m] (without the
+        terms that couple two harmonic groups, when there are several).
+    groups : tuple
+        The coordinates (index ``j n_c + k`` into the ``m = n_rb n_c``) of each
+        group of harmonics (:meth:`~HarmonicPreconditioner._lowrank`); ``(slice(None),)``
+        for one group.
+    lus : tuple
+        ``scipy.linalg.lu_factor`` of each group's block of ``I + L_r G`` (single
         precision for a loose solve or a large ``m``: ``SINGLE_LU_RTOL``,
         ``SINGLE_LU_MIN``).
     nb : int
@@ -151,8 +176,14 @@ class LowRankStage(NamedTuple):
     Rrow: np.ndarray
     block_element: np.ndarray
     Lr: np.ndarray
-    lu: tuple
+    groups: tuple
+    lus: tuple
     nb: int
+
+    @property
+    def sizes(self) -> list[int]:
+        """Coordinates of each group's LU."""
+        return [lu.shape[0] for lu, _ in self.lus]
 
 
 class PreconditionerCache:
@@ -463,9 +494,10 @@ class HarmonicPreconditioner:
         build = 0.0 if self.partial else 8.0 * nh * nr ** 3
         apply = 8.0 * nh * nr ** 2
         if self.lowrank is not None:
-            m = float(self.lowrank.lu[0].shape[0])
-            build += 2.0 / 3.0 * m ** 3 + 2.0 * m * m * d
-            apply = 2.0 * apply + 2.0 * m * m + 2.0 * m * d
+            sizes = np.array(self.lowrank.sizes, dtype=float)
+            m = float(sizes.sum())
+            build += 2.0 / 3.0 * float(np.sum(sizes ** 3)) + 2.0 * m * m * d / sizes.size
+            apply = 2.0 * apply + 2.0 * float(np.sum(sizes ** 2)) + 2.0 * m * d
         if self.Binv is not None:
             build += 2.0 * ne * d ** 3
             apply += matvec + 2.0 * ne * d * d
@@ -570,9 +602,21 @@ class HarmonicPreconditioner:
 
         def blocks(fraction):           # row blocks in a correction of that many coordinates
             return int(min(max(fraction * jac.n_z, LOWRANK_MIN), LOWRANK_MAX)) // nc
-        self.truncated = sel.size > blocks(LOWRANK_EXACT_FRACTION)
+        nh = len(jac.basis.harmonics)
+        n_groups = 1
+        if jac.rtol >= SINGLE_LU_RTOL and LOOSE_GROUP_MAX \
+                and sel.size * nc > LOOSE_SPLIT_MIN:
+            # a loose solve: every row block, the correction split by harmonic groups
+            while n_groups < nh and sel.size * nc > n_groups * LOOSE_GROUP_MAX:
+                n_groups *= 2
+            n_groups = min(n_groups, nh)
+            most = n_groups * LOWRANK_MAX // nc
+        else:
+            most = blocks(LOWRANK_MAX_FRACTION) \
+                if sel.size > blocks(LOWRANK_EXACT_FRACTION) else sel.size
+        self.truncated = sel.size > most
         if self.truncated:
-            sel = np.sort(sel[np.argsort(norm[sel])[::-1][:blocks(LOWRANK_MAX_FRACTION)]])
+            sel = np.sort(sel[np.argsort(norm[sel])[::-1][:most]])
         if sel.size == 0:
             return
         el, kind = np.divmod(sel, nb)                         # element and kind of each block
@@ -585,18 +629,39 @@ class HarmonicPreconditioner:
         # selected ones block-major, (j n_c + k), so that L_r is one (n_c, d) block per
         # row block and nothing is permuted.
         Lr = np.ascontiguousarray(Lb[el, kind])               # (nrb, n_c, d)
+        coefs = self._harmonic_groups(n_groups)
+        if n_groups > 1:
+            # leave the terms between two groups to GMRES: I + L_r G is then
+            # block-diagonal over the groups (G couples a harmonic with itself only)
+            group = np.empty(nc, dtype=np.intp)
+            for g, c in enumerate(coefs):
+                group[c] = g
+            Lr[:, group[:, None] != np.tile(group, nb)[None, :]] = 0.0
         # the selected columns of P_h^-1: the correction P^-1 E_r s lives on the Rrow
         # rows; G is their R rows
         self.PinvR = self._inverse_columns(Rrow)
         single = jac.rtol >= SINGLE_LU_RTOL or m >= SINGLE_LU_MIN   # the LU in float32
-        Mk = self._lr_g(Lr.reshape(nrb, nc, nb, nc), R, blk_el,
-                        np.float32 if single else float)
-        Mk[np.arange(m), np.arange(m)] += 1.0
-        self.lowrank = LowRankStage(R, Rrow, blk_el, Lr,
-                                    sla.lu_factor(Mk, check_finite=False), nb)
+        lus = []
+        for Mk in self._lr_g(Lr.reshape(nrb, nc, nb, nc), R, blk_el,
+                             np.float32 if single else float, coefs):
+            Mk[np.diag_indices_from(Mk)] += 1.0
+            lus.append(sla.lu_factor(Mk, check_finite=False))
+        groups = (slice(None),) if n_groups == 1 else tuple(
+            (np.arange(nrb)[:, None] * nc + c[None, :]).ravel() for c in coefs)
+        self.lowrank = LowRankStage(R, Rrow, blk_el, Lr, groups, tuple(lus), nb)
 
-    def _lr_g(self, Lr4, R, blk_el, dtype) -> np.ndarray:
-        """``L_r G`` (``m x m``, :meth:`_lowrank`) by harmonics.
+    def _harmonic_groups(self, n_groups: int) -> list:
+        """The coefficients (sorted index arrays into the ``n_c``) of ``n_groups`` groups of
+        harmonics, contiguous in ``h`` and of about equal size."""
+        jac = self.jac
+        order = np.argsort(jac.basis.harmonics, kind="stable")
+        return [np.sort(np.concatenate([np.atleast_1d(jac._ic[i]) for i in part]
+                                       + [np.atleast_1d(jac._is[i]) for i in part
+                                          if jac.basis.harmonics[i]]).astype(np.intp))
+                for part in np.array_split(order, n_groups)]
+
+    def _lr_g(self, Lr4, R, blk_el, dtype, coefs=None) -> list:
+        """``L_r G`` (``m x m``, :meth:`_lowrank`) by harmonics, one block per harmonic group.
 
         ``G = E_c^T P^-1 E_r`` couples the coefficients of one harmonic only: per
         harmonic ``h`` and column element ``l`` it is the complex ``(R, Rrow)`` part
@@ -607,6 +672,9 @@ class HarmonicPreconditioner:
         flops of the product with the dense ``G`` (``m^2 d``), which is never formed.  Measured on 120
         Gauss points, FRC at force scale 20 (error indicators on, one thread): the
         dense ``G`` and product took about 5 of the 15 s of the low-rank stages.
+        With several harmonic groups (``L_r`` without the terms between them) only the
+        diagonal blocks, (rows of a group) x (columns of that group), are nonzero:
+        only they are formed.
 
         Parameters
         ----------
@@ -616,27 +684,41 @@ class HarmonicPreconditioner:
             As in :class:`LowRankStage` (``PinvR`` holds the ``Rrow`` columns).
         dtype : numpy dtype
             Of the result (float32 for a single-precision LU).
+        coefs : list of ndarray of int, optional
+            Each group's coefficients (sorted; :meth:`_harmonic_groups`); default one
+            group of all.
 
         Returns
         -------
-        ndarray, shape (m, m)
+        list of ndarray, shape (nrb n_g, nrb n_g)
+            Per group of ``n_g`` coefficients, its rows and columns ``(j, k)`` of
+            ``L_r G``, index ``j n_g + k`` (the whole ``L_r G`` for one group).
         """
         jac = self.jac
         nrb, nc, nb, _ = Lr4.shape
         nl = R.size // nb
-        Mk = np.empty((nrb, nc, nrb, nc), dtype=dtype)
+        if coefs is None:
+            coefs = [np.arange(nc)]
+        group = np.empty(nc, dtype=np.intp)
+        place = np.empty(nc, dtype=np.intp)          # a coefficient's place in its group
+        for g, c in enumerate(coefs):
+            group[c], place[c] = g, np.arange(c.size)
+        out = [np.empty((nrb, c.size, nrb, c.size), dtype=dtype) for c in coefs]
+        rows = [Lr4[:, c] if len(coefs) > 1 else Lr4 for c in coefs]
         for i, h in enumerate(jac.basis.harmonics):
             # (R, Rrow) part of P_h^-1, R index b nl + l -> (l, b, j'), then per row block
             Q = self.PinvR[i][R].reshape(nb, nl, nrb).transpose(1, 0, 2)
             Qj = Q[blk_el]                                    # (nrb, nb, nrb)
             ic, is_ = jac._ic[i], jac._is[i]
+            g = group[ic]
+            Lg, Mk = rows[g], out[g]
             if h:
-                W = np.matmul(Lr4[:, :, :, ic] + 1j * Lr4[:, :, :, is_], Qj)
-                Mk[:, :, :, ic] = W.real
-                Mk[:, :, :, is_] = W.imag
+                W = np.matmul(Lg[:, :, :, ic] + 1j * Lg[:, :, :, is_], Qj)
+                Mk[:, :, :, place[ic]] = W.real
+                Mk[:, :, :, place[is_]] = W.imag
             else:
-                Mk[:, :, :, ic] = np.matmul(Lr4[:, :, :, ic], Qj.real)
-        return Mk.reshape(nrb * nc, nrb * nc)
+                Mk[:, :, :, place[ic]] = np.matmul(Lg[:, :, :, ic], Qj.real)
+        return [Mk.reshape(nrb * c.size, nrb * c.size) for Mk, c in zip(out, coefs)]
 
     def _harmonic_solve(self, V):
         """``P^-1`` of the harmonic stage; ``V`` (n_c, n_r, k) real, returns its shape."""
@@ -681,25 +763,30 @@ class HarmonicPreconditioner:
         """The preconditioner of the scaled ``jac = J diag(col)``: ``diag(col)^-1 P^-1 v``
         (two-stage when ``TWO_STAGE``); ``v`` of shape (n_z,) or (n_z, k)."""
         v = np.asarray(v, dtype=float)
-        if self.Binv is not None:
-            if v.ndim == 2:            # the two-stage one column by column
-                return np.column_stack([self.apply(c, jac) for c in v.T])
-            return self.solve2(v, lambda x: jac.matvec(x / jac.col)) / jac.col
-        return self.solve(v) / (jac.col if v.ndim == 1 else jac.col[:, None])
+        V = v.reshape(jac.n_z, -1)
+        col = jac.col[:, None]
+        X = self.solve(V) if self.Binv is None else \
+            self.solve2(V, lambda x: jac.matvec(x / col))
+        return (X / col).reshape(v.shape)
 
     def solve2(self, v, matvec) -> np.ndarray:
-        """Two-stage: ``x = P^-1 v``, then ``x += B^-1 (v - J x)`` (element blocks)."""
+        """Two-stage: ``x = P^-1 v``, then ``x += B^-1 (v - J x)`` (element blocks);
+        ``v`` of shape (n_z,) or (n_z, k), every column at once (one low-rank
+        solve and one product with ``J`` for the k columns)."""
         jac = self.jac
-        x = self.solve(v)
-        r = (v - matvec(x)).reshape(jac.n_c, jac.n_r)
-        ne = len(jac.t_row)
-        rb = r[:, self.rows].T.reshape(self.nb, ne, jac.n_c).transpose(1, 0, 2) \
-            .reshape(ne, -1)
-        d = np.einsum("eij,ej->ei", self.Binv, rb)
-        d = d.reshape(ne, self.nb, jac.n_c).transpose(1, 0, 2).reshape(-1, jac.n_c).T
-        X = x.reshape(jac.n_c, jac.n_r).copy()
+        nc, ne, nb = jac.n_c, len(jac.t_row), self.nb
+        V = np.asarray(v, dtype=float).reshape(jac.n_z, -1)
+        k = V.shape[1]
+        x = self.solve(V)
+        r = (V - matvec(x)).reshape(nc, jac.n_r, k)
+        # each element's slip and gap rows over all coefficients, (ne, nb n_c, k)
+        rb = r[:, self.rows].transpose(1, 0, 2).reshape(nb, ne, nc, k) \
+            .transpose(1, 0, 2, 3).reshape(ne, nb * nc, k)
+        d = np.matmul(self.Binv, rb)
+        d = d.reshape(ne, nb, nc, k).transpose(2, 1, 0, 3).reshape(nc, nb * ne, k)
+        X = x.reshape(nc, jac.n_r, k).copy()
         X[:, self.rows] += d
-        return X.ravel()
+        return X.reshape(np.shape(v))
 
     def solve(self, v) -> np.ndarray:
         """``P^-1 v`` for the unscaled ``J``; ``v`` of shape (n_z,) or (n_z, k)."""
@@ -715,8 +802,11 @@ class HarmonicPreconditioner:
         # element-major column order (l, b n_c + c) from the (c, b nl + l) columns of Y
         yc = Y[:, lr.R].reshape(nc, lr.nb, nl, k).transpose(2, 1, 0, 3).reshape(nl, -1, k)
         rhs = np.matmul(lr.Lr, yc[lr.block_element])             # L_r y_c, (nrb, n_c, k)
-        s = sla.lu_solve(lr.lu, rhs.reshape(-1, k).astype(lr.lu[0].dtype, copy=False),
-                         check_finite=False).astype(float, copy=False)
+        rhs = rhs.reshape(-1, k)
+        s = np.empty(rhs.shape)
+        for rows, lu in zip(lr.groups, lr.lus):       # the harmonic groups' LUs
+            s[rows] = sla.lu_solve(lu, rhs[rows].astype(lu[0].dtype, copy=False),
+                                   check_finite=False)
         # P^-1 E_r s: only the Rrow columns of P_h^-1 (n_r x nrb per harmonic, not
         # n_r x n_r: the same nonzero terms, a fraction of the memory traffic)
         Xw = jac._to_complex(np.ascontiguousarray(s.reshape(-1, nc, k).transpose(1, 0, 2)))

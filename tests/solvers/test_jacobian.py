@@ -243,9 +243,25 @@ def test_lowrank_product_by_harmonics_equals_the_dense_one(normal):
     G = Pr[:, lr.R][:, :, :, lr.Rrow]                     # (k, b nl + l, k', j)
     G = G.reshape(nc, nb, nl, nc, nrb).transpose(2, 1, 0, 4, 3).reshape(nl, nb * nc, -1)
     dense = np.concatenate([lr.Lr[j] @ G[lr.block_element[j]] for j in range(nrb)])
-    fast = P._lr_g(lr.Lr.reshape(nrb, nc, nb, nc), lr.R, lr.block_element, float)
+    fast, = P._lr_g(lr.Lr.reshape(nrb, nc, nb, nc), lr.R, lr.block_element, float)
     assert fast.shape == dense.shape == (nrb * nc, nrb * nc)
     assert np.abs(fast - dense).max() <= 1e-13 * np.abs(dense).max()
+    # by harmonic groups (a loose solve's, LOOSE_GROUP_MAX): L_r without the terms
+    # between two groups makes L_r G block-diagonal over them; the blocks are formed
+    coefs = P._harmonic_groups(2)
+    assert sorted(np.concatenate(coefs).tolist()) == list(range(nc))
+    group = np.empty(nc, dtype=int)
+    for g, c in enumerate(coefs):
+        group[c] = g
+    Lz = lr.Lr.copy()
+    Lz[:, group[:, None] != np.tile(group, nb)[None, :]] = 0.0
+    dense = np.concatenate([Lz[j] @ G[lr.block_element[j]] for j in range(nrb)])
+    blocks = P._lr_g(Lz.reshape(nrb, nc, nb, nc), lr.R, lr.block_element, float, coefs)
+    rows = [(np.arange(nrb)[:, None] * nc + c[None, :]).ravel() for c in coefs]
+    for r, B in zip(rows, blocks):
+        assert np.abs(B - dense[np.ix_(r, r)]).max() <= 1e-13 * np.abs(dense).max()
+    assert np.abs(dense[np.ix_(rows[0], rows[1])]).max() == 0.0
+    assert np.abs(dense[np.ix_(rows[1], rows[0])]).max() == 0.0
 
 
 @pytest.mark.parametrize("normal", ["coupled", "fixed"])
@@ -291,7 +307,7 @@ def test_lowrank_stage_keeps_only_the_rows_that_couple_harmonics():
     lr = P.lowrank
     assert not P.truncated
     assert lr.Rrow.tolist() == [0] and lr.R.tolist() == [0, 2]   # slip rows of element 0
-    assert lr.lu[0].shape == (sk.n_c, sk.n_c)
+    assert lr.sizes == [sk.n_c]
     v = np.random.default_rng(0).normal(size=sk.n_z)
     xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, v)
     assert np.abs(P.solve(v) - xd).max() <= 1e-12 * np.abs(xd).max()
@@ -317,23 +333,68 @@ def test_lowrank_lu_is_single_precision_for_a_loose_solve_or_a_large_stage(monke
     xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, v)
     Jk = sk.evaluate(z, 1.1, F).J
     assert Jk.rtol < SINGLE_LU_RTOL
-    assert HarmonicPreconditioner(Jk).lowrank.lu[0].dtype == np.float64
+    assert HarmonicPreconditioner(Jk).lowrank.lus[0][0].dtype == np.float64
     Jk.rtol = 1e-3
     P = HarmonicPreconditioner(Jk)
-    assert P.lowrank.lu[0].dtype == np.float32 and not P.truncated
+    assert P.lowrank.lus[0][0].dtype == np.float32 and not P.truncated
     err = np.abs(P.solve(v) - xd).max() / np.abs(xd).max()
     assert 1e-12 < err <= 1e-4
     x, it, rel, _ = gmres(Jk.matvec, v, P.solve, rtol=1e-3)
     assert it == 1 and rel <= 1e-3 and P.solve(v).dtype == np.float64
     Jk.rtol = KRYLOV_RTOL
-    m = P.lowrank.lu[0].shape[0]
+    m, = P.lowrank.sizes
     assert m < pm.SINGLE_LU_MIN
     monkeypatch.setattr(pm, "SINGLE_LU_MIN", m)
     P = HarmonicPreconditioner(Jk)
-    assert P.lowrank.lu[0].dtype == np.float32
+    assert P.lowrank.lus[0][0].dtype == np.float32
     x, it, rel, _ = gmres(Jk.matvec, v, P.solve, rtol=KRYLOV_RTOL)
     assert 1 < it <= 4 and rel <= KRYLOV_RTOL
     assert np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
+
+
+@pytest.mark.parametrize("normal", ["coupled", "fixed"])
+def test_loose_lowrank_stage_split_by_harmonic_groups(normal, monkeypatch):
+    """A loose solve's low-rank stage above ``LOOSE_SPLIT_MIN`` coordinates keeps every
+    row block and splits its correction by contiguous harmonic groups (the least power
+    of two that leaves each at most ``LOOSE_GROUP_MAX``): one LU per group, the terms
+    between groups left to GMRES.  The preconditioner is then not the inverse of J,
+    and GMRES still reaches the dense solution; the same stage in one group is exact
+    (to single precision)."""
+    import jointsim.solvers.preconditioner as pm
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", normal)))
+    F = sd.force_coefficients(0.3)
+    rng = np.random.default_rng(5)
+    z = rng.normal(size=sd.n_z) * 0.4
+    v = rng.normal(size=sd.n_z)
+    xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, v)
+    sk.krylov_rtol = 1e-3
+    Jl = sk.evaluate(z, 1.1, F).J
+    one = HarmonicPreconditioner(Jl)
+    m = sum(one.lowrank.sizes)
+    assert len(one.lowrank.sizes) == 1 and m <= pm.LOOSE_SPLIT_MIN
+    assert np.abs(one.solve(v) - xd).max() <= 1e-4 * np.abs(xd).max()
+    monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
+    monkeypatch.setattr(pm, "LOOSE_GROUP_MAX", m // 2)      # two groups (four: m odd)
+    P = HarmonicPreconditioner(Jl)
+    lr = P.lowrank
+    nh, nc = len(sk.basis.harmonics), sk.n_c
+    groups = 4 if m // 2 < m / 2 else 2
+    assert len(lr.sizes) == min(groups, nh) and sum(lr.sizes) == m and not P.truncated
+    assert sorted(np.concatenate(lr.groups).tolist()) == list(range(m))
+    # the harmonics of a group are contiguous: each coefficient's group, by harmonic
+    coef_group = np.empty(nc, dtype=int)
+    for g, rows in enumerate(lr.groups):
+        coef_group[rows % nc] = g
+    by_h = [coef_group[Jl._ic[i]] for i in np.argsort(sk.basis.harmonics)]
+    assert by_h == sorted(by_h)
+    # no term of L_r between two groups
+    cross = coef_group[:, None] != np.tile(coef_group, lr.nb)[None, :]
+    assert np.abs(lr.Lr[:, cross]).max() == 0.0 < np.abs(lr.Lr).max()
+    assert np.abs(P.solve(v) - xd).max() > 1e-3 * np.abs(xd).max()
+    x, it, rel, _ = gmres(Jl.matvec, v, P.solve, rtol=1e-12)
+    assert it > 1 and np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
+    monkeypatch.setattr(pm, "LOOSE_GROUP_MAX", 0)                # off: one group
+    assert len(HarmonicPreconditioner(Jl).lowrank.sizes) == 1
 
 
 def test_lowrank_stage_is_exact_up_to_its_fraction_and_truncated_beyond(monkeypatch):
@@ -357,7 +418,7 @@ def test_lowrank_stage_is_exact_up_to_its_fraction_and_truncated_beyond(monkeypa
         monkeypatch.setattr(pm, "LOWRANK_EXACT_FRACTION", exact)
         monkeypatch.setattr(pm, "LOWRANK_MAX_FRACTION", kept_fraction)
         P = HarmonicPreconditioner(Jk)
-        assert P.truncated == (kept < 2) and P.lowrank.lu[0].shape[0] == kept * d
+        assert P.truncated == (kept < 2) and P.lowrank.sizes == [kept * d]
         x, it, rel, _ = gmres(Jk.matvec, v, lambda u: P.apply(u, Jk), rtol=1e-12)
         assert (it == 1) == (not P.truncated)
         assert np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
