@@ -380,6 +380,9 @@ class ErrorEstimator:
                                    curve_frequency=0.0)
         if not REUSE_ACROSS_POINTS:
             ext.preconditioner.forget()
+        # one solve (three columns) per preconditioner: a large low-rank stage may be
+        # split by harmonic groups (preconditioner.LOOSE_GROUP_MAX)
+        ext.preconditioner.single_solve = not REUSE_ACROSS_POINTS
         ze = self._embed(np.asarray(z, dtype=float).reshape(s.n_c, s.n_r)).ravel()
         across = np.isfinite(self.curve_above) and xi == 0.0
         ev = ext.evaluate(ze, omega, self._embed(F), xi=xi,
@@ -505,6 +508,7 @@ class ErrorEstimator:
         yx = np.concatenate([zh, [omega, xi, lam]])
         if not REUSE_ACROSS_POINTS:
             ext.preconditioner.forget()
+        ext.preconditioner.single_solve = False     # the extended Newton's steps share it
         R, J, ev = epx.fun(yx)
         n_rows = s.n_c * s.n_r
         nzx = ext.n_z

@@ -96,10 +96,12 @@ SINGLE_LU_RTOL = 1e-6
 #: preconditioner builds, X equal to 3.8e-13 and 1.8e-13.
 SINGLE_LU_MIN = 1000
 #: For Jacobians solved to a loose tolerance (``SINGLE_LU_RTOL``: the error indicators'
-#: extended systems) whose low-rank correction exceeds ``LOOSE_SPLIT_MIN`` coordinates,
-#: the low-rank stage keeps every row block and splits its correction by ``g``
-#: contiguous groups of harmonics, ``g`` the least power of two (at most the number of
-#: harmonics) that leaves each group at most ``LOOSE_GROUP_MAX`` coordinates.  The terms
+#: extended systems) whose preconditioner serves one solve
+#: (:attr:`PreconditionerCache.single_solve`: an FRC point's) and whose low-rank
+#: correction exceeds ``LOOSE_SPLIT_MIN`` coordinates, the low-rank stage keeps every row block and splits its correction by ``g``
+#: contiguous groups of harmonics, ``g`` the least power of two (at most ``LOOSE_GROUPS``
+#: and the number of harmonics) that leaves each group at most ``LOOSE_GROUP_MAX``
+#: coordinates (beyond ``LOOSE_GROUPS LOWRANK_MAX`` the stage is truncated).  The terms
 #: of ``L`` between two groups are left to GMRES; ``I + L_r G`` is then block-diagonal
 #: (``G`` couples a harmonic with itself only), and its LUs cost ``m^3 / g^2``.  The
 #: slipping elements' tangent couples near harmonics most (the Fourier coefficients of
@@ -109,12 +111,20 @@ SINGLE_LU_MIN = 1000
 #: Measured on 4 gross-slip points of the 240-Gauss-point FRC (force scale 20; ``m``
 #: about 6,900 of 31 coefficients), one thread, per point: truncated at
 #: ``LOWRANK_MAX`` 3.10 s (124 GMRES iterations, the three columns), 2 groups about
-#: 2.2 s (60), 3 about 2.1, 4 1.51 s (92), 5 1.69 s, 6 1.64 s (119); the estimates
-#: move by at most 0.4 %.  On microslip points (force 2, ``m`` about 2,450), 2 groups
+#: 2.2 s (60), 3 about 2.1, 4 1.51 s (92), 5 1.69 s, 6 1.64 s (119).  Against the exact
+#: stage (one LU of 6,900: 3.14 s per point), 4 groups move the estimates by at most
+#: 0.08 % and the error across the branch by 0.65 % (the truncated stage: 0.11 % and
+#: 0.33 %).  More groups cost accuracy, not only iterations: GMRES stops at a residual
+#: of 1e-3 of the right-hand side, and the retained rows of the truncation step are a
+#: small part of its solution.  On the fold chain (H = 0..5, m = 46) 2 / 4 / 8 groups
+#: move the truncation part by 0.2 / 2.5 / 30 %, hence ``LOOSE_GROUPS``.  On microslip points (force 2, ``m`` about 2,450), 2 groups
 #: instead of one exact LU: 0.544 against 0.518 s (23 against 6 iterations), hence
-#: ``LOOSE_SPLIT_MIN`` (round 32).
+#: ``LOOSE_SPLIT_MIN``.  Not for the EPMC's extended Newton, whose steps share one
+#: preconditioner: an exact one serves them in an iteration or two each (the EPMC of
+#: 120 Gauss points took 9.8 / 10.1 s exact, 10.7 / 10.9 s split; round 32).
 LOOSE_GROUP_MAX = 2000
 LOOSE_SPLIT_MIN = 3000
+LOOSE_GROUPS = 4
 #: Elements whose harmonic coupling ``|L_e|`` is below this fraction of the largest
 #: tangent entry are left out of the low-rank stage (in the stuck range the AFT's
 #: round-off, about 1e-12, used to fill it: 1,260 coordinates at 121 pairs).
@@ -223,6 +233,10 @@ class PreconditionerCache:
         #: its first solve needed
         self.stage = None
         self.stage_iterations = None
+        #: each preconditioner serves one solve (the FRC points' extended solves of the
+        #: error indicators): a loose one may split its low-rank stage by harmonic
+        #: groups (``LOOSE_GROUP_MAX``); set by the caller
+        self.single_solve = False
 
     def get(self, jac, shift=None) -> tuple["HarmonicPreconditioner", bool]:
         """A preconditioner for ``jac`` and whether it was built from ``jac`` itself
@@ -605,11 +619,13 @@ class HarmonicPreconditioner:
         nh = len(jac.basis.harmonics)
         n_groups = 1
         if jac.rtol >= SINGLE_LU_RTOL and LOOSE_GROUP_MAX \
-                and sel.size * nc > LOOSE_SPLIT_MIN:
+                and sel.size * nc > LOOSE_SPLIT_MIN \
+                and getattr(jac.cache, "single_solve", False):
             # a loose solve: every row block, the correction split by harmonic groups
-            while n_groups < nh and sel.size * nc > n_groups * LOOSE_GROUP_MAX:
+            while n_groups < min(nh, LOOSE_GROUPS) and \
+                    sel.size * nc > n_groups * LOOSE_GROUP_MAX:
                 n_groups *= 2
-            n_groups = min(n_groups, nh)
+            n_groups = min(n_groups, nh, LOOSE_GROUPS)
             most = n_groups * LOWRANK_MAX // nc
         else:
             most = blocks(LOWRANK_MAX_FRACTION) \

@@ -279,6 +279,39 @@ def test_krylov_path_gives_the_direct_indicators():
         assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-5)
 
 
+def test_frc_indicators_with_the_low_rank_stage_split_by_harmonic_groups(monkeypatch):
+    """An FRC point's extended solve builds its preconditioner for that one solve
+    (``single_solve``): a large low-rank stage is split by harmonic groups
+    (``LOOSE_GROUP_MAX``, forced here on the fold chain's small one: 46 coordinates in
+    two groups), and the indicators equal the dense solve's to the GMRES tolerance's
+    effect (``INDICATOR_RTOL``; measured 0.23 % on the truncation part).  At most
+    ``LOOSE_GROUPS`` groups: with one per harmonic that part moved by 29 %."""
+    import jointsim.solvers.preconditioner as pm
+    m = build_model(load_scene(FOLD))
+    s, F, p = _point(m, 5, 64, 0.1, 1.2)
+    d = ErrorEstimator(s).hbm(p.z, 1.2, F, p.X)
+    monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
+    sizes = []
+    build = pm.HarmonicPreconditioner._lowrank
+
+    def spy(self):
+        build(self)
+        sizes.append(self.lowrank.sizes)
+    monkeypatch.setattr(pm.HarmonicPreconditioner, "_lowrank", spy)
+    sk = HBMSystem(m, tuple(range(6)), 64, linear_solver="krylov")
+    for most, groups in ((1, pm.LOOSE_GROUPS), (None, 2)):
+        if most is None:                                   # two groups
+            most = (sum(sizes[-1]) + 1) // 2
+        monkeypatch.setattr(pm, "LOOSE_GROUP_MAX", most)
+        est = ErrorEstimator(sk)
+        k = est.hbm(p.z, 1.2, F, p.X)
+        assert est.ext.preconditioner.single_solve and len(sizes[-1]) == groups
+    assert d.estimate > 1e-4
+    for name in ("truncation", "aliasing", "force_tail", "curve", "curve_truncation",
+                 "curve_aliasing"):
+        assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-2), name
+
+
 def _fold_points():
     m = build_model(load_scene(FOLD))
     sk = HBMSystem(m, tuple(range(6)), 64, linear_solver="krylov")

@@ -354,8 +354,8 @@ def test_lowrank_lu_is_single_precision_for_a_loose_solve_or_a_large_stage(monke
 
 @pytest.mark.parametrize("normal", ["coupled", "fixed"])
 def test_loose_lowrank_stage_split_by_harmonic_groups(normal, monkeypatch):
-    """A loose solve's low-rank stage above ``LOOSE_SPLIT_MIN`` coordinates keeps every
-    row block and splits its correction by contiguous harmonic groups (the least power
+    """A loose solve's low-rank stage above ``LOOSE_SPLIT_MIN`` coordinates, built for
+    one solve (``PreconditionerCache.single_solve``), keeps every row block and splits its correction by contiguous harmonic groups (the least power
     of two that leaves each at most ``LOOSE_GROUP_MAX``): one LU per group, the terms
     between groups left to GMRES.  The preconditioner is then not the inverse of J,
     and GMRES still reaches the dense solution; the same stage in one group is exact
@@ -375,6 +375,8 @@ def test_loose_lowrank_stage_split_by_harmonic_groups(normal, monkeypatch):
     assert np.abs(one.solve(v) - xd).max() <= 1e-4 * np.abs(xd).max()
     monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
     monkeypatch.setattr(pm, "LOOSE_GROUP_MAX", m // 2)      # two groups (four: m odd)
+    assert len(HarmonicPreconditioner(Jl).lowrank.sizes) == 1  # not for several solves
+    sk.preconditioner.single_solve = True
     P = HarmonicPreconditioner(Jl)
     lr = P.lowrank
     nh, nc = len(sk.basis.harmonics), sk.n_c
