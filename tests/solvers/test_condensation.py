@@ -120,6 +120,55 @@ def test_low_rank_damping_schur_equals_the_complex_blocks(n, n_r):
     assert ReducedLinear(*_structure("direct")).damping_factors is None
 
 
+def _wide_spectrum(n: int = 80, n_r: int = 8, seed: int = 3):
+    """M, K, C (damping of rank 2) and T of a structure whose modes span 8 decades of
+    stiffness (most of them quasi-static at low frequency)."""
+    rng = np.random.default_rng(seed)
+    Q, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    K = (Q * np.logspace(0, 8, n)) @ Q.T
+    B = rng.normal(size=(n, n)) / 3
+    M = B @ B.T + np.eye(n)
+    U = rng.normal(size=(n, 2))
+    return M, 0.5 * (K + K.T), U @ np.diag([0.3, 0.1]) @ U.T, rng.normal(size=(n_r, n))
+
+
+def test_quasi_static_modes_enter_s_h_by_their_expansion(coarse_lap_coupled):
+    """``schur_low_rank_damping`` with the welded structure's modes above
+    ``QUASI_STATIC_RATIO nu`` summed once as ``C_0 + s C_1 + s^2 C_2``
+    (``_b_dinv_bp``) against ``A - B E^-1 B'`` of the complex blocks: on a structure of
+    8 decades of stiffness (to 1e-12 of its stiffness: both sides cancel) and on the
+    coarse lap joint at harmonics 0 to 15 of 300 rad/s (to 1e-12 of ``S_h``; the split
+    used where half its modes or more are quasi-static, the lowest of them at 2.5e4
+    rad/s); with the ratio 0, the full product."""
+    import jointsim.solvers.condensation as cm
+    from jointsim.solvers.hbm import HBMSystem
+    lap = HBMSystem(coarse_lap_coupled, tuple(range(8)), 32, linear_solver="krylov").lin
+    wide = ReducedLinear(*_wide_spectrum())
+    for lin, nus, scale in (
+            (wide, (0.0, 0.37, 0.8, 1.2, 5.0, 40.0), np.abs(wide.K["qq"]).max()),
+            (lap, [h * 300.0 for h in range(16)], None)):
+        assert lin.kind == "lowrank"
+        used = 0
+        for nu in nus:
+            A, B, Bp, E = lin.blocks(nu)
+            ref = A - B @ lin.solve_E(lin.factor_E(E), Bp)
+            S = lin.schur_low_rank_damping(nu)
+            tol = 1e-12 * (scale if scale is not None else np.abs(ref).max())
+            assert np.abs(S - ref).max() <= tol, nu
+            split = lin._quasi_static(nu)
+            if split is not None:
+                used += nu > 0
+                assert split[0].size <= lin.n_y // 2
+        assert used >= 2
+    lin = ReducedLinear(*_wide_spectrum())
+    cm_ratio = cm.QUASI_STATIC_RATIO
+    try:
+        cm.QUASI_STATIC_RATIO = 0.0
+        assert lin._quasi_static(1.0) is None
+    finally:
+        cm.QUASI_STATIC_RATIO = cm_ratio
+
+
 def test_low_rank_factors_reproduce_a_low_rank_matrix_and_refuse_a_full_one():
     """``_low_rank_factors``: a symmetric indefinite matrix of rank 5 (n = 90) is
     rebuilt from its factors to round-off, split after ``n_r`` rows; one of full rank
