@@ -199,47 +199,54 @@ class ReducedLinear:
         C = self.C
         return _low_rank_factors(np.block([[C["qq"], C["qy"]], [C["yq"], C["yy"]]]), self.n_r)
 
-    def schur_low_rank_damping(self, nu: float) -> np.ndarray:
-        """``S_h = A - B E^-1 B'`` at ``nu`` without self-excitation, for a damping of
-        low rank (:attr:`damping_factors` set).
+    def schur_low_rank_damping(self, nu: float, xi: float = 0.0) -> np.ndarray:
+        """``S_h = A - B E^-1 B'`` at ``nu`` for a damping of low rank
+        (:attr:`damping_factors` set).
 
-        With ``xi = 0`` only the damping makes the blocks complex, and it has rank
-        ``r`` (``C = W diag(c) W^T``, ``W = [W_q; W_y]``): ``B = B_0 + i nu W_q c
-        W_y^T``, ``E = D + i nu W_y c W_y^T`` with ``B_0 = K_qy - nu^2 M_qy`` real and
-        ``D`` real diagonal.  Woodbury's formula for ``E^-1`` then gives
+        With ``s = nu^2 + i nu xi`` (``nu^2`` for a forced response), the damping of rank
+        ``r`` (``C = W diag(c) W^T``, ``W = [W_q; W_y]``) is what couples the blocks
+        beyond their diagonal in the welded modes: ``B = B_0 + i nu W_q c W_y^T``, ``E =
+        D + i nu W_y c W_y^T`` with ``B_0 = K_qy - s M_qy`` and ``D = diag(lam - s m_yy)``.
+        Woodbury's formula for ``E^-1`` then gives
 
             S_h = A_0 + i nu C_qq - B_0 D^-1 B'_0 - i nu (W_q c P_r + P_l c W_q^T)
                   + nu^2 W_q c Q c W_q^T + G_l K_c^-1 G_r,
 
-        ``P_l = B_0 D^-1 W_y``, ``P_r = W_y^T D^-1 B'_0``, ``Q = W_y^T D^-1 W_y``,
-        ``G_l = P_l + i nu W_q c Q``, ``G_r = P_r + i nu Q c W_q^T`` and ``K_c =
-        (i nu c)^-1 + Q``: one real ``n_r x n_y x n_r`` product (a quarter of the flops
-        of the complex one) and products of rank ``r``.  Equal to the complex path to
-        round-off (``tests/solvers/test_condensation.py``).
+        ``A_0 = K_qq - s M_qq``, ``P_l = B_0 D^-1 W_y``, ``P_r = W_y^T D^-1 B'_0``, ``Q =
+        W_y^T D^-1 W_y``, ``G_l = P_l + i nu W_q c Q``, ``G_r = P_r + i nu Q c W_q^T`` and
+        ``K_c = (i nu c)^-1 + Q``: one ``n_r x n_y x n_r`` product ``B_0 D^-1 B'_0`` (real
+        for a forced response, a quarter of the flops of the complex one; with its
+        quasi-static modes summed once, :meth:`_b_dinv_bp`) and products of rank ``r``.
+        Equal to the complex blocks' to round-off (``tests/solvers/test_condensation.py``).
 
         Parameters
         ----------
         nu : float
             Angular frequency of the harmonic [rad/s].
+        xi : float
+            Self-excitation (damping ``C - xi M``) [1/s].
 
         Returns
         -------
         ndarray, shape (n_r, n_r), complex [N/m]
         """
         Wq, Wy, c = self.damping_factors
-        nu2 = nu * nu
-        d = self.lam - nu2 * self.myy
+        s = nu * nu + 1j * nu * xi if xi else nu * nu
+        d = self.lam - s * self.myy
         if np.any(d == 0):
             raise np.linalg.LinAlgError(WELDED_SINGULAR)
-        B0 = self.K["qy"] - nu2 * self.M["qy"]
-        B0p = self.K["yq"] - nu2 * self.M["yq"]
+        B0 = self.K["qy"] - s * self.M["qy"]
+        B0p = self.K["yq"] - s * self.M["yq"]
         B0d = B0 / d
-        S = np.empty((self.n_r, self.n_r), dtype=complex)
-        S.real = self.K["qq"] - nu2 * self.M["qq"] - self._b_dinv_bp(nu, B0d, B0p)
+        if xi:
+            S = self.K["qq"] - s * self.M["qq"] - self._b_dinv_bp(s, B0d, B0p) \
+                + (1j * nu) * self.C["qq"]
+        else:
+            S = np.empty((self.n_r, self.n_r), dtype=complex)
+            S.real = self.K["qq"] - s * self.M["qq"] - self._b_dinv_bp(s, B0d, B0p)
+            S.imag = nu * self.C["qq"]
         if nu == 0.0:
-            S.imag = 0.0
             return S
-        S.imag = nu * self.C["qq"]
         Wyd = Wy.T / d                                   # (r, n_y)
         Pl, Pr, Q = B0d @ Wy, Wyd @ B0p, Wyd @ Wy
         Wc = Wq * c                                      # (n_r, r)
@@ -249,15 +256,16 @@ class ReducedLinear:
         Kc = np.diag(1.0 / (1j * nu * c)) + Q
         # the rank-r terms as one product: [-i nu Wc, -i nu Pl, nu^2 Wc Q, Gl] times
         # [Pr; Wc^T; Wc^T; Kc^-1 Gr]
-        left = np.hstack([-1j * nu * Wc, -1j * nu * Pl, nu2 * WcQ, Gl])
+        left = np.hstack([-1j * nu * Wc, -1j * nu * Pl, nu * nu * WcQ, Gl])
         right = np.vstack([Pr, Wc.T, Wc.T, np.linalg.solve(Kc, Gr)])
         S += left @ right
         return S
 
-    def _b_dinv_bp(self, nu: float, B0d, B0p) -> np.ndarray:
-        """``B_0 D^-1 B'_0`` at ``nu`` (real ``n_r x n_r``; ``B0d = B_0 D^-1`` and ``B0p =
-        B'_0`` given, ``D = diag(lam - nu^2 m_yy)``): a sum over the modes ``j`` of the
-        welded structure of ``b_j b'_j / d_j``, with ``b_j = k_j - s m_j`` (``s = nu^2``).
+    def _b_dinv_bp(self, s, B0d, B0p) -> np.ndarray:
+        """``B_0 D^-1 B'_0`` at ``s = nu^2 + i nu xi`` (``n_r x n_r``, real when ``s`` is;
+        ``B0d = B_0 D^-1`` and ``B0p = B'_0`` given, ``D = diag(lam - s m_yy)``): a sum over
+        the modes ``j`` of the welded structure of ``b_j b'_j / d_j``, with ``b_j = k_j - s
+        m_j``.
 
         A mode far above ``nu`` is quasi-static: with ``a_j = m_j / lam_j`` and ``x = s a_j``,
         ``b_j b'_j / d_j = (k k' - s (k m' + m k') + s^2 m m') (1 + x + x^2 + ...) / lam_j``,
@@ -265,13 +273,12 @@ class ReducedLinear:
         QUASI_STATIC_ORDER`` (their sums, :meth:`_quasi_static`, formed once), and only the
         others by the product: the neglected terms are of order ``x^(P+1)`` of the modes'
         share, ``x <= 1 / QUASI_STATIC_RATIO^2``.  The full product where that leaves
-        fewer than half the modes quasi-static."""
-        split = self._quasi_static(nu)
+        fewer than half the modes quasi-static (``nu = |s|^(1/2)`` there)."""
+        split = self._quasi_static(float(np.sqrt(abs(s))))
         if split is None:
             return B0d @ B0p
         low, C = split
-        s = nu * nu
-        acc = C[-1].copy()
+        acc = C[-1].astype(np.result_type(C, s))     # complex when s is
         for Cp in C[-2::-1]:                       # Horner in s
             acc *= s
             acc += Cp
@@ -570,11 +577,11 @@ class FrequencyBlocks:
 
     def schur(self, i: int) -> np.ndarray:
         """``S_h = A - B E^-1 B'`` of the ``i``-th harmonic (complex n_r x n_r, a new
-        array): by real products for a forced response with low-rank damping
-        (:meth:`ReducedLinear.schur_low_rank_damping`), else from :meth:`block`."""
+        array): with a damping of low rank by :meth:`ReducedLinear.schur_low_rank_damping`
+        (real products for a forced response), else from :meth:`block`."""
         lin = self.lin
-        if lin.damping_factors is not None and self.xi == 0.0:
-            return lin.schur_low_rank_damping(self.harmonics[i] * self.omega)
+        if lin.damping_factors is not None:
+            return lin.schur_low_rank_damping(self.harmonics[i] * self.omega, self.xi)
         A, B, Bp, Ef = self.block(i)
         if not lin.n_y:
             return np.array(A, dtype=complex)

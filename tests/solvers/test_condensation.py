@@ -96,19 +96,21 @@ def test_solve_E_is_the_inverse(kind):
 
 @pytest.mark.parametrize("n, n_r", [(14, 4), (40, 12)])
 def test_low_rank_damping_schur_equals_the_complex_blocks(n, n_r):
-    """``S_h`` of a forced response with low-rank damping by one real product
-    (``schur_low_rank_damping``) against ``A - B E^-1 B'`` of the complex blocks, at
-    harmonic 0, off and near a resonance of the welded structure; with
-    self-excitation (EPMC) and without a low-rank damping the blocks serve."""
+    """``S_h`` with low-rank damping by Woodbury's formula (``schur_low_rank_damping``:
+    one real product for a forced response, a complex one with self-excitation)
+    against ``A - B E^-1 B'`` of the complex blocks, at harmonic 0, off and near a
+    resonance of the welded structure, with and without self-excitation (also through
+    ``FrequencyBlocks``); without a low-rank damping the blocks serve."""
     lin = ReducedLinear(*_structure("lowrank", n=n, n_r=n_r))
     Wq, Wy, c = lin.damping_factors
     assert c.size == 2 and Wq.shape == (n_r, 2) and Wy.shape == (n - n_r, 2)
     near = 0.999 * np.sqrt(lin.lam[0] / lin.myy[0])       # a welded-structure mode
-    for nu in (0.0, 0.37, 1.7, 5.0, near):
-        A, B, Bp, E = lin.blocks(nu)
-        ref = A - B @ lin.solve_E(lin.factor_E(E), Bp)
-        S = lin.schur_low_rank_damping(nu)
-        assert np.abs(S - ref).max() <= 1e-11 * np.abs(ref).max(), nu
+    for xi in (0.0, 0.05, -0.3):
+        for nu in (0.0, 0.37, 1.7, 5.0, near):
+            A, B, Bp, E = lin.blocks(nu, xi)
+            ref = A - B @ lin.solve_E(lin.factor_E(E), Bp)
+            S = lin.schur_low_rank_damping(nu, xi)
+            assert np.abs(S - ref).max() <= 1e-11 * np.abs(ref).max(), (nu, xi)
     harmonics, omega = (0, 1, 3), 1.1
     for xi in (0.0, 0.05):
         fb = FrequencyBlocks(lin, harmonics, omega, xi)
@@ -134,8 +136,8 @@ def _wide_spectrum(n: int = 80, n_r: int = 8, seed: int = 3):
 
 def test_quasi_static_modes_enter_s_h_by_their_expansion(coarse_lap_coupled):
     """``schur_low_rank_damping`` with the welded structure's modes above
-    ``QUASI_STATIC_RATIO nu`` summed once as ``C_0 + s C_1 + s^2 C_2``
-    (``_b_dinv_bp``) against ``A - B E^-1 B'`` of the complex blocks: on a structure of
+    ``QUASI_STATIC_RATIO nu`` summed once as ``sum_p s^p C_p``, with and without
+    self-excitation (``s = nu^2 + i nu xi``; ``_b_dinv_bp``) against ``A - B E^-1 B'`` of the complex blocks: on a structure of
     8 decades of stiffness (to 1e-12 of its stiffness: both sides cancel) and on the
     coarse lap joint at harmonics 0 to 15 of 300 rad/s (to 1e-12 of ``S_h``; the split
     used where half its modes or more are quasi-static, the lowest of them at 2.5e4
@@ -149,17 +151,17 @@ def test_quasi_static_modes_enter_s_h_by_their_expansion(coarse_lap_coupled):
             (lap, [h * 300.0 for h in range(16)], None)):
         assert lin.kind == "lowrank"
         used = 0
-        for nu in nus:
-            A, B, Bp, E = lin.blocks(nu)
+        for nu, xi in [(nu, xi) for nu in nus for xi in (0.0, 0.02 * nu)]:
+            A, B, Bp, E = lin.blocks(nu, xi)
             ref = A - B @ lin.solve_E(lin.factor_E(E), Bp)
-            S = lin.schur_low_rank_damping(nu)
+            S = lin.schur_low_rank_damping(nu, xi)
             tol = 1e-12 * (scale if scale is not None else np.abs(ref).max())
-            assert np.abs(S - ref).max() <= tol, nu
+            assert np.abs(S - ref).max() <= tol, (nu, xi)
             split = lin._quasi_static(nu)
             if split is not None:
                 used += nu > 0
                 assert split[0].size <= lin.n_y // 2
-        assert used >= 2
+        assert used >= 4
     lin = ReducedLinear(*_wide_spectrum())
     cm_ratio = cm.QUASI_STATIC_RATIO
     try:
