@@ -155,7 +155,7 @@ class ReducedLinear:
             self.KMC_qy = np.hstack([self.K["qy"], self.M["qy"], self.C["qy"]])
         self._Mfull = M
         self._transformed = None
-        self._quasi = None       # (nu_max, split) of _quasi_static
+        self._quasi = None       # (nu_max, split, quasi-static modes) of _quasi_static
 
     # -- blocks of the transformed dynamic stiffness --------------------------
     def blocks(self, nu: float, xi: float = 0.0, parts: str = "qq qy yq"):
@@ -288,32 +288,46 @@ class ReducedLinear:
     def _quasi_static(self, nu: float):
         """``(low, C)`` for :meth:`_b_dinv_bp` at ``nu``, or None: ``low`` the modes below
         ``QUASI_STATIC_RATIO nu_max``, ``C`` (P + 1, n_r, n_r) the quasi-static sums of the
-        others, ``C_p = sum_j (a^p k k' - a^(p-1) (k m' + m k') + a^(p-2) m m') / lam``
-        (no negative powers).
+        others (:meth:`_quasi_sums`).
 
         Kept for one ``nu_max`` (``2 nu`` when it is made), valid for every frequency up
-        to it: a run's harmonics make it a few times, at its first frequencies."""
-        if self._quasi is not None and nu <= self._quasi[0]:
-            return self._quasi[1]
+        to it: a run's first harmonics raise it a few times.  The quasi-static modes
+        only become fewer as it rises: the sums lose the modes that leave them (a few
+        each time) instead of being formed again (at 480 Gauss points five full
+        formations took about 2.5 s of a branch's set-up)."""
+        q = self._quasi
+        if q is not None and nu <= q[0]:
+            return q[1]
         nu_max = 2.0 * nu
-        split = None
-        if QUASI_STATIC_RATIO > 0 and self.n_r and self.n_y:
+        split, high = None, None
+        if QUASI_STATIC_RATIO > 0 and self.n_r and self.n_y and nu > 0:
             high = self.lam >= (QUASI_STATIC_RATIO * nu_max) ** 2 * self.myy
             if 2 * np.count_nonzero(high) >= self.n_y:
-                lam, a = self.lam[high], self.myy[high] / self.lam[high]
-                K, M = self.K["qy"][:, high], self.M["qy"][:, high]
-                Kp, Mp = self.K["yq"][high], self.M["yq"][high]
-                C = np.empty((QUASI_STATIC_ORDER + 1, self.n_r, self.n_r))
-                for p in range(QUASI_STATIC_ORDER + 1):
-                    C[p] = (K * (a ** p / lam)) @ Kp
-                    if p >= 1:
-                        w = a ** (p - 1) / lam
-                        C[p] -= (K * w) @ Mp + (M * w) @ Kp
-                    if p >= 2:
-                        C[p] += (M * (a ** (p - 2) / lam)) @ Mp
+                if q is not None and q[1] is not None:      # fewer quasi-static modes
+                    C = q[1][1]
+                    C -= self._quasi_sums(q[2] & ~high)
+                else:
+                    C = self._quasi_sums(high)
                 split = (np.flatnonzero(~high), C)
-        self._quasi = (nu_max, split)
+        self._quasi = (nu_max, split, high)
         return split
+
+    def _quasi_sums(self, modes) -> np.ndarray:
+        """``C_p = sum_j (a^p k k' - a^(p-1) (k m' + m k') + a^(p-2) m m') / lam`` over the
+        ``modes`` (boolean, (n_y,)), ``p = 0..QUASI_STATIC_ORDER`` (no negative powers;
+        ``a = m_yy / lam``, ``k``, ``m`` the columns of ``K_qy``, ``M_qy``, ``k'``, ``m'`` the
+        rows of ``K_yq``, ``M_yq``): per ``p`` one product ``[K w_p - M w_(p-1), M w_(p-2) -
+        K w_(p-1)] [K'; M']``, shape (P + 1, n_r, n_r)."""
+        lam, a = self.lam[modes], self.myy[modes] / self.lam[modes]
+        K, M = self.K["qy"][:, modes], self.M["qy"][:, modes]
+        right = np.vstack([self.K["yq"][modes], self.M["yq"][modes]])
+
+        def w(p):
+            return a ** p / lam if p >= 0 else np.zeros_like(lam)
+        C = np.empty((QUASI_STATIC_ORDER + 1, self.n_r, self.n_r))
+        for p in range(QUASI_STATIC_ORDER + 1):
+            C[p] = np.hstack([K * w(p) - M * w(p - 1), M * w(p - 2) - K * w(p - 1)]) @ right
+        return C
 
     @property
     def transformed(self) -> tuple:

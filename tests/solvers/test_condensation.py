@@ -141,7 +141,8 @@ def test_quasi_static_modes_enter_s_h_by_their_expansion(coarse_lap_coupled):
     8 decades of stiffness (to 1e-12 of its stiffness: both sides cancel) and on the
     coarse lap joint at harmonics 0 to 15 of 300 rad/s (to 1e-12 of ``S_h``; the split
     used where half its modes or more are quasi-static, the lowest of them at 2.5e4
-    rad/s); with the ratio 0, the full product."""
+    rad/s; the sums lowered mode by mode as the frequency rises equal those formed
+    afresh); with the ratio 0, the full product."""
     import jointsim.solvers.condensation as cm
     from jointsim.solvers.hbm import HBMSystem
     lap = HBMSystem(coarse_lap_coupled, tuple(range(8)), 32, linear_solver="krylov").lin
@@ -162,6 +163,13 @@ def test_quasi_static_modes_enter_s_h_by_their_expansion(coarse_lap_coupled):
                 used += nu > 0
                 assert split[0].size <= lin.n_y // 2
         assert used >= 4
+    # the sums, lowered as the frequency rose, equal those formed afresh
+    lap._quasi = None
+    for nu in (300.0, 700.0, 1500.0):
+        split = lap._quasi_static(nu)
+    assert split is not None and lap._quasi[0] == 3000.0
+    C = split[1]
+    assert np.abs(C - lap._quasi_sums(lap._quasi[2])).max() <= 1e-12 * np.abs(C).max()
     lin = ReducedLinear(*_wide_spectrum())
     cm_ratio = cm.QUASI_STATIC_RATIO
     try:
