@@ -58,7 +58,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .gmres import KRYLOV_MAXITER, KRYLOV_RTOL, GMRESResult, gmres, gmres_columns  # noqa: F401
-from .preconditioner import PreconditionerCache, add_projected_tangent
+from .preconditioner import PreconditionerCache
+from .tangent_projection import add_projected_tangent
 
 log = logging.getLogger(__name__)
 

@@ -20,6 +20,8 @@ from typing import NamedTuple
 import numpy as np
 import scipy.linalg as sla
 
+from .tangent_projection import add_projected_tangent, project_tangent
+
 log = logging.getLogger(__name__)
 
 #: GMRES iterations above which a reused preconditioner is always allowed to be
@@ -95,33 +97,18 @@ SINGLE_LU_RTOL = 1e-6
 #: pairs 37.3 -> 29.5 s (2,545 -> 2,660); the same Newton iterations and
 #: preconditioner builds, X equal to 3.8e-13 and 1.8e-13.
 SINGLE_LU_MIN = 1000
-#: For Jacobians solved to a loose tolerance (``SINGLE_LU_RTOL``: the error indicators'
-#: extended systems) whose preconditioner serves one solve
-#: (:attr:`PreconditionerCache.single_solve`: an FRC point's) and whose low-rank
-#: correction exceeds ``LOOSE_SPLIT_MIN`` coordinates, the low-rank stage keeps every row block and splits its correction by ``g``
-#: contiguous groups of harmonics, ``g`` the least power of two (at most ``LOOSE_GROUPS``
-#: and the number of harmonics) that leaves each group at most ``LOOSE_GROUP_MAX``
-#: coordinates (beyond ``LOOSE_GROUPS LOWRANK_MAX`` the stage is truncated).  The terms
-#: of ``L`` between two groups are left to GMRES; ``I + L_r G`` is then block-diagonal
-#: (``G`` couples a harmonic with itself only), and its LUs cost ``m^3 / g^2``.  The
-#: slipping elements' tangent couples near harmonics most (the Fourier coefficients of
-#: a stick window decay with the harmonic distance), and a power of two splits the
-#: extended system's ``0..2H+1`` at ``H | H+1``, the retained and the missing
-#: harmonics.  0: one group, truncated beyond ``LOWRANK_MAX`` as for a tight solve.
-#: Measured on 4 gross-slip points of the 240-Gauss-point FRC (force scale 20; ``m``
-#: about 6,900 of 31 coefficients), one thread, per point: truncated at
-#: ``LOWRANK_MAX`` 3.10 s (124 GMRES iterations, the three columns), 2 groups about
-#: 2.2 s (60), 3 about 2.1, 4 1.51 s (92), 5 1.69 s, 6 1.64 s (119).  Against the exact
-#: stage (one LU of 6,900: 3.14 s per point), 4 groups move the estimates by at most
-#: 0.08 % and the error across the branch by 0.65 % (the truncated stage: 0.11 % and
-#: 0.33 %).  More groups cost accuracy, not only iterations: GMRES stops at a residual
-#: of 1e-3 of the right-hand side, and the retained rows of the truncation step are a
-#: small part of its solution.  On the fold chain (H = 0..5, m = 46) 2 / 4 / 8 groups
-#: move the truncation part by 0.2 / 2.5 / 30 %, hence ``LOOSE_GROUPS``.  On microslip points (force 2, ``m`` about 2,450), 2 groups
-#: instead of one exact LU: 0.544 against 0.518 s (23 against 6 iterations), hence
-#: ``LOOSE_SPLIT_MIN``.  Not for the EPMC's extended Newton, whose steps share one
-#: preconditioner: an exact one serves them in an iteration or two each (the EPMC of
-#: 120 Gauss points took 9.8 / 10.1 s exact, 10.7 / 10.9 s split; round 32).
+#: An FRC point's extended solve (loose, ``SINGLE_LU_RTOL``; one solve per
+#: preconditioner, :attr:`PreconditionerCache.single_solve`) whose low-rank stage exceeds
+#: ``LOOSE_SPLIT_MIN`` coordinates keeps every row block and splits the correction by
+#: ``g`` contiguous groups of harmonics, ``g`` the least power of two (at most
+#: ``LOOSE_GROUPS``) leaving each at most ``LOOSE_GROUP_MAX``: the terms of ``L`` between
+#: groups are left to GMRES, ``I + L_r G`` is block-diagonal (``G`` couples a harmonic
+#: with itself only) and its LUs cost ``m^3 / g^2``.  0: one group.  Measured (docs/hbm.md,
+#: "Round 32"), 240-point gross slip (``m`` about 6,900): 3.10 s a point truncated at
+#: ``LOWRANK_MAX``, 1.51 s in 4 groups, the estimates within 0.08 % of an exact
+#: stage's; more groups cost accuracy (the fold chain's truncation part: 2.5 % with 4,
+#: 30 % with 8), microslip points lose with 2 (0.544 against 0.518 s), and the EPMC's
+#: extended Newton, whose steps share one preconditioner, loses too.
 LOOSE_GROUP_MAX = 2000
 LOOSE_SPLIT_MIN = 3000
 LOOSE_GROUPS = 4
@@ -346,37 +333,6 @@ class PreconditionerCache:
         self.exclusive = False
 
 
-def _project(Jb, ic, is_, h):
-    """Complex-form projection of the ``(h, h)`` coefficient blocks (n_e,) of ``Jb``."""
-    if h == 0:
-        return Jb[:, ic, ic].astype(complex)
-    return 0.5 * (Jb[:, ic, ic] + Jb[:, is_, is_]) + 0.5j * (Jb[:, ic, is_] - Jb[:, is_, ic])
-
-
-def add_projected_tangent(P, jac, i: int, proj=None) -> None:
-    """Add the harmonic-``i`` projection of every element's tangent to ``P`` in place.
-
-    Parameters
-    ----------
-    P : ndarray, complex, shape (n_r, n_r)
-        A harmonic block (``S_h`` of the ``i``-th harmonic, or a copy of it) [N/m].
-    jac : jointsim.solvers.jacobian.HBMJacobian
-    i : int
-        Index of the harmonic in ``jac.basis.harmonics``.
-    proj : dict, optional
-        The projections already computed (``"uu"``, ``"ug"``, ``"NN"``: (n_h, n_e)
-        complex or None, :attr:`HarmonicPreconditioner.proj`); else computed here for
-        this harmonic.
-    """
-    t, n = jac.t_row, jac.n_row
-    h = jac.basis.harmonics[i]
-    for key, Jb, rows, sign in (("uu", jac.Juu, (t, t), 1.0), ("ug", jac.Jug, (t, n), 1.0),
-                                ("NN", jac.JNN, (n, n), -1.0)):
-        if Jb is not None:
-            p = proj[key][i] if proj is not None else _project(Jb, jac._ic[i], jac._is[i], h)
-            P[rows] += sign * p
-
-
 class HarmonicPreconditioner:
     """Per harmonic, the inverse of ``S_h`` plus the harmonic-``h`` element tangent, with an
     exact low-rank correction for the elements whose tangent couples harmonics
@@ -441,7 +397,7 @@ class HarmonicPreconditioner:
         self.S = [jac.schur(i) for i in range(len(jac.basis.harmonics))]
         # the complex-form projections of the (h, h) coefficient blocks, (n_h, n_e)
         self.proj = {key: None if Jb is None else np.array(
-            [_project(Jb, jac._ic[i], jac._is[i], h) for i, h in enumerate(jac.basis.harmonics)])
+            [project_tangent(Jb, jac._ic[i], jac._is[i], h) for i, h in enumerate(jac.basis.harmonics)])
             for key, Jb in (("uu", jac.Juu), ("ug", jac.Jug), ("NN", jac.JNN))}
         # assembled in place in one stacked (n_h, n_r, n_r) array (S_h is jac's kept,
         # read-only array: copied once, here)

@@ -355,11 +355,12 @@ def test_lowrank_lu_is_single_precision_for_a_loose_solve_or_a_large_stage(monke
 @pytest.mark.parametrize("normal", ["coupled", "fixed"])
 def test_loose_lowrank_stage_split_by_harmonic_groups(normal, monkeypatch):
     """A loose solve's low-rank stage above ``LOOSE_SPLIT_MIN`` coordinates, built for
-    one solve (``PreconditionerCache.single_solve``), keeps every row block and splits its correction by contiguous harmonic groups (the least power
-    of two that leaves each at most ``LOOSE_GROUP_MAX``): one LU per group, the terms
-    between groups left to GMRES.  The preconditioner is then not the inverse of J,
-    and GMRES still reaches the dense solution; the same stage in one group is exact
-    (to single precision)."""
+    one solve (``PreconditionerCache.single_solve``), keeps every row block and splits
+    its correction by contiguous harmonic groups (the least power of two that leaves
+    each at most ``LOOSE_GROUP_MAX``): one LU per group, the terms between groups left
+    to GMRES.  The preconditioner is then not the inverse of J, and GMRES still
+    reaches the dense solution; the same stage in one group is exact (to single
+    precision)."""
     import jointsim.solvers.preconditioner as pm
     sd, sk = _pair(build_model(four_dof("jenkins", "anchor", normal)))
     F = sd.force_coefficients(0.3)
