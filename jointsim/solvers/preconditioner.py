@@ -397,7 +397,8 @@ class HarmonicPreconditioner:
         self.S = [jac.schur(i) for i in range(len(jac.basis.harmonics))]
         # the complex-form projections of the (h, h) coefficient blocks, (n_h, n_e)
         self.proj = {key: None if Jb is None else np.array(
-            [project_tangent(Jb, jac._ic[i], jac._is[i], h) for i, h in enumerate(jac.basis.harmonics)])
+            [project_tangent(Jb, jac._ic[i], jac._is[i], h)
+             for i, h in enumerate(jac.basis.harmonics)])
             for key, Jb in (("uu", jac.Juu), ("ug", jac.Jug), ("NN", jac.JNN))}
         # assembled in place in one stacked (n_h, n_r, n_r) array (S_h is jac's kept,
         # read-only array: copied once, here)
@@ -535,7 +536,9 @@ class HarmonicPreconditioner:
         correction at that point).  When ``m`` would exceed ``LOWRANK_EXACT_FRACTION
         n_z`` (but at least ``LOWRANK_MIN``) or ``LOWRANK_MAX``, only the row blocks
         with the largest ``|L|`` are kept, ``LOWRANK_MAX_FRACTION n_z`` coordinates
-        (``self.truncated``; GMRES and the element-block stage handle the rest).
+        (``self.truncated``; GMRES and the element-block stage handle the rest).  An FRC
+        point's extended solve keeps every row block instead and splits the correction
+        by harmonic groups (``LOOSE_GROUP_MAX``, :meth:`_lr_g`).
         """
         jac = self.jac
         nc = jac.n_c
