@@ -579,7 +579,7 @@ class HarmonicPreconditioner:
         n_groups = 1
         if jac.rtol >= SINGLE_LU_RTOL and LOOSE_GROUP_MAX \
                 and sel.size * nc > LOOSE_SPLIT_MIN \
-                and getattr(jac.cache, "single_solve", False):
+                and jac.cache.single_solve:
             # a loose solve: every row block, the correction split by harmonic groups
             while n_groups < min(nh, LOOSE_GROUPS) and \
                     sel.size * nc > n_groups * LOOSE_GROUP_MAX:
