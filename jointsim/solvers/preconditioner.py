@@ -604,8 +604,8 @@ class HarmonicPreconditioner:
         # selected ones block-major, (j n_c + k), so that L_r is one (n_c, d) block per
         # row block and nothing is permuted.
         Lr = np.ascontiguousarray(Lb[el, kind])               # (nrb, n_c, d)
-        coefs = self._harmonic_groups(n_groups)
-        if n_groups > 1:
+        coefs = self._harmonic_groups(n_groups) if n_groups > 1 else None
+        if coefs is not None:
             # leave the terms between two groups to GMRES: I + L_r G is then
             # block-diagonal over the groups (G couples a harmonic with itself only)
             group = np.empty(nc, dtype=np.intp)
@@ -621,7 +621,7 @@ class HarmonicPreconditioner:
                              np.float32 if single else float, coefs):
             Mk[np.diag_indices_from(Mk)] += 1.0
             lus.append(sla.lu_factor(Mk, check_finite=False))
-        groups = (slice(None),) if n_groups == 1 else tuple(
+        groups = (slice(None),) if coefs is None else tuple(
             (np.arange(nrb)[:, None] * nc + c[None, :]).ravel() for c in coefs)
         self.lowrank = LowRankStage(R, Rrow, blk_el, Lr, groups, tuple(lus), nb)
 
