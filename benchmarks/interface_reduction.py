@@ -131,7 +131,7 @@ def full_newton_step(system, z, omega, F):
         Its wall time [s].
     """
     from jointsim.solvers.jacobian import solve
-    from jointsim.solvers.preconditioner import PreconditionerCache
+    from jointsim.solvers.preconditioner_cache import PreconditionerCache
     t0 = time.perf_counter()
     system.preconditioner = PreconditionerCache()
     ev = system.evaluate(z, omega, F, wrt=())

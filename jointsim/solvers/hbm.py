@@ -30,7 +30,7 @@ from .condensation import (STACKED_MAX_DOF, WELDED_SINGULAR, FrequencyBlocks, Re
                            dense_array)
 from .jacobian import (KRYLOV_MIN_UNKNOWNS, KRYLOV_RTOL, LINEAR_SOLVERS, HBMJacobian, LinearStats,
                        add_element_blocks, fill_harmonic_blocks, solve)
-from .preconditioner import PreconditionerCache
+from .preconditioner_cache import PreconditionerCache
 from .newton import LINEAR_FORCING, NewtonOptions, newton
 
 log = logging.getLogger(__name__)

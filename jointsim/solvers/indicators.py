@@ -147,7 +147,7 @@ EPMC_CHANGE_TOL = 0.05
 #: estimate; median 6e-7).
 INDICATOR_RTOL = 1e-3
 #: Whether a point's extended solve may reuse the preconditioner built for the last
-#: point's (the chord policy of :class:`~.preconditioner.PreconditionerCache`).  Off:
+#: point's (the chord policy of :class:`~.preconditioner_cache.PreconditionerCache`).  Off:
 #: a fresh one solves to ``INDICATOR_RTOL`` in one GMRES iteration, the last point's
 #: needed 7 to 20 (the points of a branch are a step apart and their slip patterns
 #: differ), which cost more than the build they saved.  Measured on the 120-Gauss-point

@@ -37,9 +37,10 @@ column and an ``m x m`` Schur complement), which stays regular through
 turning points.
 
 The preconditioner is reused across Newton iterations and continuation
-steps through a :class:`~jointsim.solvers.preconditioner.PreconditionerCache` owned by the system (an
-explicit object, not module state) while that pays by its flop cost model
-(:meth:`~jointsim.solvers.preconditioner.PreconditionerCache.threshold`), and
+steps through a :class:`~jointsim.solvers.preconditioner_cache.PreconditionerCache`
+owned by the system (an explicit object, not module state) while that pays by its
+flop cost model
+(:meth:`~jointsim.solvers.preconditioner_cache.PreconditionerCache.threshold`), and
 rebuilt when GMRES fails with the old one within that budget.  Every solve is counted in a :class:`LinearStats`.
 GMRES stops at the Jacobian's own tolerance (``KRYLOV_RTOL``), or at a looser one a
 caller asks for: a Newton step is solved only as far as its residual needs
@@ -58,7 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .gmres import KRYLOV_MAXITER, KRYLOV_RTOL, GMRESResult, gmres, gmres_columns  # noqa: F401
-from .preconditioner import PreconditionerCache
+from .preconditioner_cache import PreconditionerCache
 from .tangent_projection import add_projected_tangent
 
 log = logging.getLogger(__name__)

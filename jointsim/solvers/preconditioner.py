@@ -1,4 +1,4 @@
-"""The harmonic preconditioner of the structured HBM Jacobian, and its reuse.
+"""The harmonic preconditioner of the structured HBM Jacobian.
 
 :class:`HarmonicPreconditioner` inverts, per harmonic, ``S_h`` plus the
 harmonic-``h`` part of each element's tangent (``H + 1`` complex ``n_r x n_r``
@@ -6,11 +6,9 @@ inverses instead of one real LU of size ``n_z``), and corrects exactly for the
 rest of the tangent, which lives on the elements that slip or separate during
 the period, by a Woodbury (low-rank) stage; when too many elements slip, only
 the largest corrections are kept and an element-block stage and GMRES do the
-rest.  :class:`PreconditionerCache` reuses one across Newton iterations and
-continuation steps, and when it has to build one for a Jacobian at (nearly) the same
-frequency it keeps the harmonic stage and builds only the low-rank one
-(``SHARE_HARMONIC_STAGE``).  The Jacobian itself and GMRES are in
-:mod:`jointsim.solvers.jacobian`, which explains the whole scheme.
+rest.  Its reuse across Newton iterations and continuation steps is
+:class:`~.preconditioner_cache.PreconditionerCache`.  The Jacobian itself and GMRES
+are in :mod:`jointsim.solvers.jacobian`, which explains the whole scheme.
 """
 from __future__ import annotations
 
@@ -23,38 +21,6 @@ import scipy.linalg as sla
 from .tangent_projection import add_projected_tangent, project_tangent
 
 log = logging.getLogger(__name__)
-
-#: GMRES iterations above which a reused preconditioner is always allowed to be
-#: rebuilt (the least threshold of :meth:`PreconditionerCache.threshold`).
-REFRESH_ITERATIONS = 10
-#: Chord policy: a reused preconditioner is kept while the GMRES iterations it costs
-#: beyond those it needed when fresh are cheaper than a new build.  The cost model
-#: is in floating-point operations (:attr:`HarmonicPreconditioner.build_flops`,
-#: :attr:`HarmonicPreconditioner.iteration_flops`); an iteration's flops are
-#: memory-bound products and count ``ITERATION_WEIGHT`` times (measured at 121
-#: contact pairs, FRC at force scale 20, one BLAS thread: a build cost 42 GMRES
-#: iterations, 1.4 s against 33 ms at load 17, where the flop model says 107).  Only a preconditioner that was (nearly) exact when fresh, at
-#: most ``REFRESH_ITERATIONS`` iterations, is kept beyond ``REFRESH_ITERATIONS``:
-#: reusing a truncated one (50 iterations fresh in gross slip) was measured 2.2x
-#: more GMRES iterations and slower overall.  Off by default: measured side by
-#: side at 121 pairs and load 1, the first 15 EPMC points took 19.1 s with it
-#: against 12.8 s with the fixed threshold ``REFRESH_ITERATIONS`` (1,705 vs 547
-#: GMRES iterations, 3 vs 16 builds); the FRC at force scale 2 lost too.
-COST_REUSE = False
-ITERATION_WEIGHT = 2.5
-#: Largest threshold of the chord policy (GMRES iterations; below the restart length).
-REFRESH_MAX = 60
-
-#: A truncated preconditioner (gross slip: 25 to 50 GMRES iterations even fresh, so
-#: it serves its own Jacobian only and every Newton iteration builds one) would be
-#: offered to the next Jacobians while a solve with it needs at most this many times
-#: the iterations it needed fresh (0: never).  Off: measured side by side at 121
-#: pairs, force scale 20, first 12 points, load 10 (``benchmarks/profile_case.py hbm
-#: --force 20 --points 12``), at 2.0 the builds went 46 -> 22 but the GMRES
-#: iterations 1,976 -> 3,489 and the time 61.9 -> 74.1 s (a reused truncated
-#: preconditioner needs about twice its fresh iterations; they cost more than the
-#: builds saved).
-TRUNCATED_REUSE = 0.0
 
 #: Add the element-block stage to the harmonic preconditioner (when its low-rank
 #: correction is truncated or off).
@@ -98,7 +64,7 @@ SINGLE_LU_RTOL = 1e-6
 #: preconditioner builds, X equal to 3.8e-13 and 1.8e-13.
 SINGLE_LU_MIN = 1000
 #: An FRC point's extended solve (loose, ``SINGLE_LU_RTOL``; one solve per
-#: preconditioner, :attr:`PreconditionerCache.single_solve`) whose low-rank stage exceeds
+#: preconditioner, :attr:`.PreconditionerCache.single_solve`) whose low-rank stage exceeds
 #: ``LOOSE_SPLIT_MIN`` coordinates keeps every row block and splits the correction by
 #: ``g`` contiguous groups of harmonics, ``g`` the least power of two (at most
 #: ``LOOSE_GROUPS``) leaving each at most ``LOOSE_GROUP_MAX``: the terms of ``L`` between
@@ -116,21 +82,6 @@ LOOSE_GROUPS = 4
 #: tangent entry are left out of the low-rank stage (in the stuck range the AFT's
 #: round-off, about 1e-12, used to fill it: 1,260 coordinates at 121 pairs).
 LOWRANK_NEGLIGIBLE = 1e-9
-#: A preconditioner built for a Jacobian at a frequency within this fraction of the
-#: last full build's (``|d omega| + |d xi| <= SHARE_HARMONIC_STAGE omega``) keeps that
-#: build's harmonic stage (``S_h`` and the ``H + 1`` inverses, at the old frequency
-#: and with the old harmonic projection of the tangent) and builds only its low-rank
-#: stage, which then corrects for the whole change of the tangent (``partial``).
-#: 0: every build is full.  Not with a shift (the EPMC's bordered solves), and not
-#: for Jacobians solved to a loose tolerance (``SINGLE_LU_RTOL``: the error
-#: indicators' extended systems): there the low-rank LU dominates the build, and the
-#: old projection adds the elements that stuck in one state and slipped in the other
-#: to it.  Measured on 120 Gauss points, force-20 branch, one thread: a main system's
-#: build 133 ms full, 42 ms partial; an extended system's 0.41 s full, 0.47 s partial.
-#: The branch (error indicators off) on 240 Gauss points: 145.6 s without sharing,
-#: 117.8 s at 1e-3, 112.2 s at 5e-3 (Newton iterations and points unchanged, GMRES
-#: iterations 2,949 / 3,105 / 3,257, X equal to 2.4e-12).
-SHARE_HARMONIC_STAGE = 5e-3
 #: For Jacobians solved to a loose tolerance (``SINGLE_LU_RTOL``: the error indicators'
 #: extended systems) the harmonic stage keeps single-precision LU factors of its blocks
 #: instead of their double-precision inverses: the columns of ``P_h^-1`` the low-rank
@@ -140,6 +91,28 @@ SHARE_HARMONIC_STAGE = 5e-3
 #: ms plus 20 ms of column solves; the 240-point FRC's indicators spent 37 % of their
 #: samples in those inverses (round 31).
 FACTORED_LOOSE_STAGE = True
+#: From this many rows ``n_r`` the harmonic stage's explicit inverses are formed and
+#: applied in single precision (complex64: half the flops of the inverses and half the
+#: memory traffic of an application), except the fundamental's: near a resonance of an
+#: FRC, and in the EPMC, that block is nearly singular, and its single-precision
+#: inverse (error about its condition times 6e-8) made the stuck, reused
+#: preconditioners of the 240-point force-0.02 branch need twice the GMRES iterations
+#: and 4.6 times the builds.  GMRES, on the double-precision Jacobian, still reaches
+#: its tolerance.  Measured side by side (round 33, one branch, error indicators off,
+#: 240 points): force 0.02 16.8 -> 16.4 s, force 2 29.7 -> 28.7 s, force 20 47.7 ->
+#: 43.9 s (GMRES iterations 2,546 -> 2,619); all single: force 20 44.7 s but force
+#: 0.02 41.0 s.
+SINGLE_INVERSE_MIN = 200
+
+
+def _inverse(blocks) -> np.ndarray:
+    """The inverses of the stacked ``blocks`` (n, m, m), in their precision; a singular
+    block's pseudo-inverse (GMRES then has to cope)."""
+    try:
+        return np.linalg.inv(blocks)
+    except np.linalg.LinAlgError:
+        log.debug("harmonic preconditioner: a singular block, pseudo-inverse used")
+        return np.linalg.pinv(blocks)
 
 
 class LowRankStage(NamedTuple):
@@ -183,156 +156,6 @@ class LowRankStage(NamedTuple):
         return [lu.shape[0] for lu, _ in self.lus]
 
 
-class PreconditionerCache:
-    """The harmonic preconditioner in use, shared by successive Jacobians (chord reuse).
-
-    A preconditioner built from one Jacobian is reused for the next ones (Newton
-    iterations, continuation steps, the tangent and the error indicators of a
-    point) as long as it pays: it is dropped when a solve needs more GMRES
-    iterations than :meth:`threshold`, i.e. when the iterations it costs beyond
-    those it needed on its own Jacobian would have paid for a new build
-    (``COST_REUSE``; at least ``REFRESH_ITERATIONS``, at most ``REFRESH_MAX``).
-
-    Parameters
-    ----------
-    refresh_iterations : int
-        Least threshold (GMRES iterations).
-    reuse : bool
-        False: build a new preconditioner for every Jacobian.
-    cost_reuse : bool, optional
-        Use the cost model (default ``COST_REUSE``); False: the fixed threshold
-        ``refresh_iterations``.
-    """
-
-    def __init__(self, refresh_iterations: int = REFRESH_ITERATIONS, reuse: bool = True,
-                 cost_reuse: bool | None = None):
-        self.refresh_iterations = int(refresh_iterations)
-        self.reuse = bool(reuse)
-        self.cost_reuse = COST_REUSE if cost_reuse is None else bool(cost_reuse)
-        self.current = None
-        self.owner = None
-        #: GMRES iterations the current preconditioner needed on its own Jacobian
-        self.fresh_iterations = 0
-        #: the current one is kept for its own Jacobian only (weak even when fresh)
-        self.exclusive = False
-        #: the last preconditioner whose harmonic stage was built (shared by the
-        #: partial ones after it, ``SHARE_HARMONIC_STAGE``), and the GMRES iterations
-        #: its first solve needed
-        self.stage = None
-        self.stage_iterations = None
-        #: each preconditioner serves one solve (the FRC points' extended solves of the
-        #: error indicators): a loose one may split its low-rank stage by harmonic
-        #: groups (``LOOSE_GROUP_MAX``); set by the caller
-        self.single_solve = False
-
-    def get(self, jac, shift=None) -> tuple["HarmonicPreconditioner", bool]:
-        """A preconditioner for ``jac`` and whether it was built from ``jac`` itself
-        (``shift``: see :class:`HarmonicPreconditioner`; used when one is built)."""
-        if self.current is not None and (self.owns(jac) or (self.reuse and not self.exclusive)):
-            return self.current, self.owns(jac)
-        return self.refresh(jac, shift), True
-
-    def owns(self, jac) -> bool:
-        """Whether the current preconditioner was built from ``jac``'s pieces (``jac``
-        itself or a column-scaled copy of it)."""
-        o = self.owner
-        return o is not None and (o is jac or (o.freq is jac.freq and o.Juu is jac.Juu
-                                               and o.Jug is jac.Jug and o.JNN is jac.JNN))
-
-    def refresh(self, jac, shift=None, full: bool = False) -> "HarmonicPreconditioner":
-        """Build the preconditioner of ``jac`` (with ``shift``) and keep it.
-
-        Its harmonic stage is the last one's (only the low-rank stage is built,
-        ``partial``) while the frequency is within ``SHARE_HARMONIC_STAGE`` of that
-        stage's and neither is shifted, unless ``full``.
-        """
-        base = None if full else self._stage_for(jac, shift)
-        self.current = HarmonicPreconditioner(jac, shift, base)
-        if base is None:
-            self.stage = self.current
-            self.stage_iterations = None
-        self.owner = jac
-        self.fresh_iterations = 0
-        self.exclusive = False
-        if jac.stats is not None:
-            jac.stats.factorizations += 1
-        return self.current
-
-    def _stage_for(self, jac, shift) -> "HarmonicPreconditioner | None":
-        """The kept harmonic stage when ``jac`` may share it, else None."""
-        P = self.stage
-        if not (self.reuse and SHARE_HARMONIC_STAGE > 0) or P is None or shift is not None \
-                or P.C2 is not None or jac.rtol >= SINGLE_LU_RTOL:   # loose: see the constant
-            return None
-        o = P.jac
-        if o.basis is not jac.basis or o.lin is not jac.lin \
-                or any((a is None) != (b is None) for a, b in
-                       ((o.Juu, jac.Juu), (o.Jug, jac.Jug), (o.JNN, jac.JNN))):
-            return None
-        change = abs(jac.freq.omega - P.omega) + abs(jac.freq.xi - P.xi)
-        return P if change <= SHARE_HARMONIC_STAGE * abs(P.omega) else None
-
-    def partial_budget(self) -> int:
-        """GMRES iterations a partial preconditioner (a shared harmonic stage) gets
-        before a full one is built: twice what the stage needed fresh, at least
-        ``2 REFRESH_ITERATIONS``."""
-        return max(2 * self.refresh_iterations, 2 * (self.stage_iterations or 0))
-
-    def _truncated(self) -> bool:
-        """Whether the current preconditioner is a truncated one kept for reuse
-        (``TRUNCATED_REUSE``)."""
-        return TRUNCATED_REUSE > 0 and self.current is not None \
-            and bool(getattr(self.current, "truncated", False))
-
-    def budget(self) -> int:
-        """GMRES iterations a reused preconditioner gets before it is rebuilt."""
-        if self.cost_reuse or self._truncated():
-            return self.threshold()
-        return 2 * self.threshold()
-
-    def threshold(self) -> int:
-        """GMRES iterations above which the preconditioner is dropped.
-
-        With the cost model: the iterations it needed when fresh plus the number of
-        iterations a build costs (``build_flops / iteration_flops``).  A truncated one
-        (``TRUNCATED_REUSE``): that factor times the iterations it needed fresh.
-        """
-        if self._truncated():
-            return max(self.refresh_iterations,
-                       int(TRUNCATED_REUSE * max(self.fresh_iterations, 1)))
-        if not self.cost_reuse or self.current is None \
-                or self.fresh_iterations > self.refresh_iterations:
-            return self.refresh_iterations
-        P = self.current
-        extra = P.build_flops / max(ITERATION_WEIGHT * P.iteration_flops, 1.0)
-        return int(min(max(self.fresh_iterations + extra, self.refresh_iterations),
-                       REFRESH_MAX))
-
-    def after_solve(self, iterations: int, fresh: bool) -> None:
-        """Keep or drop the current preconditioner after a solve with it.
-
-        One built from the Jacobian just solved stays for that Jacobian's further
-        solves (bordered, tangent, the indicators' two) even when it needed more
-        than :meth:`threshold` iterations; it is then not offered to other
-        Jacobians.  A reused one that needed more is dropped.
-        """
-        if fresh:
-            self.fresh_iterations = max(self.fresh_iterations, int(iterations))
-            if self.current is self.stage and self.stage_iterations is None:
-                self.stage_iterations = int(iterations)
-            if iterations > self.threshold():
-                self.exclusive = True
-        elif iterations > self.threshold():
-            self.forget()
-
-    def forget(self) -> None:
-        """Drop the current preconditioner: the next Jacobian builds its own (the error
-        indicators do this at every point, ``indicators.REUSE_ACROSS_POINTS``)."""
-        self.current = None
-        self.owner = None
-        self.exclusive = False
-
-
 class HarmonicPreconditioner:
     """Per harmonic, the inverse of ``S_h`` plus the harmonic-``h`` element tangent, with an
     exact low-rank correction for the elements whose tangent couples harmonics
@@ -356,7 +179,7 @@ class HarmonicPreconditioner:
         then ``P + L`` with ``L`` the whole difference of ``jac``'s tangent from
         ``base``'s projection plus the change of ``S_h`` with the frequency.  The
         low-rank stage corrects for the first exactly; GMRES does the rest
-        (``partial``, ``SHARE_HARMONIC_STAGE``).
+        (``partial``, ``preconditioner_cache.SHARE_HARMONIC_STAGE``).
     """
 
     def __init__(self, jac, shift=None, base=None):
@@ -368,6 +191,7 @@ class HarmonicPreconditioner:
             if shift is not None or base.C2 is not None:
                 raise ValueError("a shifted harmonic stage is not shared")
             self.Pinv, self.Plu, self.proj, self.S = base.Pinv, base.Plu, base.proj, base.S
+            self.Pinv_double = base.Pinv_double
             self.omega, self.xi = base.omega, base.xi
             self.partial = True
         else:
@@ -388,9 +212,10 @@ class HarmonicPreconditioner:
 
     def _harmonic_stage(self, shift):
         """Per harmonic, the inverse of ``S_h`` plus the harmonic projection of every
-        element's tangent (``self.Pinv``, or for a loose solve single-precision LU
-        factors ``self.Plu``: ``FACTORED_LOOSE_STAGE``; ``self.proj``; ``S_h`` kept as
-        ``self.S``)."""
+        element's tangent (``self.Pinv``, complex64 from ``SINGLE_INVERSE_MIN`` rows with
+        the fundamental's in double in ``self.Pinv_double``; or for a loose solve
+        single-precision LU factors ``self.Plu``: ``FACTORED_LOOSE_STAGE``;
+        ``self.proj``; ``S_h`` kept as ``self.S``)."""
         jac = self.jac
         nr = jac.n_r
         self.omega, self.xi = jac.freq.omega, jac.freq.xi
@@ -410,6 +235,7 @@ class HarmonicPreconditioner:
             if shift is not None and shift[0] == i:
                 P += self._rank_one(P, i, shift[1], shift[2])
         self.Pinv = self.Plu = None
+        self.Pinv_double = {}
         if FACTORED_LOOSE_STAGE and jac.rtol >= SINGLE_LU_RTOL:
             # a loose solve: single-precision LU factors (FACTORED_LOOSE_STAGE)
             lus = [sla.lu_factor(b, check_finite=False)
@@ -418,18 +244,28 @@ class HarmonicPreconditioner:
                 self.Plu = lus
                 return
         # explicit inverses, stacked (n_h, n_r, n_r): one batched product per
-        # application, and the (R, R) rows and columns the low-rank stage needs
-        try:
-            self.Pinv = np.linalg.inv(blocks)
-        except np.linalg.LinAlgError:      # a singular block: GMRES then has to cope
-            log.debug("harmonic preconditioner: a singular block, pseudo-inverse used")
-            self.Pinv = np.linalg.pinv(blocks)
+        # application, and the (R, R) rows and columns the low-rank stage needs; from
+        # SINGLE_INVERSE_MIN rows in single precision but for the fundamental's
+        single = np.array([h != 1 for h in jac.basis.harmonics]) \
+            if nr >= SINGLE_INVERSE_MIN else np.zeros(len(blocks), dtype=bool)
+        if single.any():
+            self.Pinv = np.empty(blocks.shape, dtype=np.complex64)
+            self.Pinv[single] = _inverse(blocks[single].astype(np.complex64))
+            exact = _inverse(blocks[~single])
+            self.Pinv[~single] = exact           # (applied from Pinv_double)
+            self.Pinv_double = dict(zip(np.flatnonzero(~single).tolist(), exact))
+        else:
+            self.Pinv = _inverse(blocks)
         self.Pinv[jac._h0] = self.Pinv[jac._h0].real
 
     def _inverse_times(self, X) -> np.ndarray:
         """``P_h^-1 X[h]`` for every harmonic; ``X`` (n_h, n_r, k) complex."""
         if self.Plu is None:
-            return np.matmul(self.Pinv, X)
+            Y = np.matmul(self.Pinv, X.astype(self.Pinv.dtype, copy=False)).astype(
+                complex, copy=False)
+            for i, Pd in self.Pinv_double.items():
+                Y[i] = Pd @ X[i]
+            return Y
         Y = np.empty(X.shape, dtype=complex)
         for i, f in enumerate(self.Plu):
             Y[i] = sla.lu_solve(f, X[i].astype(np.complex64), check_finite=False)
@@ -440,14 +276,19 @@ class HarmonicPreconditioner:
     def _inverse_columns(self, cols) -> np.ndarray:
         """The columns ``cols`` of every ``P_h^-1``, shape (n_h, n_r, len(cols))."""
         if self.Plu is None:
-            return np.ascontiguousarray(self.Pinv[:, :, cols])
+            C = np.ascontiguousarray(self.Pinv[:, :, cols])
+            if self.Pinv_double:           # the fundamental's columns in double
+                C = C.astype(complex)
+                for i, Pd in self.Pinv_double.items():
+                    C[i] = Pd[:, cols]
+            return C
         nh, nr = len(self.Plu), self.jac.n_r
         E = np.zeros((nh, nr, len(cols)), dtype=complex)
         E[:, cols, np.arange(len(cols))] = 1.0
         return self._inverse_times(E)
 
     def _count_flops(self):
-        """The cost model of the chord policy (:class:`PreconditionerCache`).
+        """The cost model of the chord policy (:class:`.PreconditionerCache`).
 
         ``build_flops``: the ``H + 1`` complex inverses (``8 n_r^3`` each), the
         low-rank LU (``2/3 m^3``) and its ``G L`` product (``2 m^2 d``), the element
@@ -786,5 +627,6 @@ class HarmonicPreconditioner:
         # n_r x n_r: the same nonzero terms, a fraction of the memory traffic)
         Xw = jac._to_complex(np.ascontiguousarray(s.reshape(-1, nc, k).transpose(1, 0, 2)))
         out = np.empty_like(V)
-        jac._from_complex(np.matmul(self.PinvR, Xw), out)
+        jac._from_complex(np.matmul(self.PinvR, Xw.astype(self.PinvR.dtype, copy=False)),
+                          out)
         return (Y - out).reshape(v.shape)

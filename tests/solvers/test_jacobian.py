@@ -144,6 +144,7 @@ def test_a_shared_harmonic_stage_is_exact_at_its_frequency(law, normal, monkeypa
     SHARE_HARMONIC_STAGE) it is not exact and GMRES still reaches the dense solution;
     farther away, for a loose solve, or with the sharing off, the build is full."""
     import jointsim.solvers.preconditioner as pm
+    import jointsim.solvers.preconditioner_cache as pc
     sd, sk = _pair(build_model(four_dof(law, "anchor", normal)))
     F = sd.force_coefficients(0.3)
     rng = np.random.default_rng(7)
@@ -167,10 +168,41 @@ def test_a_shared_harmonic_stage_is_exact_at_its_frequency(law, normal, monkeypa
     assert it > 1 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
     J3.rtol = pm.SINGLE_LU_RTOL               # a loose solve (error indicators): full
     assert not cache.refresh(J3).partial
-    assert not cache.refresh(sk.evaluate(z2, 1.1 * (1.0 + 2 * pm.SHARE_HARMONIC_STAGE),
+    assert not cache.refresh(sk.evaluate(z2, 1.1 * (1.0 + 2 * pc.SHARE_HARMONIC_STAGE),
                                          F).J).partial
-    monkeypatch.setattr(pm, "SHARE_HARMONIC_STAGE", 0.0)
+    monkeypatch.setattr(pc, "SHARE_HARMONIC_STAGE", 0.0)
     assert not cache.refresh(J2).partial
+
+
+def test_single_precision_harmonic_inverses_but_the_fundamental(monkeypatch):
+    """From ``SINGLE_INVERSE_MIN`` rows (forced down to 1 here) the harmonic stage's
+    inverses are complex64, except the fundamental's (double, applied from
+    ``Pinv_double``): applying the stage equals the double-precision one to
+    single-precision round-off for the other harmonics (and not exactly) and to
+    double round-off for the fundamental; GMRES with it still reaches the dense
+    solution to 1e-10."""
+    import jointsim.solvers.preconditioner as pm
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
+    F = sd.force_coefficients(0.3)
+    rng = np.random.default_rng(11)
+    z = rng.normal(size=sd.n_z) * 0.4
+    J = sk.evaluate(z, 1.1, F).J
+    P64 = HarmonicPreconditioner(J)
+    assert P64.Pinv.dtype == complex and not P64.Pinv_double
+    monkeypatch.setattr(pm, "SINGLE_INVERSE_MIN", 1)
+    P32 = HarmonicPreconditioner(J)
+    h1 = list(sk.basis.harmonics).index(1)
+    assert P32.Pinv.dtype == np.complex64 and list(P32.Pinv_double) == [h1]
+    X = rng.normal(size=(len(sk.basis.harmonics), sk.n_r, 2)) \
+        + 1j * rng.normal(size=(len(sk.basis.harmonics), sk.n_r, 2))
+    Y64, Y32 = P64._inverse_times(X), P32._inverse_times(X)
+    for i in range(len(sk.basis.harmonics)):
+        err = np.abs(Y32[i] - Y64[i]).max() / np.abs(Y64[i]).max()
+        assert (err <= 1e-13) if i == h1 else (1e-12 < err <= 1e-5)
+    v = rng.normal(size=sd.n_z)
+    xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, v)
+    x, it, rel, _ = gmres(J.matvec, v, lambda u: P32.apply(u, J), rtol=1e-12)
+    assert np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
 
 
 @pytest.mark.parametrize("normal", ["coupled", "fixed"])
@@ -199,8 +231,8 @@ def test_a_partial_preconditioner_that_misses_its_budget_is_rebuilt_in_full(monk
     """A Jacobian far from the shared harmonic stage's frequency (the sharing forced
     on): the reused preconditioner and then the partial one miss their budgets, a full
     one is built and the solve equals the dense one; it is the new shared stage."""
-    import jointsim.solvers.preconditioner as pm
-    monkeypatch.setattr(pm, "SHARE_HARMONIC_STAGE", 1.0)
+    import jointsim.solvers.preconditioner_cache as pc
+    monkeypatch.setattr(pc, "SHARE_HARMONIC_STAGE", 1.0)
     sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
     F = sd.force_coefficients(0.3)
     rng = np.random.default_rng(8)

@@ -1,0 +1,208 @@
+"""The reuse of the harmonic preconditioner across Jacobians (the chord policy).
+
+:class:`PreconditionerCache` keeps the :class:`~.preconditioner.HarmonicPreconditioner`
+in use and offers it to the next Jacobians (Newton iterations, continuation steps, the
+tangent) while it pays, and when it has to build one for a Jacobian at (nearly) the
+same frequency it keeps the harmonic stage and builds only the low-rank one
+(``SHARE_HARMONIC_STAGE``).  The scheme is explained in :mod:`jointsim.solvers.jacobian`.
+"""
+from __future__ import annotations
+
+from .preconditioner import SINGLE_LU_RTOL, HarmonicPreconditioner
+
+#: GMRES iterations above which a reused preconditioner is always allowed to be
+#: rebuilt (the least threshold of :meth:`PreconditionerCache.threshold`).
+REFRESH_ITERATIONS = 10
+#: Chord policy: a reused preconditioner is kept while the GMRES iterations it costs
+#: beyond those it needed when fresh are cheaper than a new build.  The cost model
+#: is in floating-point operations (:attr:`HarmonicPreconditioner.build_flops`,
+#: :attr:`HarmonicPreconditioner.iteration_flops`); an iteration's flops are
+#: memory-bound products and count ``ITERATION_WEIGHT`` times (measured at 121
+#: contact pairs, FRC at force scale 20, one BLAS thread: a build cost 42 GMRES
+#: iterations, 1.4 s against 33 ms at load 17, where the flop model says 107).  Only a preconditioner that was (nearly) exact when fresh, at
+#: most ``REFRESH_ITERATIONS`` iterations, is kept beyond ``REFRESH_ITERATIONS``:
+#: reusing a truncated one (50 iterations fresh in gross slip) was measured 2.2x
+#: more GMRES iterations and slower overall.  Off by default: measured side by
+#: side at 121 pairs and load 1, the first 15 EPMC points took 19.1 s with it
+#: against 12.8 s with the fixed threshold ``REFRESH_ITERATIONS`` (1,705 vs 547
+#: GMRES iterations, 3 vs 16 builds); the FRC at force scale 2 lost too.
+COST_REUSE = False
+ITERATION_WEIGHT = 2.5
+#: Largest threshold of the chord policy (GMRES iterations; below the restart length).
+REFRESH_MAX = 60
+
+#: A truncated preconditioner (gross slip: 25 to 50 GMRES iterations even fresh, so
+#: it serves its own Jacobian only and every Newton iteration builds one) would be
+#: offered to the next Jacobians while a solve with it needs at most this many times
+#: the iterations it needed fresh (0: never).  Off: measured side by side at 121
+#: pairs, force scale 20, first 12 points, load 10 (``benchmarks/profile_case.py hbm
+#: --force 20 --points 12``), at 2.0 the builds went 46 -> 22 but the GMRES
+#: iterations 1,976 -> 3,489 and the time 61.9 -> 74.1 s (a reused truncated
+#: preconditioner needs about twice its fresh iterations; they cost more than the
+#: builds saved).
+TRUNCATED_REUSE = 0.0
+#: A preconditioner built for a Jacobian at a frequency within this fraction of the
+#: last full build's (``|d omega| + |d xi| <= SHARE_HARMONIC_STAGE omega``) keeps that
+#: build's harmonic stage (``S_h`` and the ``H + 1`` inverses, at the old frequency
+#: and with the old harmonic projection of the tangent) and builds only its low-rank
+#: stage, which then corrects for the whole change of the tangent (``partial``).
+#: 0: every build is full.  Not with a shift (the EPMC's bordered solves), and not
+#: for Jacobians solved to a loose tolerance (``SINGLE_LU_RTOL``: the error
+#: indicators' extended systems): there the low-rank LU dominates the build, and the
+#: old projection adds the elements that stuck in one state and slipped in the other
+#: to it.  Measured on 120 Gauss points, force-20 branch, one thread: a main system's
+#: build 133 ms full, 42 ms partial; an extended system's 0.41 s full, 0.47 s partial.
+#: The branch (error indicators off) on 240 Gauss points: 145.6 s without sharing,
+#: 117.8 s at 1e-3, 112.2 s at 5e-3 (Newton iterations and points unchanged, GMRES
+#: iterations 2,949 / 3,105 / 3,257, X equal to 2.4e-12).
+SHARE_HARMONIC_STAGE = 5e-3
+
+
+class PreconditionerCache:
+    """The harmonic preconditioner in use, shared by successive Jacobians (chord reuse).
+
+    A preconditioner built from one Jacobian is reused for the next ones (Newton
+    iterations, continuation steps, the tangent and the error indicators of a
+    point) as long as it pays: it is dropped when a solve needs more GMRES
+    iterations than :meth:`threshold`, i.e. when the iterations it costs beyond
+    those it needed on its own Jacobian would have paid for a new build
+    (``COST_REUSE``; at least ``REFRESH_ITERATIONS``, at most ``REFRESH_MAX``).
+
+    Parameters
+    ----------
+    refresh_iterations : int
+        Least threshold (GMRES iterations).
+    reuse : bool
+        False: build a new preconditioner for every Jacobian.
+    cost_reuse : bool, optional
+        Use the cost model (default ``COST_REUSE``); False: the fixed threshold
+        ``refresh_iterations``.
+    """
+
+    def __init__(self, refresh_iterations: int = REFRESH_ITERATIONS, reuse: bool = True,
+                 cost_reuse: bool | None = None):
+        self.refresh_iterations = int(refresh_iterations)
+        self.reuse = bool(reuse)
+        self.cost_reuse = COST_REUSE if cost_reuse is None else bool(cost_reuse)
+        self.current = None
+        self.owner = None
+        #: GMRES iterations the current preconditioner needed on its own Jacobian
+        self.fresh_iterations = 0
+        #: the current one is kept for its own Jacobian only (weak even when fresh)
+        self.exclusive = False
+        #: the last preconditioner whose harmonic stage was built (shared by the
+        #: partial ones after it, ``SHARE_HARMONIC_STAGE``), and the GMRES iterations
+        #: its first solve needed
+        self.stage = None
+        self.stage_iterations = None
+        #: each preconditioner serves one solve (the FRC points' extended solves of the
+        #: error indicators): a loose one may split its low-rank stage by harmonic
+        #: groups (``LOOSE_GROUP_MAX``); set by the caller
+        self.single_solve = False
+
+    def get(self, jac, shift=None) -> tuple["HarmonicPreconditioner", bool]:
+        """A preconditioner for ``jac`` and whether it was built from ``jac`` itself
+        (``shift``: see :class:`HarmonicPreconditioner`; used when one is built)."""
+        if self.current is not None and (self.owns(jac) or (self.reuse and not self.exclusive)):
+            return self.current, self.owns(jac)
+        return self.refresh(jac, shift), True
+
+    def owns(self, jac) -> bool:
+        """Whether the current preconditioner was built from ``jac``'s pieces (``jac``
+        itself or a column-scaled copy of it)."""
+        o = self.owner
+        return o is not None and (o is jac or (o.freq is jac.freq and o.Juu is jac.Juu
+                                               and o.Jug is jac.Jug and o.JNN is jac.JNN))
+
+    def refresh(self, jac, shift=None, full: bool = False) -> "HarmonicPreconditioner":
+        """Build the preconditioner of ``jac`` (with ``shift``) and keep it.
+
+        Its harmonic stage is the last one's (only the low-rank stage is built,
+        ``partial``) while the frequency is within ``SHARE_HARMONIC_STAGE`` of that
+        stage's and neither is shifted, unless ``full``.
+        """
+        base = None if full else self._stage_for(jac, shift)
+        self.current = HarmonicPreconditioner(jac, shift, base)
+        if base is None:
+            self.stage = self.current
+            self.stage_iterations = None
+        self.owner = jac
+        self.fresh_iterations = 0
+        self.exclusive = False
+        if jac.stats is not None:
+            jac.stats.factorizations += 1
+        return self.current
+
+    def _stage_for(self, jac, shift) -> "HarmonicPreconditioner | None":
+        """The kept harmonic stage when ``jac`` may share it, else None."""
+        P = self.stage
+        if not (self.reuse and SHARE_HARMONIC_STAGE > 0) or P is None or shift is not None \
+                or P.C2 is not None or jac.rtol >= SINGLE_LU_RTOL:   # loose: see the constant
+            return None
+        o = P.jac
+        if o.basis is not jac.basis or o.lin is not jac.lin \
+                or any((a is None) != (b is None) for a, b in
+                       ((o.Juu, jac.Juu), (o.Jug, jac.Jug), (o.JNN, jac.JNN))):
+            return None
+        change = abs(jac.freq.omega - P.omega) + abs(jac.freq.xi - P.xi)
+        return P if change <= SHARE_HARMONIC_STAGE * abs(P.omega) else None
+
+    def partial_budget(self) -> int:
+        """GMRES iterations a partial preconditioner (a shared harmonic stage) gets
+        before a full one is built: twice what the stage needed fresh, at least
+        ``2 REFRESH_ITERATIONS``."""
+        return max(2 * self.refresh_iterations, 2 * (self.stage_iterations or 0))
+
+    def _truncated(self) -> bool:
+        """Whether the current preconditioner is a truncated one kept for reuse
+        (``TRUNCATED_REUSE``)."""
+        return TRUNCATED_REUSE > 0 and self.current is not None \
+            and bool(getattr(self.current, "truncated", False))
+
+    def budget(self) -> int:
+        """GMRES iterations a reused preconditioner gets before it is rebuilt."""
+        if self.cost_reuse or self._truncated():
+            return self.threshold()
+        return 2 * self.threshold()
+
+    def threshold(self) -> int:
+        """GMRES iterations above which the preconditioner is dropped.
+
+        With the cost model: the iterations it needed when fresh plus the number of
+        iterations a build costs (``build_flops / iteration_flops``).  A truncated one
+        (``TRUNCATED_REUSE``): that factor times the iterations it needed fresh.
+        """
+        if self._truncated():
+            return max(self.refresh_iterations,
+                       int(TRUNCATED_REUSE * max(self.fresh_iterations, 1)))
+        if not self.cost_reuse or self.current is None \
+                or self.fresh_iterations > self.refresh_iterations:
+            return self.refresh_iterations
+        P = self.current
+        extra = P.build_flops / max(ITERATION_WEIGHT * P.iteration_flops, 1.0)
+        return int(min(max(self.fresh_iterations + extra, self.refresh_iterations),
+                       REFRESH_MAX))
+
+    def after_solve(self, iterations: int, fresh: bool) -> None:
+        """Keep or drop the current preconditioner after a solve with it.
+
+        One built from the Jacobian just solved stays for that Jacobian's further
+        solves (bordered, tangent, the indicators' two) even when it needed more
+        than :meth:`threshold` iterations; it is then not offered to other
+        Jacobians.  A reused one that needed more is dropped.
+        """
+        if fresh:
+            self.fresh_iterations = max(self.fresh_iterations, int(iterations))
+            if self.current is self.stage and self.stage_iterations is None:
+                self.stage_iterations = int(iterations)
+            if iterations > self.threshold():
+                self.exclusive = True
+        elif iterations > self.threshold():
+            self.forget()
+
+    def forget(self) -> None:
+        """Drop the current preconditioner: the next Jacobian builds its own (the error
+        indicators do this at every point, ``indicators.REUSE_ACROSS_POINTS``)."""
+        self.current = None
+        self.owner = None
+        self.exclusive = False
