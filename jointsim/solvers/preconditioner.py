@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.linalg as sla
 
+from .gmres import gmres_columns
 from .tangent_projection import add_projected_tangent, project_tangent
 
 log = logging.getLogger(__name__)
@@ -65,19 +66,14 @@ SINGLE_LU_RTOL = 1e-6
 SINGLE_LU_MIN = 1000
 #: An FRC point's extended solve (loose, ``SINGLE_LU_RTOL``; one solve per
 #: preconditioner, :attr:`.PreconditionerCache.single_solve`) whose low-rank stage exceeds
-#: ``LOOSE_SPLIT_MIN`` coordinates keeps every row block and splits the correction by
-#: ``g`` contiguous groups of harmonics, ``g`` the least power of two (at most
-#: ``LOOSE_GROUPS``) leaving each at most ``LOOSE_GROUP_MAX``: the terms of ``L`` between
-#: groups are left to GMRES, ``I + L_r G`` is block-diagonal (``G`` couples a harmonic
-#: with itself only) and its LUs cost ``m^3 / g^2``.  0: one group.  Measured (docs/hbm.md,
-#: "Round 32"), 240-point gross slip (``m`` about 6,900): 3.10 s a point truncated at
-#: ``LOWRANK_MAX``, 1.51 s in 4 groups, the estimates within 0.08 % of an exact
-#: stage's; more groups cost accuracy (the fold chain's truncation part: 2.5 % with 4,
-#: 30 % with 8), microslip points lose with 2 (0.544 against 0.518 s), and the EPMC's
-#: extended Newton, whose steps share one preconditioner, loses too.
-LOOSE_GROUP_MAX = 2000
-LOOSE_SPLIT_MIN = 3000
-LOOSE_GROUPS = 4
+#: ``LOOSE_SPLIT_MIN`` coordinates keeps every row block and is solved through its
+#: capacitance system (:meth:`HarmonicPreconditioner.solve_capacitance`): GMRES on
+#: ``I + L_r G`` preconditioned by its blocks of one harmonic each (``G`` couples a
+#: harmonic with itself only; their inverses cost ``m^3 / (H + 1)^2``), refined on
+#: the system itself (:func:`~jointsim.solvers.jacobian.krylov_solve`); ``inf``: never.
+#: Before round 34 the correction was split into up to 4 contiguous harmonic groups
+#: and GMRES iterated on the whole extended system (docs/hbm.md, "Round 34").
+LOOSE_SPLIT_MIN = 1000
 #: Elements whose harmonic coupling ``|L_e|`` is below this fraction of the largest
 #: tangent entry are left out of the low-rank stage (in the stuck range the AFT's
 #: round-off, about 1e-12, used to fill it: 1,260 coordinates at 121 pairs).
@@ -132,14 +128,23 @@ class LowRankStage(NamedTuple):
         terms that couple two harmonic groups, when there are several).
     groups : tuple
         The coordinates (index ``j n_c + k`` into the ``m = n_rb n_c``) of each
-        group of harmonics (:meth:`~HarmonicPreconditioner._lowrank`); ``(slice(None),)``
-        for one group.
+        group, one per harmonic (:meth:`~HarmonicPreconditioner._lowrank`);
+        ``(slice(None),)`` for one group.
     lus : tuple
-        ``scipy.linalg.lu_factor`` of each group's block of ``I + L_r G`` (single
-        precision for a loose solve or a large ``m``: ``SINGLE_LU_RTOL``,
-        ``SINGLE_LU_MIN``).
+        With one group, ``scipy.linalg.lu_factor`` of ``I + L_r G`` (single precision
+        for a loose solve or a large ``m``: ``SINGLE_LU_RTOL``, ``SINGLE_LU_MIN``);
+        else empty.
     nb : int
         Row kinds per element (slip and gap rows: 2; one of them: 1).
+    full : ndarray, shape (n_rb, n_c, nb n_c), or None
+        With several groups, ``L`` on each row block with the terms between groups
+        (:meth:`~HarmonicPreconditioner.solve_capacitance`); else None.
+    Q : ndarray, shape (n_h, nb n_l, n_rb), complex, or None
+        With several groups, the ``(R, Rrow)`` part of each ``P_h^-1`` (``G`` by
+        harmonics, single precision); else None.
+    inverses : tuple of ndarray, or None
+        With several groups, the inverse of each group's block of ``I + L_r G``
+        (single precision); else None.
     """
 
     R: np.ndarray
@@ -149,10 +154,15 @@ class LowRankStage(NamedTuple):
     groups: tuple
     lus: tuple
     nb: int
+    full: np.ndarray | None = None
+    Q: np.ndarray | None = None
+    inverses: tuple | None = None
 
     @property
     def sizes(self) -> list[int]:
-        """Coordinates of each group's LU."""
+        """Coordinates of each group (of its LU, or of its inverse)."""
+        if self.inverses is not None:
+            return [inv.shape[0] for inv in self.inverses]
         return [lu.shape[0] for lu, _ in self.lus]
 
 
@@ -379,7 +389,7 @@ class HarmonicPreconditioner:
         with the largest ``|L|`` are kept, ``LOWRANK_MAX_FRACTION n_z`` coordinates
         (``self.truncated``; GMRES and the element-block stage handle the rest).  An FRC
         point's extended solve keeps every row block instead and splits the correction
-        by harmonic groups (``LOOSE_GROUP_MAX``, :meth:`_lr_g`).
+        by harmonics (``LOOSE_SPLIT_MIN``, :meth:`_lr_g`, :meth:`solve_capacitance`).
         """
         jac = self.jac
         nc = jac.n_c
@@ -418,15 +428,11 @@ class HarmonicPreconditioner:
             return int(min(max(fraction * jac.n_z, LOWRANK_MIN), LOWRANK_MAX)) // nc
         nh = len(jac.basis.harmonics)
         n_groups = 1
-        if jac.rtol >= SINGLE_LU_RTOL and LOOSE_GROUP_MAX \
-                and sel.size * nc > LOOSE_SPLIT_MIN \
+        if jac.rtol >= SINGLE_LU_RTOL and sel.size * nc > LOOSE_SPLIT_MIN \
                 and jac.cache.single_solve:
-            # a loose solve: every row block, the correction split by harmonic groups
-            while n_groups < min(nh, LOOSE_GROUPS) and \
-                    sel.size * nc > n_groups * LOOSE_GROUP_MAX:
-                n_groups *= 2
-            n_groups = min(n_groups, nh, LOOSE_GROUPS)
-            most = n_groups * LOWRANK_MAX // nc
+            # a loose solve: every row block, the correction split by harmonics
+            # (solve_capacitance)
+            n_groups, most = nh, sel.size
         else:
             most = blocks(LOWRANK_MAX_FRACTION) \
                 if sel.size > blocks(LOWRANK_EXACT_FRACTION) else sel.size
@@ -446,25 +452,32 @@ class HarmonicPreconditioner:
         # row block and nothing is permuted.
         Lr = np.ascontiguousarray(Lb[el, kind])               # (nrb, n_c, d)
         coefs = self._harmonic_groups(n_groups) if n_groups > 1 else None
+        full = None
         if coefs is not None:
-            # leave the terms between two groups to GMRES: I + L_r G is then
-            # block-diagonal over the groups (G couples a harmonic with itself only)
+            # the preconditioner's L_r leaves out the terms between two groups: I + L_r G
+            # is then block-diagonal over the groups (G couples a harmonic with itself
+            # only); the whole L_r is kept for solve_capacitance
             group = np.empty(nc, dtype=np.intp)
             for g, c in enumerate(coefs):
                 group[c] = g
+            full = Lr.copy()
             Lr[:, group[:, None] != np.tile(group, nb)[None, :]] = 0.0
         # the selected columns of P_h^-1: the correction P^-1 E_r s lives on the Rrow
         # rows; G is their R rows
         self.PinvR = self._inverse_columns(Rrow)
         single = jac.rtol >= SINGLE_LU_RTOL or m >= SINGLE_LU_MIN   # the LU in float32
-        lus = []
-        for Mk in self._lr_g(Lr.reshape(nrb, nc, nb, nc), R, blk_el,
-                             np.float32 if single else float, coefs):
+        caps = self._lr_g(Lr.reshape(nrb, nc, nb, nc), R, blk_el,
+                             np.float32 if single else float, coefs)
+        for Mk in caps:
             Mk[np.diag_indices_from(Mk)] += 1.0
-            lus.append(sla.lu_factor(Mk, check_finite=False))
-        groups = (slice(None),) if coefs is None else tuple(
-            (np.arange(nrb)[:, None] * nc + c[None, :]).ravel() for c in coefs)
-        self.lowrank = LowRankStage(R, Rrow, blk_el, Lr, groups, tuple(lus), nb)
+        if coefs is None:
+            lus, inverses, groups, Q = (sla.lu_factor(caps[0], check_finite=False),), \
+                None, (slice(None),), None
+        else:       # small blocks (one harmonic's rows), applied many times: inverses
+            lus, inverses = (), tuple(_inverse(Mk) for Mk in caps)
+            groups = tuple((np.arange(nrb)[:, None] * nc + c[None, :]).ravel() for c in coefs)
+            Q = np.ascontiguousarray(self.PinvR[:, R].astype(np.complex64))
+        self.lowrank = LowRankStage(R, Rrow, blk_el, Lr, groups, lus, nb, full, Q, inverses)
 
     def _harmonic_groups(self, n_groups: int) -> list:
         """The coefficients (sorted index arrays into the ``n_c``) of ``n_groups`` groups of
@@ -613,20 +626,96 @@ class HarmonicPreconditioner:
         if self.lowrank is None:
             return Y.reshape(v.shape)
         lr = self.lowrank
-        nc, k = jac.n_c, V.shape[2]
+        k = V.shape[2]
+        rhs = np.matmul(lr.Lr, self._column_coordinates(Y[:, lr.R])[lr.block_element])
+        return (Y - self._correction(self._group_solve(rhs.reshape(-1, k)))).reshape(v.shape)
+
+    def _column_coordinates(self, Yr) -> np.ndarray:
+        """The column elements' coordinates ``Yr`` (n_c, R.size, k), the ``R`` rows of
+        coefficient rows, in the low-rank stage's element-major order (l, b n_c + c):
+        shape (n_l, nb n_c, k)."""
+        lr = self.lowrank
+        nc, k = self.jac.n_c, Yr.shape[2]
         nl = lr.R.size // lr.nb
-        # element-major column order (l, b n_c + c) from the (c, b nl + l) columns of Y
-        yc = Y[:, lr.R].reshape(nc, lr.nb, nl, k).transpose(2, 1, 0, 3).reshape(nl, -1, k)
-        rhs = np.matmul(lr.Lr, yc[lr.block_element])             # L_r y_c, (nrb, n_c, k)
-        rhs = rhs.reshape(-1, k)
+        return Yr.reshape(nc, lr.nb, nl, k).transpose(2, 1, 0, 3).reshape(nl, -1, k)
+
+    def _group_solve(self, rhs) -> np.ndarray:
+        """``I + L_r G`` on ``rhs`` (m, k) by its LU, or by its groups' inverses."""
+        lr = self.lowrank
+        if lr.inverses is None:
+            lu = lr.lus[0]
+            return sla.lu_solve(lu, rhs.astype(lu[0].dtype, copy=False), check_finite=False)
         s = np.empty(rhs.shape)
-        for rows, lu in zip(lr.groups, lr.lus):       # the harmonic groups' LUs
-            s[rows] = sla.lu_solve(lu, rhs[rows].astype(lu[0].dtype, copy=False),
-                                   check_finite=False)
-        # P^-1 E_r s: only the Rrow columns of P_h^-1 (n_r x nrb per harmonic, not
-        # n_r x n_r: the same nonzero terms, a fraction of the memory traffic)
+        for rows, inv in zip(lr.groups, lr.inverses):
+            s[rows] = inv @ rhs[rows].astype(inv.dtype, copy=False)
+        return s
+
+    def _correction(self, s) -> np.ndarray:
+        """``P^-1 E_r s`` (n_c, n_r, k) for ``s`` (m, k): only the ``Rrow`` columns of
+        ``P_h^-1`` (n_r x nrb per harmonic, not n_r x n_r: the same nonzero terms, a
+        fraction of the memory traffic)."""
+        jac = self.jac
+        nc, k = jac.n_c, s.shape[1]
         Xw = jac._to_complex(np.ascontiguousarray(s.reshape(-1, nc, k).transpose(1, 0, 2)))
-        out = np.empty_like(V)
+        out = np.empty((nc, jac.n_r, k))
         jac._from_complex(np.matmul(self.PinvR, Xw.astype(self.PinvR.dtype, copy=False)),
                           out)
-        return (Y - out).reshape(v.shape)
+        return out
+
+    @property
+    def capacitance_solves(self) -> bool:
+        """Whether :meth:`solve_capacitance` applies: a low-rank stage split into
+        harmonic groups, neither truncated nor shifted."""
+        return self.lowrank is not None and self.lowrank.full is not None \
+            and self.Binv is None and self.C2 is None
+
+    def solve_capacitance(self, b, rtol: float):
+        """``J^-1 b`` for the unscaled ``J``, by GMRES on the low-rank stage's capacitance
+        system (:attr:`capacitance_solves`; the error indicators' extended solves).
+
+        Woodbury with the whole ``L_r`` (the terms between harmonic groups included):
+        ``x = y - P^-1 E_r s``, ``y = P^-1 b``, ``(I + L_r G) s = L_r E_c^T y``.  Then
+        ``J x - b = -E_r ((I + L_r G) s - L_r E_c^T y)``: the capacitance system's
+        residual is the whole system's, so GMRES on its ``m`` unknowns, preconditioned
+        by the groups' LUs (its block-diagonal part), stops at ``rtol |b|``.  A product
+        with ``I + L_r G`` reads ``G`` by harmonics (:attr:`LowRankStage.Q`, about a
+        tenth of the blocks a product with ``J`` reads) and ``L_r`` by row blocks, so
+        an iteration costs a fraction of one on ``J`` with this preconditioner, and
+        about as many are needed (the terms between groups are what both iterate on).
+        ``P^-1`` and ``G`` are in single precision: the caller checks the residual on
+        ``J`` itself (:func:`~jointsim.solvers.jacobian.krylov_solve`).
+
+        Parameters
+        ----------
+        b : ndarray, shape (n_z,) or (n_z, k)
+        rtol : float
+            Relative residual ``|J x - b| / |b|`` per column.
+
+        Returns
+        -------
+        x : ndarray, shape of ``b``
+        iterations : int
+            GMRES iterations, summed over the columns.
+        """
+        jac, lr = self.jac, self.lowrank
+        nc = jac.n_c
+        B = np.asarray(b, dtype=float).reshape(jac.n_z, -1)
+        k = B.shape[1]
+        Y = self._harmonic_solve(B.reshape(nc, jac.n_r, k))
+        rhs = np.matmul(lr.full, self._column_coordinates(Y[:, lr.R])[lr.block_element]) \
+            .reshape(-1, k)
+
+        def product(S):
+            kk = S.shape[1]
+            Xw = jac._to_complex(np.ascontiguousarray(S.reshape(-1, nc, kk).transpose(1, 0, 2)))
+            T = np.empty((nc, lr.R.size, kk))
+            jac._from_complex(np.matmul(lr.Q, Xw.astype(lr.Q.dtype)), T)   # G s
+            return S + np.matmul(lr.full, self._column_coordinates(T)[lr.block_element]) \
+                .reshape(S.shape)
+
+        bn, rn = np.linalg.norm(B, axis=0), np.linalg.norm(rhs, axis=0)
+        pos = rn > 0.0
+        tol = rtol * float(np.min(bn[pos] / rn[pos])) if pos.any() else rtol
+        cols = gmres_columns(product, rhs, self._group_solve, rtol=tol)
+        s = np.column_stack([c.x for c in cols])
+        return (Y - self._correction(s)).reshape(np.shape(b)), sum(c.iterations for c in cols)

@@ -279,37 +279,45 @@ def test_krylov_path_gives_the_direct_indicators():
         assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-5)
 
 
-def test_frc_indicators_with_the_low_rank_stage_split_by_harmonic_groups(monkeypatch):
+def test_frc_indicators_through_the_capacitance_system(monkeypatch):
     """An FRC point's extended solve builds its preconditioner for that one solve
-    (``single_solve``): a large low-rank stage is split by harmonic groups
-    (``LOOSE_GROUP_MAX``, forced here on the fold chain's small one: 46 coordinates in
-    two groups), and the indicators equal the dense solve's to the GMRES tolerance's
-    effect (``INDICATOR_RTOL``; measured 0.23 % on the truncation part).  At most
-    ``LOOSE_GROUPS`` groups: with one per harmonic that part moved by 29 %."""
+    (``single_solve``): a large low-rank stage is split by harmonics and the solve goes
+    through its capacitance system (``LOOSE_SPLIT_MIN``, forced here on the fold
+    chain's small one; :meth:`~.HarmonicPreconditioner.solve_capacitance`, refined on
+    the system).  The indicators equal the dense solve's to the GMRES tolerance's
+    effect (``INDICATOR_RTOL``; measured 5e-5), also at this point near the fold,
+    where they moved by 29 % when GMRES iterated on the whole system with this split
+    as its preconditioner (before round 34)."""
+    import jointsim.solvers.jacobian as jm
     import jointsim.solvers.preconditioner as pm
     m = build_model(load_scene(FOLD))
     s, F, p = _point(m, 5, 64, 0.1, 1.2)
     d = ErrorEstimator(s).hbm(p.z, 1.2, F, p.X)
-    monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
-    sizes = []
+    sizes, steps = [], []
     build = pm.HarmonicPreconditioner._lowrank
+    refine = jm._capacitance_refined
 
     def spy(self):
         build(self)
         sizes.append(self.lowrank.sizes)
+
+    def spy_refine(*args):
+        steps.append(refine(*args))
+        return steps[-1]
     monkeypatch.setattr(pm.HarmonicPreconditioner, "_lowrank", spy)
+    monkeypatch.setattr(jm, "_capacitance_refined", spy_refine)
     sk = HBMSystem(m, tuple(range(6)), 64, linear_solver="krylov")
-    for most, groups in ((1, pm.LOOSE_GROUPS), (None, 2)):
-        if most is None:                                   # two groups
-            most = (sum(sizes[-1]) + 1) // 2
-        monkeypatch.setattr(pm, "LOOSE_GROUP_MAX", most)
-        est = ErrorEstimator(sk)
-        k = est.hbm(p.z, 1.2, F, p.X)
-        assert est.ext.preconditioner.single_solve and len(sizes[-1]) == groups
+    ErrorEstimator(sk).hbm(p.z, 1.2, F, p.X)
+    assert len(sizes[-1]) == 1 and not steps        # at most LOOSE_SPLIT_MIN: one LU
+    monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
+    est = ErrorEstimator(sk)
+    k = est.hbm(p.z, 1.2, F, p.X)
+    nh = len(est.ext.basis.harmonics)
+    assert est.ext.preconditioner.single_solve and len(sizes[-1]) == nh and steps
     assert d.estimate > 1e-4
     for name in ("truncation", "aliasing", "force_tail", "curve", "curve_truncation",
                  "curve_aliasing"):
-        assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-2), name
+        assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-3), name
 
 
 def _fold_points():

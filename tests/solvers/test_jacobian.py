@@ -385,14 +385,14 @@ def test_lowrank_lu_is_single_precision_for_a_loose_solve_or_a_large_stage(monke
 
 
 @pytest.mark.parametrize("normal", ["coupled", "fixed"])
-def test_loose_lowrank_stage_split_by_harmonic_groups(normal, monkeypatch):
+def test_loose_lowrank_stage_split_by_harmonics_and_its_capacitance_solve(normal, monkeypatch):
     """A loose solve's low-rank stage above ``LOOSE_SPLIT_MIN`` coordinates, built for
     one solve (``PreconditionerCache.single_solve``), keeps every row block and splits
-    its correction by contiguous harmonic groups (the least power of two that leaves
-    each at most ``LOOSE_GROUP_MAX``): one LU per group, the terms between groups left
-    to GMRES.  The preconditioner is then not the inverse of J, and GMRES still
-    reaches the dense solution; the same stage in one group is exact (to single
-    precision)."""
+    ``I + L_r G`` by harmonics: as a preconditioner (the terms of ``L_r`` between two
+    harmonics left out) it is not the inverse of J; its capacitance solve, with the
+    whole ``L_r``, is (to single precision), and refined on J it reaches the dense
+    solution (the oracle) to the tolerance asked."""
+    import jointsim.solvers.jacobian as jm
     import jointsim.solvers.preconditioner as pm
     sd, sk = _pair(build_model(four_dof("jenkins", "anchor", normal)))
     F = sd.force_coefficients(0.3)
@@ -405,30 +405,42 @@ def test_loose_lowrank_stage_split_by_harmonic_groups(normal, monkeypatch):
     one = HarmonicPreconditioner(Jl)
     m = sum(one.lowrank.sizes)
     assert len(one.lowrank.sizes) == 1 and m <= pm.LOOSE_SPLIT_MIN
+    assert not one.capacitance_solves
     assert np.abs(one.solve(v) - xd).max() <= 1e-4 * np.abs(xd).max()
     monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
-    monkeypatch.setattr(pm, "LOOSE_GROUP_MAX", m // 2)      # two groups (four: m odd)
     assert len(HarmonicPreconditioner(Jl).lowrank.sizes) == 1  # not for several solves
     sk.preconditioner.single_solve = True
     P = HarmonicPreconditioner(Jl)
     lr = P.lowrank
     nh, nc = len(sk.basis.harmonics), sk.n_c
-    groups = 4 if m // 2 < m / 2 else 2
-    assert len(lr.sizes) == min(groups, nh) and sum(lr.sizes) == m and not P.truncated
+    assert len(lr.sizes) == nh and sum(lr.sizes) == m and not P.truncated
+    assert P.capacitance_solves
     assert sorted(np.concatenate(lr.groups).tolist()) == list(range(m))
-    # the harmonics of a group are contiguous: each coefficient's group, by harmonic
+    # each group holds the coefficients of one harmonic
     coef_group = np.empty(nc, dtype=int)
     for g, rows in enumerate(lr.groups):
         coef_group[rows % nc] = g
-    by_h = [coef_group[Jl._ic[i]] for i in np.argsort(sk.basis.harmonics)]
-    assert by_h == sorted(by_h)
-    # no term of L_r between two groups
+    assert sorted(coef_group[Jl._ic].tolist()) == list(range(nh))
+    assert np.array_equal(coef_group[Jl._is], coef_group[Jl._ic])
+    # no term of L_r between two harmonics; the whole L_r kept for the capacitance
     cross = coef_group[:, None] != np.tile(coef_group, lr.nb)[None, :]
     assert np.abs(lr.Lr[:, cross]).max() == 0.0 < np.abs(lr.Lr).max()
+    assert np.array_equal(lr.full, one.lowrank.Lr)
     assert np.abs(P.solve(v) - xd).max() > 1e-3 * np.abs(xd).max()
-    x, it, rel, _ = gmres(Jl.matvec, v, P.solve, rtol=1e-12)
-    assert it > 1 and np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
-    monkeypatch.setattr(pm, "LOOSE_GROUP_MAX", 0)                # off: one group
+    xc, it = P.solve_capacitance(v, 1e-10)
+    assert it > 1 and np.abs(xc - xd).max() <= 1e-4 * np.abs(xd).max()
+    for rtol in (1e-3, 1e-9):
+        x, _ = jm._capacitance_refined(P, Jl, Jl.matvec, v, rtol)
+        assert np.linalg.norm(Jl.matvec(x) - v) <= rtol * np.linalg.norm(v)
+    assert np.abs(x - xd).max() <= 1e-7 * np.abs(xd).max()
+    # and through the solve itself (two columns)
+    sk.preconditioner.forget()
+    used = []
+    refine = jm._capacitance_refined
+    monkeypatch.setattr(jm, "_capacitance_refined", lambda *a: used.append(1) or refine(*a))
+    x = Jl.solve(np.column_stack([v, 2.0 * v]))
+    assert used and np.linalg.norm(Jl.matvec(x[:, 1]) - 2.0 * v) <= 1e-3 * np.linalg.norm(v) * 2
+    monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", np.inf)                # off: one group
     assert len(HarmonicPreconditioner(Jl).lowrank.sizes) == 1
 
 

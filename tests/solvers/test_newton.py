@@ -104,8 +104,8 @@ def test_inexact_steps_on_the_krylov_path(coarse_lap_fixed, monkeypatch):
     seen = []
     orig = jm.krylov_solve
 
-    def record(core, matvec, b, make_psolve, shift=None, rtol=None):
-        x = orig(core, matvec, b, make_psolve, shift, rtol=rtol)
+    def record(core, matvec, b, make_psolve, shift=None, rtol=None, **kw):
+        x = orig(core, matvec, b, make_psolve, shift, rtol=rtol, **kw)
         seen.append((rtol, float(np.abs(matvec(x) - b).max())))
         return x
     monkeypatch.setattr(jm, "krylov_solve", record)
