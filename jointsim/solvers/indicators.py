@@ -380,8 +380,9 @@ class ErrorEstimator:
                                    curve_frequency=0.0)
         if not REUSE_ACROSS_POINTS:
             ext.preconditioner.forget()
-        # one solve (three columns) per preconditioner: a large low-rank stage may be
-        # split by harmonic groups (preconditioner.LOOSE_GROUP_MAX)
+        # one solve (three columns) per preconditioner: a large low-rank stage is split
+        # by harmonics and solved through its capacitance system
+        # (preconditioner.LOOSE_SPLIT_MIN)
         ext.preconditioner.single_solve = not REUSE_ACROSS_POINTS
         ze = self._embed(np.asarray(z, dtype=float).reshape(s.n_c, s.n_r)).ravel()
         across = np.isfinite(self.curve_above) and xi == 0.0

