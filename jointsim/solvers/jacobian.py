@@ -488,8 +488,8 @@ def _capacitance_refined(P, core: HBMJacobian, matvec, b, rtol: float):
     target = CAPACITANCE_MARGIN * rtol
     for _ in range(CAPACITANCE_REFINE):
         rn = np.linalg.norm(r, axis=0)
-        if np.all(rn <= target * bn):
-            break
+        if np.all(rn <= target * bn) or not np.all(np.isfinite(rn)):
+            break       # done, or failed (GMRES on the system then starts from zero)
         tau = max(target * float(np.min(bn[rn > 0] / rn[rn > 0])), CAPACITANCE_STEP)
         dx, it = P.solve_capacitance(r, tau)
         total += it

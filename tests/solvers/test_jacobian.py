@@ -440,6 +440,12 @@ def test_loose_lowrank_stage_split_by_harmonics_and_its_capacitance_solve(normal
     monkeypatch.setattr(jm, "_capacitance_refined", lambda *a: used.append(1) or refine(*a))
     x = Jl.solve(np.column_stack([v, 2.0 * v]))
     assert used and np.linalg.norm(Jl.matvec(x[:, 1]) - 2.0 * v) <= 1e-3 * np.linalg.norm(v) * 2
+    # a capacitance solve that fails (not finite): GMRES on J from zero still solves
+    sk.preconditioner.forget()
+    monkeypatch.setattr(pm.HarmonicPreconditioner, "solve_capacitance",
+                        lambda self, b, rtol: (np.full(np.shape(b), np.nan), 1))
+    x = Jl.solve(v)
+    assert np.linalg.norm(Jl.matvec(x) - v) <= 1e-3 * np.linalg.norm(v)
     monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", np.inf)                # off: one group
     assert len(HarmonicPreconditioner(Jl).lowrank.sizes) == 1
 
