@@ -278,8 +278,9 @@ def test_lowrank_product_by_harmonics_equals_the_dense_one(normal):
     fast, = P._lr_g(lr.Lr.reshape(nrb, nc, nb, nc), lr.R, lr.block_element, float)
     assert fast.shape == dense.shape == (nrb * nc, nrb * nc)
     assert np.abs(fast - dense).max() <= 1e-13 * np.abs(dense).max()
-    # by harmonic groups (a loose solve's, LOOSE_GROUP_MAX): L_r without the terms
-    # between two groups makes L_r G block-diagonal over them; the blocks are formed
+    # by harmonic groups (a loose solve's: one per harmonic, LOOSE_SPLIT_MIN): L_r
+    # without the terms between two groups makes L_r G block-diagonal over them; the
+    # blocks are formed
     coefs = P._harmonic_groups(2)
     assert sorted(np.concatenate(coefs).tolist()) == list(range(nc))
     group = np.empty(nc, dtype=int)
@@ -439,7 +440,8 @@ def test_loose_lowrank_stage_split_by_harmonics_and_its_capacitance_solve(normal
     refine = jm._capacitance_refined
     monkeypatch.setattr(jm, "_capacitance_refined", lambda *a: used.append(1) or refine(*a))
     x = Jl.solve(np.column_stack([v, 2.0 * v]))
-    assert used and np.linalg.norm(Jl.matvec(x[:, 1]) - 2.0 * v) <= 1e-3 * np.linalg.norm(v) * 2
+    assert used
+    assert np.linalg.norm(Jl.matvec(x[:, 1]) - 2.0 * v) <= 2e-3 * np.linalg.norm(v)
     # a capacitance solve that fails (not finite): GMRES on J from zero still solves
     sk.preconditioner.forget()
     monkeypatch.setattr(pm.HarmonicPreconditioner, "solve_capacitance",
