@@ -578,6 +578,7 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
     Convergence
     """
     t_branch = time.perf_counter()
+    system.preconditioner.single_inverses = False    # set for the continuation, below
     F = system.force_coefficients(job.fs)
     scale, rscale = frc_scales(system, F, a.omega_start, a.omega_end)
     system.stats.take()          # the scales' solves are not a point's
@@ -599,6 +600,9 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
     nz = system.n_z
     estimator = _estimator(system, a, system.aft.parallel) \
         if a.error_indicators and not pooled else None
+    # the continuation's preconditioners may keep single-precision harmonic inverses
+    # (preconditioner.SINGLE_INVERSE_MIN); not the scales' and first point's solves
+    system.preconditioner.single_inverses = True
 
     def fun(y):
         if system.krylov:
@@ -620,13 +624,16 @@ def _run_branch(job, *, system, a, dof, want_aft, n_branches, on_record, progres
         rec["deferred"] = deferred
         on_record(rec)
 
-    br = continue_branch(
-        fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,
-        step_max=a.step_max, max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
-        solve_first=solve_first, tangent0=t0, on_point=on_point, progress=progress,
-        desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})", lam_start=a.omega_start,
-        adapt_scale=True, z_origin=system.static_coordinates(),
-        keep_orientation=keep_orientation)
+    try:
+        br = continue_branch(
+            fun, y0, a.omega_end, scale=scale, rscale=rscale, step=h0, step_min=a.step_min,
+            step_max=a.step_max, max_points=max_pts, tol=a.tol, max_iter=a.max_iter,
+            solve_first=solve_first, tangent0=t0, on_point=on_point, progress=progress,
+            desc=f"hbm branch {job.ib + 1}/{n_branches} (x{job.fs:g})", lam_start=a.omega_start,
+            adapt_scale=True, z_origin=system.static_coordinates(),
+            keep_orientation=keep_orientation)
+    finally:
+        system.preconditioner.single_inverses = False
     log.info("hbm branch %d/%d (force scale %g): %d points in %.1f s", job.ib + 1, n_branches,
              job.fs, len(br.y), time.perf_counter() - t_branch)
     if len(br.y) >= max_pts:        # stopped at max_points: no physics to diagnose

@@ -97,7 +97,14 @@ FACTORED_LOOSE_STAGE = True
 #: its tolerance.  Measured side by side (round 33, one branch, error indicators off,
 #: 240 points): force 0.02 16.8 -> 16.4 s, force 2 29.7 -> 28.7 s, force 20 47.7 ->
 #: 43.9 s (GMRES iterations 2,546 -> 2,619); all single: force 20 44.7 s but force
-#: 0.02 41.0 s.
+#: 0.02 41.0 s.  Only where the preconditioner cache allows it
+#: (:attr:`.PreconditionerCache.single_inverses`, round 34): an FRC branch's
+#: continuation.  Elsewhere it cost more than it saved: the 240-point EPMC's first
+#: four points took 1.41 s a point, 149 GMRES iterations and 7 builds against 0.50 s,
+#: 32 and 1 in double, the 480-point ones 13.2 s against 3.05 s, and the 480-point FRC
+#: branch's set-up (its scales and first point) 67 s against 20 s
+#: (``benchmarks/scale.py``): a preconditioner there serves many solves to the tight
+#: tolerance, and its single-precision blocks cost GMRES iterations and rebuilds.
 SINGLE_INVERSE_MIN = 200
 
 
@@ -222,8 +229,8 @@ class HarmonicPreconditioner:
 
     def _harmonic_stage(self, shift):
         """Per harmonic, the inverse of ``S_h`` plus the harmonic projection of every
-        element's tangent (``self.Pinv``, complex64 from ``SINGLE_INVERSE_MIN`` rows with
-        the fundamental's in double in ``self.Pinv_double``; or for a loose solve
+        element's tangent (``self.Pinv``, complex64 from ``SINGLE_INVERSE_MIN`` rows where
+        the cache allows it, with the fundamental's in double in ``self.Pinv_double``; or for a loose solve
         single-precision LU factors ``self.Plu``: ``FACTORED_LOOSE_STAGE``;
         ``self.proj``; ``S_h`` kept as ``self.S``)."""
         jac = self.jac
@@ -257,7 +264,8 @@ class HarmonicPreconditioner:
         # application, and the (R, R) rows and columns the low-rank stage needs; from
         # SINGLE_INVERSE_MIN rows in single precision but for the fundamental's
         single = np.array([h != 1 for h in jac.basis.harmonics]) \
-            if nr >= SINGLE_INVERSE_MIN else np.zeros(len(blocks), dtype=bool)
+            if nr >= SINGLE_INVERSE_MIN and jac.cache.single_inverses \
+            else np.zeros(len(blocks), dtype=bool)
         if single.any():
             self.Pinv = np.empty(blocks.shape, dtype=np.complex64)
             self.Pinv[single] = _inverse(blocks[single].astype(np.complex64))

@@ -100,6 +100,10 @@ class PreconditionerCache:
         #: and be solved through its capacitance system (``LOOSE_SPLIT_MIN``); set by
         #: the caller
         self.single_solve = False
+        #: the harmonic stage's inverses may be in single precision
+        #: (``preconditioner.SINGLE_INVERSE_MIN``): an FRC branch's continuation sets it
+        #: (:func:`jointsim.analyses.hbm._run_branch`), where it pays; off elsewhere
+        self.single_inverses = False
 
     def get(self, jac, shift=None) -> tuple["HarmonicPreconditioner", bool]:
         """A preconditioner for ``jac`` and whether it was built from ``jac`` itself

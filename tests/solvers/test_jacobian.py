@@ -175,7 +175,8 @@ def test_a_shared_harmonic_stage_is_exact_at_its_frequency(law, normal, monkeypa
 
 
 def test_single_precision_harmonic_inverses_but_the_fundamental(monkeypatch):
-    """From ``SINGLE_INVERSE_MIN`` rows (forced down to 1 here) the harmonic stage's
+    """From ``SINGLE_INVERSE_MIN`` rows (forced down to 1 here), where the cache allows it
+    (``single_inverses``: an FRC branch's continuation), the harmonic stage's
     inverses are complex64, except the fundamental's (double, applied from
     ``Pinv_double``): applying the stage equals the double-precision one to
     single-precision round-off for the other harmonics (and not exactly) and to
@@ -190,6 +191,8 @@ def test_single_precision_harmonic_inverses_but_the_fundamental(monkeypatch):
     P64 = HarmonicPreconditioner(J)
     assert P64.Pinv.dtype == complex and not P64.Pinv_double
     monkeypatch.setattr(pm, "SINGLE_INVERSE_MIN", 1)
+    assert HarmonicPreconditioner(J).Pinv.dtype == complex     # not unless the cache allows
+    sk.preconditioner.single_inverses = True
     P32 = HarmonicPreconditioner(J)
     h1 = list(sk.basis.harmonics).index(1)
     assert P32.Pinv.dtype == np.complex64 and list(P32.Pinv_double) == [h1]
