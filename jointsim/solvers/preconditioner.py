@@ -230,9 +230,9 @@ class HarmonicPreconditioner:
     def _harmonic_stage(self, shift):
         """Per harmonic, the inverse of ``S_h`` plus the harmonic projection of every
         element's tangent (``self.Pinv``, complex64 from ``SINGLE_INVERSE_MIN`` rows where
-        the cache allows it, with the fundamental's in double in ``self.Pinv_double``; or for a loose solve
-        single-precision LU factors ``self.Plu``: ``FACTORED_LOOSE_STAGE``;
-        ``self.proj``; ``S_h`` kept as ``self.S``)."""
+        the cache allows it, with the fundamental's in double in ``self.Pinv_double``;
+        or for a loose solve single-precision LU factors ``self.Plu``:
+        ``FACTORED_LOOSE_STAGE``; ``self.proj``; ``S_h`` kept as ``self.S``)."""
         jac = self.jac
         nr = jac.n_r
         self.omega, self.xi = jac.freq.omega, jac.freq.xi
@@ -262,7 +262,8 @@ class HarmonicPreconditioner:
                 return
         # explicit inverses, stacked (n_h, n_r, n_r): one batched product per
         # application, and the (R, R) rows and columns the low-rank stage needs; from
-        # SINGLE_INVERSE_MIN rows in single precision but for the fundamental's
+        # SINGLE_INVERSE_MIN rows in single precision but for the fundamental's, where
+        # the cache allows it (an FRC branch's continuation)
         single = np.array([h != 1 for h in jac.basis.harmonics]) \
             if nr >= SINGLE_INVERSE_MIN and jac.cache.single_inverses \
             else np.zeros(len(blocks), dtype=bool)
@@ -475,7 +476,7 @@ class HarmonicPreconditioner:
         self.PinvR = self._inverse_columns(Rrow)
         single = jac.rtol >= SINGLE_LU_RTOL or m >= SINGLE_LU_MIN   # the LU in float32
         caps = self._lr_g(Lr.reshape(nrb, nc, nb, nc), R, blk_el,
-                             np.float32 if single else float, coefs)
+                          np.float32 if single else float, coefs)
         for Mk in caps:
             Mk[np.diag_indices_from(Mk)] += 1.0
         if coefs is None:
@@ -658,16 +659,21 @@ class HarmonicPreconditioner:
             s[rows] = inv @ rhs[rows].astype(inv.dtype, copy=False)
         return s
 
+    def _amplitudes(self, s) -> np.ndarray:
+        """The complex amplitudes (n_h, nrb, k) of the low-rank coordinates ``s`` (m, k),
+        index ``j n_c + c``."""
+        nc, k = self.jac.n_c, s.shape[1]
+        return self.jac._to_complex(np.ascontiguousarray(
+            s.reshape(-1, nc, k).transpose(1, 0, 2)))
+
     def _correction(self, s) -> np.ndarray:
         """``P^-1 E_r s`` (n_c, n_r, k) for ``s`` (m, k): only the ``Rrow`` columns of
         ``P_h^-1`` (n_r x nrb per harmonic, not n_r x n_r: the same nonzero terms, a
         fraction of the memory traffic)."""
         jac = self.jac
-        nc, k = jac.n_c, s.shape[1]
-        Xw = jac._to_complex(np.ascontiguousarray(s.reshape(-1, nc, k).transpose(1, 0, 2)))
-        out = np.empty((nc, jac.n_r, k))
-        jac._from_complex(np.matmul(self.PinvR, Xw.astype(self.PinvR.dtype, copy=False)),
-                          out)
+        out = np.empty((jac.n_c, jac.n_r, s.shape[1]))
+        jac._from_complex(np.matmul(self.PinvR, self._amplitudes(s).astype(
+            self.PinvR.dtype, copy=False)), out)
         return out
 
     @property
@@ -715,10 +721,9 @@ class HarmonicPreconditioner:
             .reshape(-1, k)
 
         def product(S):
-            kk = S.shape[1]
-            Xw = jac._to_complex(np.ascontiguousarray(S.reshape(-1, nc, kk).transpose(1, 0, 2)))
-            T = np.empty((nc, lr.R.size, kk))
-            jac._from_complex(np.matmul(lr.Q, Xw.astype(lr.Q.dtype)), T)   # G s
+            T = np.empty((nc, lr.R.size, S.shape[1]))
+            jac._from_complex(np.matmul(lr.Q, self._amplitudes(S).astype(lr.Q.dtype)),
+                              T)                                           # G s
             return S + np.matmul(lr.full, self._column_coordinates(T)[lr.block_element]) \
                 .reshape(S.shape)
 
