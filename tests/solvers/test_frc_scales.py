@@ -99,3 +99,31 @@ def test_a_branch_stopped_at_max_points_is_not_diagnosed(monkeypatch):
                           progress=False)
     assert not conv.success and conv.message.startswith("stopped at max_points = 4")
     assert len(out) == 4
+
+
+def test_single_precision_inverses_only_in_the_branch_continuation(monkeypatch):
+    """The harmonic stage may be in single precision only in an FRC branch's
+    continuation (``PreconditionerCache.single_inverses``): not in its scales' and
+    first point's solves, and not after it (the peak refinement, a next branch's
+    set-up).  Round 33 allowed it everywhere, which cost the EPMC and the 480-point
+    set-up several times their time (docs/hbm.md, "Round 34")."""
+    import dataclasses
+
+    import jointsim.analyses.hbm as ah
+    scene = load_scene(MODELS / "hbm" / "chain2_jenkins.toml")
+    a = dataclasses.replace(scene.analysis.hbm, max_points=3)
+    system = ah._system(build_model(scene), a)
+    seen = {}
+    for name in ("frc_scales", "first_point", "continue_branch"):
+        orig = getattr(ah, name)
+
+        def spy(*args, _orig=orig, _name=name, **kw):
+            seen[_name] = system.preconditioner.single_inverses
+            return _orig(*args, **kw)
+        monkeypatch.setattr(ah, name, spy)
+    system.preconditioner.single_inverses = True          # left over: reset first
+    ah._run_branch(ah._BranchJob(0, a.force_scale[-1], None), system=system, a=a, dof=0,
+                   want_aft=False, n_branches=1, on_record=lambda rec: None,
+                   progress=False)
+    assert seen == {"frc_scales": False, "first_point": False, "continue_branch": True}
+    assert system.preconditioner.single_inverses is False
