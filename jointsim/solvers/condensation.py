@@ -36,6 +36,7 @@ import functools
 
 import numpy as np
 import scipy.linalg as sla
+import scipy.sparse as sp
 
 #: Why ``E`` (the structure with its contact coordinates held) has no inverse.
 WELDED_SINGULAR = ("the structure with welded contacts is singular at this frequency (an "
@@ -72,12 +73,20 @@ class ReducedLinear:
         Mass, stiffness and damping of the linear part.
     T : array or sparse, shape (n_r, n)
         Contact coordinates (full row rank).
+    K_stuck : array or sparse, shape (n, n), optional
+        The stiffness with the joint stuck at its static state
+        (:attr:`jointsim.solvers.static.StuckLinearisation.K`): gives
+        :attr:`flexibility`.
 
     See the module docstring for the formulation.
     """
 
-    def __init__(self, M, K, C, T):
+    def __init__(self, M, K, C, T, K_stuck=None):
         M, K, C, T = dense_array(M), dense_array(K), dense_array(C), dense_array(T)
+        # what the stuck joint adds to K (sparse: its contact DOFs)
+        self._dK = None if K_stuck is None else sp.csr_matrix(dense_array(K_stuck) - K)
+        if self._dK is not None:
+            self._dK.eliminate_zeros()
         n = M.shape[0]
         if n > MAX_DENSE_DOF:
             raise NotImplementedError(
@@ -186,6 +195,17 @@ class ReducedLinear:
         else:
             E = mat("yy")
         return A, B, Bp, E
+
+    @functools.cached_property
+    def flexibility(self):
+        """The stuck joint's flexibility on the contact coordinates
+        (:class:`~jointsim.solvers.flexibility.StuckFlexibility`: ``(S_h + diag(k))^-1`` of
+        every harmonic without an inverse), or None (no ``K_stuck`` given, or it does not
+        apply); made on first use."""
+        if self._dK is None:
+            return None
+        from .flexibility import StuckFlexibility
+        return StuckFlexibility.of(self, self._dK)
 
     @functools.cached_property
     def damping_factors(self):

@@ -118,7 +118,9 @@ class HBMSystem:
         if lin is not None and (lin.n != model.n_dof or lin.n_r != nr):
             raise ValueError(f"lin condenses {lin.n} DOFs onto {lin.n_r} coordinates, the "
                              f"model needs {model.n_dof} onto {nr}")
-        self.lin = lin if lin is not None else ReducedLinear(model.M, model.K, model.C, T)
+        self.lin = lin if lin is not None else ReducedLinear(
+            model.M, model.K, model.C, T, K_stuck=model.linearisation.K
+            if model.linearisation is not None else None)
         self.n_r = nr
         self.n_c = self.basis.n_coeff
         self.n_z = self.n_c * nr

@@ -106,6 +106,11 @@ FACTORED_LOOSE_STAGE = True
 #: (``benchmarks/scale.py``): a preconditioner there serves many solves to the tight
 #: tolerance, and its single-precision blocks cost GMRES iterations and rebuilds.
 SINGLE_INVERSE_MIN = 200
+#: The harmonic stage from the stuck joint's flexibility where it applies
+#: (:class:`~jointsim.solvers.flexibility.StuckFlexibility`; not with a shift, and not
+#: where the low-rank stage would be truncated): ``P_h = S_h + diag(k)`` formed from the
+#: stuck modes, no ``S_h`` and no ``n_r^3`` inverse.
+MODAL_STAGE = True
 
 
 def _inverse(blocks) -> np.ndarray:
@@ -210,10 +215,12 @@ class HarmonicPreconditioner:
             self.Pinv, self.Plu, self.proj, self.S = base.Pinv, base.Plu, base.proj, base.S
             self.Pinv_double = base.Pinv_double
             self.omega, self.xi = base.omega, base.xi
+            self.modal = base.modal
             self.partial = True
         else:
             self._harmonic_stage(shift)
             self.partial = False
+        self._shift = shift
         self.lowrank = None
         self.truncated = True
         # coordinates of one element's block (its slip and gap rows, all coefficients)
@@ -227,7 +234,7 @@ class HarmonicPreconditioner:
             self.Binv = None
         self._count_flops()
 
-    def _harmonic_stage(self, shift):
+    def _harmonic_stage(self, shift, modal: bool = True):
         """Per harmonic, the inverse of ``S_h`` plus the harmonic projection of every
         element's tangent (``self.Pinv``, complex64 from ``SINGLE_INVERSE_MIN`` rows where
         the cache allows it, with the fundamental's in double in ``self.Pinv_double``;
@@ -236,6 +243,11 @@ class HarmonicPreconditioner:
         jac = self.jac
         nr = jac.n_r
         self.omega, self.xi = jac.freq.omega, jac.freq.xi
+        flex = jac.lin.flexibility if MODAL_STAGE and modal and shift is None else None
+        self.modal = flex is not None
+        if self.modal:
+            self._modal_stage(flex)
+            return
         self.S = [jac.schur(i) for i in range(len(jac.basis.harmonics))]
         # the complex-form projections of the (h, h) coefficient blocks, (n_h, n_e)
         self.proj = {key: None if Jb is None else np.array(
@@ -264,9 +276,7 @@ class HarmonicPreconditioner:
         # application, and the (R, R) rows and columns the low-rank stage needs; from
         # SINGLE_INVERSE_MIN rows in single precision but for the fundamental's, where
         # the cache allows it (an FRC branch's continuation)
-        single = np.array([h != 1 for h in jac.basis.harmonics]) \
-            if nr >= SINGLE_INVERSE_MIN and jac.cache.single_inverses \
-            else np.zeros(len(blocks), dtype=bool)
+        single = self._single_harmonics()
         if single.any():
             self.Pinv = np.empty(blocks.shape, dtype=np.complex64)
             self.Pinv[single] = _inverse(blocks[single].astype(np.complex64))
@@ -276,6 +286,45 @@ class HarmonicPreconditioner:
         else:
             self.Pinv = _inverse(blocks)
         self.Pinv[jac._h0] = self.Pinv[jac._h0].real
+
+    def _single_harmonics(self) -> np.ndarray:
+        """Which harmonics' inverses are kept in single precision (``SINGLE_INVERSE_MIN``),
+        boolean (n_h,)."""
+        jac = self.jac
+        if jac.n_r >= SINGLE_INVERSE_MIN and jac.cache.single_inverses:
+            return np.array([h != 1 for h in jac.basis.harmonics])
+        return np.zeros(len(jac.basis.harmonics), dtype=bool)
+
+    def _modal_stage(self, flex):
+        """The harmonic stage from the stuck joint's flexibility (``MODAL_STAGE``): ``P_h =
+        S_h + diag(k)`` with ``k`` the stuck contact stiffness, its inverses formed from
+        the stuck modes (:class:`~jointsim.solvers.flexibility.StuckFlexibility`), no
+        ``S_h`` formed; ``proj`` holds ``k`` for every harmonic, so the low-rank stage
+        corrects for every element whose tangent is not the stuck one."""
+        jac = self.jac
+        nh, ne = len(jac.basis.harmonics), len(jac.t_row)
+        k = flex.k
+        self.S = None
+        self.Plu = None
+        self.Pinv_double = {}
+
+        def stuck(rows, sign):
+            return np.broadcast_to(sign * k[rows].astype(complex), (nh, ne)).copy()
+        self.proj = {"uu": None if jac.Juu is None else stuck(jac.t_row, 1.0),
+                     "ug": None if jac.Jug is None else np.zeros((nh, ne), dtype=complex),
+                     "NN": None if jac.JNN is None else stuck(jac.n_row, -1.0)}
+        Pinv = flex.inverses(np.asarray(jac.basis.harmonics, dtype=float) * self.omega,
+                             self.xi)
+        Pinv[jac._h0] = Pinv[jac._h0].real
+        if jac.rtol >= SINGLE_LU_RTOL:       # a loose solve: single precision throughout
+            self.Pinv = Pinv.astype(np.complex64)
+            return
+        single = self._single_harmonics()
+        if single.any():
+            self.Pinv = Pinv.astype(np.complex64)
+            self.Pinv_double = {i: Pinv[i] for i in np.flatnonzero(~single).tolist()}
+        else:
+            self.Pinv = Pinv
 
     def _inverse_times(self, X) -> np.ndarray:
         """``P_h^-1 X[h]`` for every harmonic; ``X`` (n_h, n_r, k) complex."""
@@ -309,7 +358,8 @@ class HarmonicPreconditioner:
     def _count_flops(self):
         """The cost model of the chord policy (:class:`.PreconditionerCache`).
 
-        ``build_flops``: the ``H + 1`` complex inverses (``8 n_r^3`` each), the
+        ``build_flops``: the ``H + 1`` complex inverses (``8 n_r^3`` each; from the stuck
+        flexibility ``4 n_r^2 n_L``), the
         low-rank LU (``2/3 m^3``) and its ``G L`` product (``2 m^2 d``), the element
         blocks (``2 n_e d^3``).  ``iteration_flops``: one GMRES iteration, i.e. one
         application (two harmonic solves with the low-rank stage, ``8 n_r^2`` per
@@ -322,7 +372,12 @@ class HarmonicPreconditioner:
         ne = len(jac.t_row)
         d = self.Tdim
         matvec = 8.0 * nh * nr ** 2 + 6.0 * ne * jac.n_c ** 2
-        build = 0.0 if self.partial else 8.0 * nh * nr ** 3
+        if self.partial:
+            build = 0.0
+        elif self.modal:             # the low modes' product (flexibility.StuckFlexibility)
+            build = 4.0 * nh * nr ** 2 * jac.lin.flexibility.n_summed
+        else:
+            build = 8.0 * nh * nr ** 3
         apply = 8.0 * nh * nr ** 2
         if self.lowrank is not None:
             sizes = np.array(self.lowrank.sizes, dtype=float)
@@ -446,6 +501,11 @@ class HarmonicPreconditioner:
             most = blocks(LOWRANK_MAX_FRACTION) \
                 if sel.size > blocks(LOWRANK_EXACT_FRACTION) else sel.size
         self.truncated = sel.size > most
+        if self.truncated and self.modal and not self.partial:
+            # the stuck stiffness is far from this tangent: a truncated correction
+            # serves better on the harmonic projections of the tangent
+            self._harmonic_stage(self._shift, modal=False)
+            return self._lowrank()
         if self.truncated:
             sel = np.sort(sel[np.argsort(norm[sel])[::-1][:most]])
         if sel.size == 0:

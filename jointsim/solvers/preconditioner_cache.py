@@ -142,7 +142,8 @@ class PreconditionerCache:
         """The kept harmonic stage when ``jac`` may share it, else None."""
         P = self.stage
         if not (self.reuse and SHARE_HARMONIC_STAGE > 0) or P is None or shift is not None \
-                or P.C2 is not None or jac.rtol >= SINGLE_LU_RTOL:   # loose: see the constant
+                or P.C2 is not None or jac.rtol >= SINGLE_LU_RTOL \
+                or P.modal:      # loose: see the constant; a modal stage is cheap to make
             return None
         o = P.jac
         if o.basis is not jac.basis or o.lin is not jac.lin \

@@ -145,6 +145,7 @@ def test_a_shared_harmonic_stage_is_exact_at_its_frequency(law, normal, monkeypa
     farther away, for a loose solve, or with the sharing off, the build is full."""
     import jointsim.solvers.preconditioner as pm
     import jointsim.solvers.preconditioner_cache as pc
+    monkeypatch.setattr(pm, "MODAL_STAGE", False)     # a stage of inverted blocks
     sd, sk = _pair(build_model(four_dof(law, "anchor", normal)))
     F = sd.force_coefficients(0.3)
     rng = np.random.default_rng(7)
@@ -234,8 +235,10 @@ def test_a_partial_preconditioner_that_misses_its_budget_is_rebuilt_in_full(monk
     """A Jacobian far from the shared harmonic stage's frequency (the sharing forced
     on): the reused preconditioner and then the partial one miss their budgets, a full
     one is built and the solve equals the dense one; it is the new shared stage."""
+    import jointsim.solvers.preconditioner as pm
     import jointsim.solvers.preconditioner_cache as pc
     monkeypatch.setattr(pc, "SHARE_HARMONIC_STAGE", 1.0)
+    monkeypatch.setattr(pm, "MODAL_STAGE", False)     # a stage of inverted blocks
     sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
     F = sd.force_coefficients(0.3)
     rng = np.random.default_rng(8)
@@ -301,12 +304,14 @@ def test_lowrank_product_by_harmonics_equals_the_dense_one(normal):
 
 
 @pytest.mark.parametrize("normal", ["coupled", "fixed"])
-def test_loose_solves_keep_single_precision_factors_of_the_harmonic_stage(normal):
+def test_loose_solves_keep_single_precision_factors_of_the_harmonic_stage(normal, monkeypatch):
     """For a Jacobian solved to a loose tolerance (the error indicators' extended
-    systems) the harmonic stage keeps single-precision LU factors instead of inverses
-    (``FACTORED_LOOSE_STAGE``): its columns and its preconditioner equal the inverses'
-    to single precision, and, exact on this state, it solves ``J x = b`` to the dense
-    solution's 1e-5 with the same low-rank stage."""
+    systems) the harmonic stage of inverted blocks keeps single-precision LU factors
+    instead of inverses (``FACTORED_LOOSE_STAGE``): its columns and its preconditioner
+    equal the inverses' to single precision, and, exact on this state, it solves ``J x =
+    b`` to the dense solution's 1e-5 with the same low-rank stage."""
+    import jointsim.solvers.preconditioner as pm
+    monkeypatch.setattr(pm, "MODAL_STAGE", False)
     sd, sk = _pair(build_model(four_dof("jenkins", "anchor", normal)))
     F = sd.force_coefficients(0.3)
     z = np.random.default_rng(5).normal(size=sd.n_z) * 0.4
@@ -656,12 +661,14 @@ def test_frequency_cache_is_bit_identical(law, normal):
     assert len(sk.omega_cache) == hbm_mod.OMEGA_CACHE
 
 
-def test_krylov_residual_needs_no_blocks_on_the_lap_joint():
+def test_krylov_residual_needs_no_blocks_on_the_lap_joint(monkeypatch):
     """With the low-rank damping condensation of the coarse lap joint, the Krylov path's
     residual, its derivatives and J v (every harmonic at once, DynamicProducts) equal
     the direct path's to round-off without forming the per-harmonic blocks, and so does
-    forming S_h for a preconditioner (Woodbury's formula with the low-rank damping,
-    self-excitation included: ``ReducedLinear.schur_low_rank_damping``)."""
+    forming S_h for a preconditioner of inverted blocks (Woodbury's formula with the
+    low-rank damping, self-excitation included: ``ReducedLinear.schur_low_rank_damping``);
+    one from the stuck flexibility forms no ``S_h`` at all."""
+    import jointsim.solvers.preconditioner as pm
     model = build_model(lap_scene(ROOT / "models" / "lap_joint_nodes.toml"))
     sd = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="direct")
     sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
@@ -677,7 +684,10 @@ def test_krylov_residual_needs_no_blocks_on_the_lap_joint():
     v = rng.normal(size=sk.n_z)
     assert np.abs(ek.J.matvec(v) - ed.J @ v).max() <= 1e-13 * np.abs(ed.J @ v).max()
     assert not ek.J.freq.formed
-    HarmonicPreconditioner(ek.J)
+    assert HarmonicPreconditioner(ek.J).modal
+    assert not ek.J.freq.formed and all(S is None for S in ek.J.freq.S)
+    monkeypatch.setattr(pm, "MODAL_STAGE", False)
+    assert not HarmonicPreconditioner(ek.J).modal
     assert not ek.J.freq.formed and all(S is not None for S in ek.J.freq.S)
 
 

@@ -1,0 +1,203 @@
+"""The stuck joint's dynamic flexibility on the contact coordinates.
+
+The harmonic stage of the preconditioner (:mod:`jointsim.solvers.preconditioner`)
+inverts, per harmonic, ``S_h`` plus a stiffness on each contact coordinate.  When that
+stiffness is the stuck joint's, ``k`` (the tangent at the static state,
+:func:`jointsim.solvers.static.stuck_linearisation`: ``kt A`` on the slip and ``kn A``
+on the gap of every closed element, 0 on the open ones), ``S_h + diag(k)`` is the
+Schur complement, on ``q = T x``, of the stuck structure's dynamic stiffness
+``K_s - s M + i nu C`` (``K_s = K + T' diag(k) T``, ``s = nu^2 + i nu xi``), so its
+inverse is that structure's flexibility seen from the contact coordinates:
+
+    (S_h + diag(k))^-1 = T (K_s - s M + i nu C)^-1 T' = sum_j psi_j psi_j' / (lam_j - s + i nu c_j)
+
+over the stuck modes (``K_s phi_j = lam_j M phi_j``, M-orthonormal, ``psi_j = T phi_j``)
+when ``C`` is diagonal in them (``c_j``): the modal damping of the stuck joint,
+:func:`jointsim.model.damping.damping_matrix`, is.  The modes far above the
+frequency enter by a quasi-static series, ``1 / (lam - s) = sum_p s^p / lam^(p + 1)``,
+summed once (``C_p = sum_j psi_j psi_j' / lam_j^(p + 1)``), so that forming the inverse
+of every harmonic costs ``4 n_r^2 n_L`` flops each (``n_L`` the modes below
+``FLEX_RATIO`` times the highest harmonic frequency, tens to a few hundred) and no
+``n_r^3`` inverse and no ``S_h`` (``n_r^2 n_y``).  The modes and the sums are made once
+per run (one eigen-decomposition of the reduced structure, ``n^3``).
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import scipy.linalg as sla
+
+log = logging.getLogger(__name__)
+
+#: Modes with ``lam >= (FLEX_RATIO nu_max)^2`` (and no damping) enter by the
+#: quasi-static series; ``FLEX_ORDER`` terms of it leave a remainder of at most
+#: ``FLEX_RATIO^(-2 FLEX_ORDER) / (1 - FLEX_RATIO^-2)`` of their share (1.5e-11 at 8 and
+#: 6).
+FLEX_RATIO = 8.0
+FLEX_ORDER = 6
+#: The stiffness the stuck joint adds must be diagonal on the contact coordinates, and
+#: the damping diagonal in the stuck modes, to this relative tolerance; otherwise the
+#: flexibility is not used (the preconditioner inverts its blocks).
+FLEX_DIAGONAL_RTOL = 1e-9
+#: At most this many stuck modes may be damped (their damping is a dense block).
+FLEX_DAMPED_MAX = 64
+#: A series made for ``nu_max`` serves every frequency up to it; it is made for this
+#: many times the highest frequency that asked for it.
+FLEX_MARGIN = 1.5
+
+
+class StuckFlexibility:
+    """``(S_h + diag(k))^-1`` of every harmonic from the stuck joint's modes (module
+    docstring).
+
+    Parameters
+    ----------
+    lam : ndarray, shape (n,)
+        Eigenvalues of the stuck structure [1/s^2] (all positive).
+    Psi : ndarray, shape (n_r, n)
+        Its M-normalised modes on the contact coordinates [m / sqrt(kg)].
+    k : ndarray, shape (n_r,)
+        Stiffness of the stuck joint on each contact coordinate [N/m].
+    damped : ndarray of int, shape (n_d,)
+        The modes the damping reaches.
+    Cd : ndarray, shape (n_d, n_d)
+        The damping in them, ``Phi_d^T C Phi_d`` [1/s] (the others undamped).
+    """
+
+    def __init__(self, lam, Psi, k, damped=(), Cd=None):
+        self.lam = np.asarray(lam, dtype=float)
+        self.Psi = np.asarray(Psi, dtype=float)
+        self.k = np.asarray(k, dtype=float)
+        self.damped = np.asarray(damped, dtype=np.intp)
+        self.Cd = np.zeros((0, 0)) if Cd is None else np.asarray(Cd, dtype=float)
+        self.Psi_d = np.ascontiguousarray(self.Psi[:, self.damped])
+        self.n_r = self.Psi.shape[0]
+        self._series = None        # (nu_max, undamped low modes' Psi and lam, C (P, n_r, n_r))
+
+    @property
+    def n_summed(self) -> int:
+        """Modes summed exactly (damped and low) by the current series."""
+        sr = self._series
+        return self.damped.size + (0 if sr is None else sr[2].size)
+
+    @classmethod
+    def of(cls, lin, dK) -> "StuckFlexibility | None":
+        """The flexibility of a condensed structure, or None where it does not apply.
+
+        Parameters
+        ----------
+        lin : jointsim.solvers.condensation.ReducedLinear
+        dK : scipy.sparse matrix, shape (n, n)
+            ``K_s - K``: what the stuck joint adds to the stiffness [N/m].
+
+        Returns None (logged) when ``dK`` is not a stiffness on each contact coordinate
+        alone, when the damping is not diagonal in the stuck modes, or when the stuck
+        structure is not positive definite.
+        """
+        n_r = lin.n_r
+        if not n_r:
+            return None
+        V = np.hstack([lin.Psi, lin.Z])                    # x = V (q, y)
+        rows = np.unique(dK.nonzero()[0])
+        dKt = V[rows].T @ (dK[rows] @ V) if rows.size else np.zeros((lin.n, lin.n))
+        k = np.diag(dKt)[:n_r].copy()
+        rest = dKt.copy()
+        rest[np.arange(n_r), np.arange(n_r)] = 0.0
+        scale = max(float(np.abs(k).max(initial=0.0)), 1e-300)
+        if float(np.abs(rest).max(initial=0.0)) > FLEX_DIAGONAL_RTOL * scale:
+            log.debug("stuck flexibility: the stuck joint's stiffness couples coordinates")
+            return None
+
+        def whole(X):
+            return np.block([[X["qq"], X["qy"]], [X["yq"], X["yy"]]]) if lin.n_y else X["qq"]
+        Ks = whole(lin.K) + dKt
+        M = whole(lin.M)
+        try:
+            lam, Phi = sla.eigh(0.5 * (Ks + Ks.T), 0.5 * (M + M.T), check_finite=False)
+        except (np.linalg.LinAlgError, ValueError):
+            return None
+        if not lam.min(initial=1.0) > 0.0:
+            log.debug("stuck flexibility: the stuck structure is not positive definite")
+            return None
+        factors = lin.damping_factors
+        if factors is not None:                           # C = W diag(c) W^T
+            Wq, Wy, cw = factors
+            PW = Phi.T @ np.vstack([Wq, Wy])
+            Cm = (PW * cw) @ PW.T
+        else:
+            Cm = Phi.T @ whole(lin.C) @ Phi
+        # the damped modes: those the damping reaches (the stuck modes it was defined on;
+        # the nearly rigid ones among them are known to about eps lam_max / lam, so the
+        # damping couples them a little: kept as a block)
+        reach = np.abs(Cm).max(axis=1, initial=0.0)
+        damped = np.flatnonzero(reach > FLEX_DIAGONAL_RTOL * max(float(reach.max(initial=0.0)),
+                                                                 1e-300))
+        if damped.size > FLEX_DAMPED_MAX:
+            log.debug("stuck flexibility: the damping reaches %d stuck modes", damped.size)
+            return None
+        return cls(lam, Phi[:n_r], k, damped, Cm[np.ix_(damped, damped)])
+
+    def _made_for(self, nu: float):
+        """The series valid up to ``nu`` (made when the kept one is not)."""
+        sr = self._series
+        if sr is not None and nu <= sr[0]:
+            return sr
+        nu_max = FLEX_MARGIN * nu
+        free = np.ones(self.lam.size, dtype=bool)
+        free[self.damped] = False
+        high = (self.lam >= (FLEX_RATIO * nu_max) ** 2) & free
+        PsiH, lamH = self.Psi[:, high], self.lam[high]
+        C = np.empty((FLEX_ORDER, self.n_r, self.n_r))
+        for p in range(FLEX_ORDER):
+            C[p] = (PsiH * lamH ** -(p + 1)) @ PsiH.T
+        low = ~high & free
+        sr = (nu_max, np.ascontiguousarray(self.Psi[:, low]), self.lam[low], C)
+        self._series = sr
+        log.debug("stuck flexibility: %d damped modes, %d undamped summed, %d quasi-static, "
+                  "up to %g rad/s", self.damped.size, int(low.sum()), int(high.sum()), nu_max)
+        return sr
+
+    def inverses(self, nus, xi: float = 0.0) -> np.ndarray:
+        """``(S_h + diag(k))^-1`` at each frequency.
+
+        Parameters
+        ----------
+        nus : array_like, shape (n_h,)
+            Angular frequencies of the harmonics [rad/s] (``h omega``).
+        xi : float
+            Self-excitation (damping ``C - xi M``) [1/s].
+
+        Returns
+        -------
+        ndarray, shape (n_h, n_r, n_r), complex [m/N]
+        """
+        nus = np.asarray(nus, dtype=float)
+        _, PsiL, lamL, C = self._made_for(float(np.abs(nus).max(initial=0.0)))
+        s = nus ** 2 + 1j * nus * xi
+        d = 1.0 / (lamL[None, :] - s[:, None])
+        n_h, n_r, n_l = nus.size, self.n_r, lamL.size
+        out = np.zeros((n_h, n_r, n_r), dtype=complex)
+        if n_l:
+            # the low modes of every harmonic as one real product (n_r, n_L) x (n_L, 2 n_h n_r)
+            right = np.empty((n_l, n_h, 2, n_r))
+            right[:, :, 0, :] = d.real.T[:, :, None] * PsiL.T[:, None, :]
+            right[:, :, 1, :] = d.imag.T[:, :, None] * PsiL.T[:, None, :]
+            prod = (PsiL @ right.reshape(n_l, -1)).reshape(n_r, n_h, 2, n_r)
+            out.real = prod[:, :, 0, :].transpose(1, 0, 2)
+            out.imag = prod[:, :, 1, :].transpose(1, 0, 2)
+        # the quasi-static modes: sum_p s^p C_p
+        powers = s[:, None] ** np.arange(FLEX_ORDER)[None, :]
+        series = np.tensordot(powers.real, C, axes=(1, 0))
+        out.real += series
+        if xi:
+            out.imag += np.tensordot(powers.imag, C, axes=(1, 0))
+        # the damped modes: Psi_d (diag(lam_d - s) + i nu C_d)^-1 Psi_d^T
+        if self.damped.size:
+            lamd = self.lam[self.damped]
+            for i, (nu, si) in enumerate(zip(nus, s)):
+                G = np.linalg.inv(np.diag(lamd - si) + (1j * nu) * self.Cd)
+                A = self.Psi_d @ G                          # (n_r, n_d) complex
+                out[i].real += A.real @ self.Psi_d.T
+                out[i].imag += A.imag @ self.Psi_d.T
+        return out

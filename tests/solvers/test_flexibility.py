@@ -1,0 +1,160 @@
+"""The harmonic stage from the stuck joint's flexibility
+(:class:`jointsim.solvers.flexibility.StuckFlexibility`, ``preconditioner.MODAL_STAGE``).
+
+Oracles: the inverses of the harmonic blocks ``S_h + diag(k)`` formed from the
+condensation (``ReducedLinear``'s Schur complements) and inverted by LU; the AFT's
+tangent at the static state for ``k``; the dense solve of ``J x = b``.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import jointsim.solvers.flexibility as fx
+import jointsim.solvers.preconditioner as pm
+from jointsim.model import build_model
+from jointsim.solvers.condensation import FrequencyBlocks
+from jointsim.solvers.hbm import HBMSystem
+from jointsim.solvers.jacobian import gmres
+from jointsim.solvers.preconditioner import HarmonicPreconditioner
+
+from .._scenes import four_dof
+
+
+def _blocks(lin, k, nus, xi):
+    """``S_h + diag(k)`` at each frequency, from the condensation (the oracle)."""
+    return [FrequencyBlocks(lin, [1], nu, xi).schur(0) + np.diag(k) for nu in nus]
+
+
+def _check_inverses(system, nus, xi, rtol):
+    fl = system.lin.flexibility
+    assert fl is not None
+    Y = fl.inverses(nus, xi)
+    for P, Yh in zip(_blocks(system.lin, fl.k, nus, xi), Y):
+        ref = np.linalg.inv(P)
+        assert np.abs(Yh - ref).max() <= rtol * np.abs(ref).max()
+    return fl
+
+
+def _stuck_tangent(system):
+    """The AFT's tangent of each contact coordinate at the static state (slip rows:
+    ``Juu``, gap rows: ``-JNN``, harmonic 0)."""
+    J = system.evaluate(system.static_coordinates(), 1.0, system.force_coefficients(0.0),
+                        wrt=()).J
+    k = np.zeros(system.n_r)
+    k[system.t_row] = J.Juu[:, 0, 0]
+    if J.JNN is not None:
+        k[system.n_row] = -J.JNN[:, 0, 0]
+    return k
+
+
+@pytest.mark.parametrize("normal", ["coupled", "fixed"])
+def test_flexibility_of_a_lumped_joint_is_the_inverse_of_its_blocks(normal):
+    """On the 4-DOF joint (mass-proportional damping) the flexibility equals the inverted
+    blocks to round-off at rest, between, at and far above the resonances, with and
+    without self-excitation; ``k`` is the stuck linearisation's (``kt``, and ``kn`` with
+    a coupled normal load, on every closed element), which is the AFT's tangent at the
+    static state except on an element that rests at its slip limit (the second one
+    with a coupled normal load: its AFT tangent is 0, and the low-rank stage keeps it)."""
+    system = HBMSystem(build_model(four_dof("jenkins", "anchor", normal)), (0, 1, 2, 3), 64,
+                       linear_solver="krylov")
+    fl = _check_inverses(system, [0.0, 0.7, 1.1, 2.2, 3.3], 0.0, 1e-11)
+    _check_inverses(system, [0.0, 1.1, 2.2, 3.3], 0.05, 1e-11)
+    wn = np.sqrt(np.sort(fl.lam))
+    _check_inverses(system, wn[:2] * (1 + 1e-3), 0.0, 1e-10)
+    lin = system.model.linearisation
+    assert lin.closed.all()
+    assert np.allclose(fl.k[system.t_row], 0.8, rtol=1e-13)
+    if normal == "coupled":
+        assert np.allclose(fl.k[system.n_row], 1.0, rtol=1e-13)
+    aft = _stuck_tangent(system)
+    at_limit = np.zeros(system.n_r, dtype=bool)
+    if normal == "coupled":
+        at_limit[system.t_row[1]] = True
+    assert np.abs(fl.k - aft)[~at_limit].max() <= 1e-13 and np.all(aft[at_limit] == 0.0)
+
+
+def test_rayleigh_damping_is_a_block_of_damped_modes(monkeypatch):
+    """Rayleigh damping with a stiffness part is not diagonal in the stuck modes (the
+    stuck joint's springs are not in ``K``): the modes it reaches (here all four) are
+    inverted as one block, exactly; beyond ``FLEX_DAMPED_MAX`` such modes there is no
+    flexibility and the preconditioner inverts its blocks.  A condensation without
+    ``K_stuck`` has none either."""
+    K = np.array([[2, -1, 0, 0], [-1, 2, -0.5, 0], [0, -0.5, 1, -0.3], [0, 0, -0.3, 1]])
+    C = (0.01 * np.diag([1.0, 1.0, 2.0, 1.0]) + 0.02 * K).tolist()
+    model = build_model(four_dof("jenkins", "anchor", "coupled", C=C))
+    system = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    fl = _check_inverses(system, [0.0, 0.7, 1.1, 2.2, 3.3], 0.05, 1e-11)
+    assert fl.damped.size == 4
+    monkeypatch.setattr(fx, "FLEX_DAMPED_MAX", 3)
+    system = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    assert system.lin.flexibility is None
+    z = np.random.default_rng(5).normal(size=system.n_z) * 0.4
+    J = system.evaluate(z, 1.1, system.force_coefficients(0.3)).J
+    assert not HarmonicPreconditioner(J).modal
+    from jointsim.solvers.condensation import ReducedLinear
+    assert ReducedLinear(model.M, model.K, model.C, system.T).flexibility is None
+
+
+def test_flexibility_of_the_coarse_lap_joint(coarse_model):
+    """On the coarse lap joint (modal damping of the stuck joint: a block of damped modes,
+    the quasi-static series above the frequency) the flexibility equals the inverted
+    blocks to the accuracy of the stuck modes (about eps lam_max / lam of the low ones:
+    1e-6 here, 1e-5 at a stuck resonance), and ``k`` is the AFT's stuck tangent (0 on
+    the open elements' gaps)."""
+    system = HBMSystem(coarse_model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    fl = _check_inverses(system, [0.0, 900.0, 2700.0, 6300.0], 0.0, 1e-6)
+    _check_inverses(system, [900.0, 2700.0], 0.8, 1e-6)
+    assert fl.damped.size == 12                     # the scene's 12 damped stuck modes
+    w1 = np.sqrt(np.sort(fl.lam)[3])                 # the first bending mode
+    _check_inverses(system, [w1], 0.0, 1e-4)
+    assert np.abs(fl.k - _stuck_tangent(system)).max() <= 1e-12 * np.abs(fl.k).max()
+
+
+def test_series_is_made_again_for_higher_frequencies(coarse_model, monkeypatch):
+    """A series made for one frequency serves below ``FLEX_MARGIN`` times it; a higher
+    one makes it again (more modes summed exactly), and either equals the sum over all
+    modes without a series."""
+    system = HBMSystem(coarse_model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    fl = system.lin.flexibility
+    Y1 = fl.inverses([1000.0])
+    cap = fl._series[0]
+    assert cap == pytest.approx(fx.FLEX_MARGIN * 1000.0)
+    n1 = fl.n_summed
+    Y2 = fl.inverses([1000.0, 20000.0])
+    assert fl._series[0] == pytest.approx(fx.FLEX_MARGIN * 20000.0) and fl.n_summed > n1
+    monkeypatch.setattr(fx, "FLEX_RATIO", 1e12)     # every mode summed
+    exact = fx.StuckFlexibility(fl.lam, fl.Psi, fl.k, fl.damped, fl.Cd)
+    Ye = exact.inverses([1000.0, 20000.0])
+    assert not np.any(exact._series[3])             # no quasi-static modes left
+    for Y, ref in ((Y1[0], Ye[0]), (Y2[0], Ye[0]), (Y2[1], Ye[1])):
+        assert np.abs(Y - ref).max() <= 1e-10 * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("law,normal", [("jenkins", "coupled"), ("iwan4", "coupled"),
+                                        ("jenkins", "fixed")])
+def test_modal_preconditioner_is_the_inverse_of_the_jacobian(law, normal, monkeypatch):
+    """At a state with stick, slip and separation the preconditioner from the stuck
+    flexibility (its low-rank stage correcting every element whose tangent is not the
+    stuck one) is the inverse of ``J``: the dense solve, GMRES in one iteration.  Where
+    its low-rank stage would be truncated, or with a shift (the EPMC's bordered
+    solves), the blocks are inverted instead."""
+    model = build_model(four_dof(law, "anchor", normal))
+    sd = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="direct")
+    sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    F = sk.force_coefficients(0.3)
+    z = np.random.default_rng(5).normal(size=sk.n_z) * 0.4
+    J = sk.evaluate(z, 1.1, F).J
+    P = HarmonicPreconditioner(J)
+    assert P.modal and P.S is None and P.lowrank is not None and not P.truncated
+    v = np.random.default_rng(6).normal(size=sk.n_z)
+    xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, v)
+    assert np.abs(P.solve(v) - xd).max() <= 1e-10 * np.abs(xd).max()
+    x, it, _, _ = gmres(J.matvec, v, P.solve, rtol=1e-11)
+    assert it == 1 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
+    u = np.ones(sk.n_r, dtype=complex)
+    assert not HarmonicPreconditioner(J, shift=(1, u, u)).modal
+    monkeypatch.setattr(pm, "LOWRANK_MIN", 0)
+    monkeypatch.setattr(pm, "LOWRANK_MAX", sk.n_c)        # one row block: truncated
+    Pt = HarmonicPreconditioner(J)
+    assert Pt.truncated and not Pt.modal and Pt.S is not None
