@@ -98,6 +98,17 @@ def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: in
     return scale, rref
 
 
+#: :func:`frc_scales`: the resonance solve's linear solves (Krylov path) stop at this
+#: relative residual, each with its own preconditioner (``PreconditionerCache.single_solve``,
+#: as the error indicators' extended solves): a low-rank stage too large for one LU is
+#: then kept whole and solved through its capacitance system
+#: (``preconditioner.LOOSE_SPLIT_MIN``) instead of truncated.  The scale needs an order of
+#: magnitude, and Newton still stops on the true residual at ``tol``.  None: the
+#: Jacobian's own tolerance.  Measured at force scale 2 (round 35, one thread, the FRC
+#: branch of ``benchmarks/scale.py``): 240 Gauss points 2.18 -> 1.34 s, 480 points 18.4
+#: -> 9.8 s (its stage would have been truncated: 4,600 of about 7,400 coordinates, one
+#: LU each Newton step), the same Newton iterations, ``max |z - z0|`` equal to 1e-10.
+RESONANCE_RTOL = 1e-6
 #: :func:`frc_scales`: the resonance solve gives up when its best residual has not
 #: fallen by 10 % in this many Newton steps
 RESONANCE_STALL = 3
@@ -129,6 +140,12 @@ def _resonance_response(system: HBMSystem, omega: float, F, z_start, z0, rscale:
         ev = system.evaluate(z, omega, F, wrt=())
         return ev.R, ev.J, ev
 
+    cache = system.preconditioner
+    saved = system.krylov_rtol, cache.single_solve
+    loose = system.krylov and RESONANCE_RTOL is not None
+    if loose:          # loose linear solves, one preconditioner each (RESONANCE_RTOL)
+        cache.forget()
+        system.krylov_rtol, cache.single_solve = max(RESONANCE_RTOL, saved[0]), True
     try:
         res = newton(fun, np.asarray(z_start, dtype=float),
                      NewtonOptions(tol, 15, line_search="decrease", max_tries=6,
@@ -138,6 +155,10 @@ def _resonance_response(system: HBMSystem, omega: float, F, z_start, z0, rscale:
         log.debug("frc_scales: the resonance solve at omega = %g left %g of z0; "
                   "the stuck estimate is kept", omega, bound)
         return None
+    finally:
+        if loose:
+            system.krylov_rtol, cache.single_solve = saved
+            cache.forget()
     if not res.success:
         log.debug("frc_scales: the resonance solve at omega = %g: %s; the stuck estimate "
                   "is kept", omega, res.message)

@@ -27,7 +27,12 @@ stage corrects for it exactly (a dense ``m x m`` LU, ``m`` = all coefficients
 of those elements' rows), so that a fresh preconditioner solves in one GMRES
 iteration.  When too many elements slip (``m`` above ``LOWRANK_EXACT_FRACTION
 n_z``) only the largest corrections are kept and an element-block stage
-and GMRES do the rest.
+and GMRES do the rest.  Where the damping is that of the stuck joint's modes (the
+lap-joint scenes), the per-harmonic part holds the stuck joint's contact stiffness
+instead of the projected tangent, and its inverses are formed from the stuck modes
+without ``S_h`` and without an ``n_r^3`` inverse
+(:class:`~jointsim.solvers.flexibility.StuckFlexibility`, ``MODAL_STAGE``); the
+low-rank stage then corrects for every element whose tangent is not the stuck one.
 
 :class:`BorderedJacobian` is ``[[J, C], [R, D]]`` with a few dense columns
 and rows (``dR/domega``, the EPMC unknowns and phase conditions, the

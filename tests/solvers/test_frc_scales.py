@@ -127,3 +127,47 @@ def test_single_precision_inverses_only_in_the_branch_continuation(monkeypatch):
                    progress=False)
     assert seen == {"frc_scales": False, "first_point": False, "continue_branch": True}
     assert system.preconditioner.single_inverses is False
+
+
+def test_resonance_solve_with_loose_linear_solves_keeps_the_scale(monkeypatch):
+    """The resonance solve's linear solves stop at ``RESONANCE_RTOL``, one preconditioner
+    each, so that a large low-rank stage is solved through its capacitance system
+    instead of truncated.  On the default lap joint (96 Gauss points, Krylov path) at
+    force scale 2, where the solve converges, the scale equals the one with tight
+    solves (the Jacobian's 1e-11) to 1e-9; at force scale 20 (gross slip: it gives up,
+    the stuck estimate is kept) the loose solves build stages split by harmonics (at
+    force 2 some too) and the scale is the same.  The system's tolerance and cache are restored after."""
+    import jointsim.solvers.preconditioner as pm
+    from jointsim.solvers.gmres import KRYLOV_RTOL
+    scene = load_scene(MODELS / "lap_joint.toml")
+    a = scene.analysis.hbm
+    system = _system(build_model(scene), a, parallel=False)
+    assert system.krylov
+    built = []
+    init = pm.HarmonicPreconditioner.__init__
+
+    def record(self, jac, *args, **kw):
+        init(self, jac, *args, **kw)
+        built.append((jac.rtol, self.lowrank is not None and len(self.lowrank.groups) > 1))
+    monkeypatch.setattr(pm.HarmonicPreconditioner, "__init__", record)
+    loose = H.RESONANCE_RTOL
+    assert loose is not None and loose > KRYLOV_RTOL
+    for force, converges in ((2.0, True), (20.0, False)):
+        F = system.force_coefficients(force)
+        scales, kinds = {}, {}
+        for rtol in (loose, None):
+            monkeypatch.setattr(H, "RESONANCE_RTOL", rtol)
+            built.clear()
+            q = []
+            solve = H._resonance_response
+            monkeypatch.setattr(H, "_resonance_response", lambda *x: q.append(solve(*x)) or q[-1])
+            scales[rtol] = H.frc_scales(system, F, a.omega_start, a.omega_end)[0][0]
+            monkeypatch.setattr(H, "_resonance_response", solve)
+            kinds[rtol] = list(built)
+            assert (q[0] is not None) == converges
+            assert system.krylov_rtol == KRYLOV_RTOL and not system.preconditioner.single_solve
+            assert system.preconditioner.current is None or rtol is None
+        assert scales[loose] == pytest.approx(scales[None], rel=1e-9)
+        assert kinds[loose] and all(r == loose for r, _ in kinds[loose])
+        assert all(r == KRYLOV_RTOL and not split for r, split in kinds[None])
+        assert any(split for _, split in kinds[loose]) or converges
