@@ -157,10 +157,18 @@ class ReducedLinear:
             # K, M, C side by side for the products of every harmonic at once
             # (:class:`DynamicProducts`)
             # rows: K, M, C of the qq blocks, then of the yq blocks (one product gives
-            # A X and B' X); columns: K, M, C of the qy blocks
-            self.KMC_q = np.vstack([self.K["qq"], self.M["qq"], self.C["qq"],
-                                    self.K["yq"], self.M["yq"], self.C["yq"]])
-            self.KMC_qy = np.hstack([self.K["qy"], self.M["qy"], self.C["qy"]])
+            # A X and B' X); columns: K, M, C of the qy blocks.  A damping of low rank
+            # enters by its factors instead (DynamicProducts.low_rank_c): a third fewer
+            # flops per product
+            lowc = self.damping_factors if self.kind == "lowrank" else None
+            kinds = ("K", "M") if lowc is not None else ("K", "M", "C")
+            mats = {"K": self.K, "M": self.M, "C": self.C}
+            self.KMC_q = np.vstack([mats[m]["qq"] for m in kinds]
+                                   + [mats[m]["yq"] for m in kinds])
+            self.KMC_qy = np.hstack([mats[m]["qy"] for m in kinds])
+            #: the damping's factors ``(W_q, W_y, c)`` when ``KMC_q`` and ``KMC_qy`` leave
+            #: it out
+            self.KMC_lowc = lowc
         self._Mfull = M
         self._transformed = None
         self._quasi = None       # (nu_max, split, quasi-static modes) of _quasi_static
@@ -454,7 +462,9 @@ class DynamicProducts:
     inverse of :class:`_LowRankE` per harmonic, made here once).  Per product this reads 3 real ``n_r x n_r`` and 6 real
     ``n_r x n_y`` arrays instead of, per harmonic, three complex blocks: measured on
     96 Gauss points (``n_r = 192``, ``n_y = 236``, 15 harmonics), 1.1 to 1.7 ms
-    against 3.0 ms.  Only for a modal or low-rank condensation
+    against 3.0 ms.  A damping of low rank enters by its factors (two thirds of the
+    arrays; round 35, 240 Gauss points, one thread: 8 harmonics, 3 columns 5.04 ->
+    3.31 ms, 16 harmonics 8.87 -> 6.11 ms).  Only for a modal or low-rank condensation
     (``ReducedLinear.kind``).
 
     Parameters
@@ -493,25 +503,40 @@ class DynamicProducts:
 
     def _from_q(self, X, k):
         """``(A_h X, B'_h X)`` for the columns of ``X`` (n_r, n_h k), harmonic-major: one
-        real product with the stacked ``K``, ``M``, ``C`` of the qq and yq blocks."""
+        real product with the stacked ``K``, ``M``, ``C`` of the qq and yq blocks (``C``
+        by its factors when it is of low rank, ``ReducedLinear.KMC_lowc``)."""
         lin = self.lin
         p = X.shape[1]
         cm, cc = np.repeat(self.cm, k), np.repeat(self.cc, k)
-        P = lin.KMC_q @ np.concatenate([X.real, X.imag], axis=1)        # (3 n_r + 3 n_y, 2p)
+        P = lin.KMC_q @ np.concatenate([X.real, X.imag], axis=1)   # (n_m (n_r + n_y), 2p)
         P = P[:, :p] + 1j * P[:, p:]
         nr, ny = lin.n_r, lin.n_y
-        K, M, C = P[:nr], P[nr:2 * nr], P[2 * nr:3 * nr]
-        Ky, My, Cy = P[3 * nr:3 * nr + ny], P[3 * nr + ny:3 * nr + 2 * ny], P[3 * nr + 2 * ny:]
+        nm = P.shape[0] // (nr + ny)                                # 2 or 3 matrices
+        K, M = P[:nr], P[nr:2 * nr]
+        Ky, My = P[nm * nr:nm * nr + ny], P[nm * nr + ny:nm * nr + 2 * ny]
+        if lin.KMC_lowc is None:
+            C, Cy = P[2 * nr:3 * nr], P[3 * nr + 2 * ny:]
+        else:
+            Wq, Wy, c = lin.KMC_lowc
+            t = c[:, None] * (Wq.T @ X)
+            C, Cy = Wq @ t, Wy @ t
         return K + cm * M + cc * C, Ky + cm * My + cc * Cy
 
     def _b(self, Y, k):
         """``B_h Y`` for the columns of ``Y`` (n_y, n_h k): one real product with the
-        ``K``, ``M``, ``C`` of the qy blocks side by side."""
+        ``K``, ``M``, ``C`` of the qy blocks side by side (``C`` of low rank by its
+        factors)."""
+        lin = self.lin
         p = Y.shape[1]
         cm, cc = np.repeat(self.cm, k), np.repeat(self.cc, k)
-        Ys = np.vstack([Y, cm * Y, cc * Y])                              # (3 n_y, p)
-        P = self.lin.KMC_qy @ np.concatenate([Ys.real, Ys.imag], axis=1)  # (n_r, 2p)
-        return P[:, :p] + 1j * P[:, p:]
+        parts = [Y, cm * Y] + ([cc * Y] if lin.KMC_lowc is None else [])
+        Ys = np.vstack(parts)                                       # (n_m n_y, p)
+        P = lin.KMC_qy @ np.concatenate([Ys.real, Ys.imag], axis=1)  # (n_r, 2p)
+        out = P[:, :p] + 1j * P[:, p:]
+        if lin.KMC_lowc is not None:
+            Wq, Wy, c = lin.KMC_lowc
+            out += Wq @ (c[:, None] * (Wy.T @ (cc * Y)))
+        return out
 
     def _solve_E(self, Y, k):
         """``E_h^-1`` on the columns of ``Y`` (n_y, n_h k), harmonic-major."""

@@ -61,8 +61,10 @@ def test_derivative_products_match_finite_differences(kind):
 def test_dynamic_products_equal_the_schur_complements(kind):
     """``DynamicProducts.apply`` (every harmonic at once, real BLAS-3 products) against
     ``S_h = A - B E^-1 B'`` formed from ``blocks`` per harmonic (with self-excitation,
-    harmonic 0 included, several columns per harmonic); a full ``E`` is refused."""
+    harmonic 0 included, several columns per harmonic; a damping of low rank by its
+    factors); a full ``E`` is refused."""
     lin = ReducedLinear(*_structure(kind))
+    assert (lin.KMC_lowc is not None) == (kind == "lowrank")
     rng = np.random.default_rng(3)
     harmonics, omega, xi = (0, 1, 2, 5), 1.7, 0.04
     X = rng.normal(size=(lin.n_r, 4, 3)) + 1j * rng.normal(size=(lin.n_r, 4, 3))
