@@ -6,7 +6,9 @@ inverses instead of one real LU of size ``n_z``), and corrects exactly for the
 rest of the tangent, which lives on the elements that slip or separate during
 the period, by a Woodbury (low-rank) stage; when too many elements slip, only
 the largest corrections are kept and an element-block stage and GMRES do the
-rest.  Its reuse across Newton iterations and continuation steps is
+rest.  With the stuck joint's modal damping the per-harmonic part is formed from
+the stuck flexibility instead (``MODAL_STAGE``, :mod:`jointsim.solvers.flexibility`).
+Its reuse across Newton iterations and continuation steps is
 :class:`~.preconditioner_cache.PreconditionerCache`.  The Jacobian itself and GMRES
 are in :mod:`jointsim.solvers.jacobian`, which explains the whole scheme.
 """
@@ -239,7 +241,8 @@ class HarmonicPreconditioner:
         element's tangent (``self.Pinv``, complex64 from ``SINGLE_INVERSE_MIN`` rows where
         the cache allows it, with the fundamental's in double in ``self.Pinv_double``;
         or for a loose solve single-precision LU factors ``self.Plu``:
-        ``FACTORED_LOOSE_STAGE``; ``self.proj``; ``S_h`` kept as ``self.S``)."""
+        ``FACTORED_LOOSE_STAGE``; ``self.proj``; ``S_h`` kept as ``self.S``); from the
+        stuck flexibility instead where it applies (:meth:`_modal_stage`)."""
         jac = self.jac
         nr = jac.n_r
         self.omega, self.xi = jac.freq.omega, jac.freq.xi
