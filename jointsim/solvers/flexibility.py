@@ -42,6 +42,13 @@ FLEX_ORDER = 6
 FLEX_DIAGONAL_RTOL = 1e-9
 #: At most this many stuck modes may be damped (their damping is a dense block).
 FLEX_DAMPED_MAX = 64
+#: The stuck modes cost about ``9 n^3`` flops once, a harmonic stage of inverted
+#: blocks ``8 n_r^3`` per harmonic and build: above ``FLEX_SMALL_DOF`` structural DOFs
+#: (an eigen-decomposition of about a second) the flexibility is made only for at most
+#: ``FLEX_DOF_RATIO`` DOFs per contact coordinate (it pays after about ``0.3 (n /
+#: n_r)^3`` builds of 4 harmonics; the lap joints have 2.1 to 3.2).
+FLEX_SMALL_DOF = 1500
+FLEX_DOF_RATIO = 6.0
 #: A series made for ``nu_max`` serves every frequency up to it; it is made for this
 #: many times the highest frequency that asked for it.
 FLEX_MARGIN = 1.5
@@ -92,11 +99,16 @@ class StuckFlexibility:
             ``K_s - K``: what the stuck joint adds to the stiffness [N/m].
 
         Returns None (logged) when ``dK`` is not a stiffness on each contact coordinate
-        alone, when the damping is not diagonal in the stuck modes, or when the stuck
-        structure is not positive definite.
+        alone, when the damping reaches more than ``FLEX_DAMPED_MAX`` stuck modes, when the
+        stuck structure is not positive definite, or when its modes would cost more
+        than they save (``FLEX_SMALL_DOF``, ``FLEX_DOF_RATIO``).
         """
         n_r = lin.n_r
         if not n_r:
+            return None
+        if lin.n > FLEX_SMALL_DOF and lin.n > FLEX_DOF_RATIO * n_r:
+            log.debug("stuck flexibility: %d DOFs for %d contact coordinates, its modes "
+                      "would cost more than the inverses they save", lin.n, n_r)
             return None
         V = np.hstack([lin.Psi, lin.Z])                    # x = V (q, y)
         rows = np.unique(dK.nonzero()[0])

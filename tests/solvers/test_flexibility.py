@@ -158,3 +158,17 @@ def test_modal_preconditioner_is_the_inverse_of_the_jacobian(law, normal, monkey
     monkeypatch.setattr(pm, "LOWRANK_MAX", sk.n_c)        # one row block: truncated
     Pt = HarmonicPreconditioner(J)
     assert Pt.truncated and not Pt.modal and Pt.S is not None
+
+
+def test_no_flexibility_where_its_modes_cost_more_than_they_save(coarse_model, monkeypatch):
+    """Above ``FLEX_SMALL_DOF`` DOFs a structure with more than ``FLEX_DOF_RATIO`` DOFs per
+    contact coordinate gets no flexibility (its eigen-decomposition, ``9 n^3``, would cost
+    more than the harmonic inverses it saves): the coarse lap joint (108 DOFs, 34
+    coordinates) has one, but not with both limits lowered below it."""
+    def flexibility():
+        return HBMSystem(coarse_model, (0, 1), 16, linear_solver="krylov").lin.flexibility
+    assert flexibility() is not None
+    monkeypatch.setattr(fx, "FLEX_SMALL_DOF", 100)
+    assert flexibility() is not None                # 108 / 34 = 3.2 <= 6
+    monkeypatch.setattr(fx, "FLEX_DOF_RATIO", 3.0)
+    assert flexibility() is None
