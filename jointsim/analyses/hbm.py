@@ -109,6 +109,8 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
             _indicator_pool(writer, a, system, 1).close()
         # the indicators of the points a worker defers once a core is free
         out.inds = _parent_indicators(writer, a, system, out.watch)
+        if system.krylov:   # made once, before the fork: the workers share the condensation
+            system.lin.flexibility
         failures = _run_branches_forked(todo, job_args, min(n_workers, len(todo)),
                                         out.write_point, out.finish_branch)
         if out.deferred:
@@ -701,7 +703,8 @@ def _branch_process(job, job_args, queue, parent_pid, defer=None) -> None:
     """Body of a worker process: compute a branch, send its points to the parent.
 
     The workers are the parallelism: each builds its own system with
-    ``parallel=False``, so its AFT kernels stay on one thread (no numba thread
+    ``parallel=False`` (on the parent's condensation, made before the fork), so its
+    AFT kernels stay on one thread (no numba thread
     pool is started in a forked process, and the cores are not oversubscribed).
     Once a core is free the worker leaves some of its points' error indicators to
     the parent (``defer``, :class:`~jointsim.analyses.forking.Deferral`).  The
@@ -709,7 +712,8 @@ def _branch_process(job, job_args, queue, parent_pid, defer=None) -> None:
     """
     die_with_parent(parent_pid)
     try:
-        serial = _system(job_args["system"].model, job_args["a"], parallel=False)
+        serial = _system(job_args["system"].model, job_args["a"], parallel=False,
+                         lin=job_args["system"].lin)
         conv = _run_branch(job, on_record=lambda rec: queue.put(("point", job.ib, rec)),
                            progress=False, defer=defer, **dict(job_args, system=serial))
         queue.put(("done", job.ib, (conv.success, conv.message)))
