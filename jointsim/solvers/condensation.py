@@ -158,7 +158,7 @@ class ReducedLinear:
             # (:class:`DynamicProducts`)
             # rows: K, M, C of the qq blocks, then of the yq blocks (one product gives
             # A X and B' X); columns: K, M, C of the qy blocks.  A damping of low rank
-            # enters by its factors instead (DynamicProducts.low_rank_c): a third fewer
+            # enters by its factors instead (KMC_lowc, DynamicProducts): a third fewer
             # flops per product
             lowc = self.damping_factors if self.kind == "lowrank" else None
             kinds = ("K", "M") if lowc is not None else ("K", "M", "C")
