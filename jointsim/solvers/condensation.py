@@ -110,6 +110,7 @@ class ReducedLinear:
         self.kind = "direct"
         Z = Z0
         lowrank = None
+        yy = None                # the yy blocks of K, M, C in the welded modes
         if self.n_y:
             Kyy = Z0.T @ K @ Z0
             Myy = Z0.T @ M @ Z0
@@ -125,6 +126,7 @@ class ReducedLinear:
                 if sym and np.abs(off).max() <= 1e-11 * ref:
                     Z = Zm
                     self.kind = "modal"
+                    yy = (np.diag(lam), np.eye(self.n_y), Cyy)
                 elif sym and csym:
                     # modal damping of a few modes is a low-rank C: E is then a
                     # diagonal plus a rank-r term, inverted by Woodbury's formula
@@ -134,18 +136,28 @@ class ReducedLinear:
                         Z = Zm
                         self.kind = "lowrank"
                         lowrank = (U[:, keep], c[keep])
+                        yy = (np.diag(lam), np.eye(self.n_y), Cyy)
             except (np.linalg.LinAlgError, ValueError):
                 pass
         self.modal = self.kind == "modal"
         self.Psi, self.Z = Psi, Z
-        V = np.hstack([Psi, Z])
-        Kt, Mt, Ct = V.T @ K @ V, V.T @ M @ V, V.T @ C @ V
-        r = slice(0, n_r)
-        y = slice(n_r, n)
-        # contiguous copies: the blocks per frequency read them (memory-bound)
-        self.K = {b: np.ascontiguousarray(Kt[i, j]) for b, (i, j) in _blocks(r, y).items()}
-        self.M = {b: np.ascontiguousarray(Mt[i, j]) for b, (i, j) in _blocks(r, y).items()}
-        self.C = {b: np.ascontiguousarray(Ct[i, j]) for b, (i, j) in _blocks(r, y).items()}
+        if yy is not None:
+            # symmetric K, M, C with their yy blocks known in the welded modes (diag(lam),
+            # the identity, Cyy): only A Psi is formed, 2 n^2 n_r flops of the 4 n^3 of
+            # V' A V (n = 1964, n_r = 960 at 480 Gauss points: 0.96 -> 0.4 s)
+            def transformed(A, Ayy):
+                AP = A @ Psi
+                yq = Z.T @ AP
+                return {"qq": Psi.T @ AP, "qy": np.ascontiguousarray(yq.T), "yq": yq,
+                        "yy": Ayy}
+            self.K, self.M, self.C = (transformed(A, Ayy) for A, Ayy in zip((K, M, C), yy))
+        else:
+            V = np.hstack([Psi, Z])
+            r, y = slice(0, n_r), slice(n_r, n)
+            # contiguous copies: the blocks per frequency read them (memory-bound)
+            self.K, self.M, self.C = (
+                {b: np.ascontiguousarray(At[i, j]) for b, (i, j) in _blocks(r, y).items()}
+                for At in (V.T @ A @ V for A in (K, M, C)))
         if self.kind in ("modal", "lowrank"):
             self.lam = np.diag(self.K["yy"]).copy()
             self.myy = np.diag(self.M["yy"]).copy()

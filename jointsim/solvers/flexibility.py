@@ -88,6 +88,7 @@ class StuckFlexibility:
         self.Psi_d = np.ascontiguousarray(self.Psi[:, self.damped])
         self.n_r = self.Psi.shape[0]
         self._series = None        # (nu_max, undamped low modes' Psi and lam, C (P, n_r, n_r))
+        self._last = None          # ((nus, xi), inverses) of the last call of inverses
 
     @property
     def n_summed(self) -> int:
@@ -190,8 +191,15 @@ class StuckFlexibility:
         Returns
         -------
         ndarray, shape (n_h, n_r, n_r), complex [m/N]
+            Read-only: the last call's array is kept and returned again for the same
+            ``nus`` and ``xi`` (the solves at one frequency, e.g. a Newton solve's
+            preconditioners, share it).  A zero frequency's block is real.
         """
         nus = np.asarray(nus, dtype=float)
+        key = (nus.tobytes(), float(xi))
+        last = self._last
+        if last is not None and last[0] == key:
+            return last[1]
         _, PsiL, lamL, C = self._made_for(float(np.abs(nus).max(initial=0.0)))
         s = nus ** 2 + 1j * nus * xi
         d = 1.0 / (lamL[None, :] - s[:, None])
@@ -219,4 +227,46 @@ class StuckFlexibility:
                 A = self.Psi_d @ G                          # (n_r, n_d) complex
                 out[i].real += A.real @ self.Psi_d.T
                 out[i].imag += A.imag @ self.Psi_d.T
+        out[nus == 0.0] = out[nus == 0.0].real
+        out.flags.writeable = False
+        self._last = (key, out)
         return out
+
+    def solve(self, nus, B, xi: float = 0.0) -> np.ndarray:
+        """``(S_h + diag(k))^-1 b_h`` at each frequency, without forming the inverses.
+
+        Parameters
+        ----------
+        nus : array_like, shape (n_h,)
+            Angular frequencies [rad/s].
+        B : ndarray, shape (n_h, n_r) or (n_h, n_r, m), complex
+            Right-hand sides [N].
+        xi : float
+            Self-excitation [1/s].
+
+        Returns
+        -------
+        ndarray, the shape of ``B``, complex [m]
+            About ``2 n_r n_L + FLEX_ORDER n_r^2`` flops per harmonic and column; as
+            accurate as :meth:`inverses` (module docstring).
+        """
+        nus = np.asarray(nus, dtype=float)
+        B = np.asarray(B, dtype=complex)
+        B3 = B if B.ndim == 3 else B[:, :, None]
+        _, PsiL, lamL, C = self._made_for(float(np.abs(nus).max(initial=0.0)))
+        s = nus ** 2 + 1j * nus * xi
+        d = 1.0 / (lamL[None, :] - s[:, None])                   # (n_h, n_L)
+        # the low modes: Psi_L diag(d_h) Psi_L^T b_h
+        Y = np.matmul(PsiL, d[:, :, None] * np.matmul(PsiL.T, B3))
+        # the quasi-static modes: sum_p s^p C_p b_h (C_p real)
+        n_h, n_r, m = B3.shape
+        CB = (C.reshape(-1, n_r) @ B3.transpose(1, 0, 2).reshape(n_r, -1)).reshape(
+            FLEX_ORDER, n_r, n_h, m)
+        powers = s[:, None] ** np.arange(FLEX_ORDER)[None, :]      # (n_h, P)
+        Y += np.einsum("hp,prhm->hrm", powers, CB)
+        if self.damped.size:
+            lamd = self.lam[self.damped]
+            for i, (nu, si) in enumerate(zip(nus, s)):
+                G = np.diag(lamd - si) + (1j * nu) * self.Cd
+                Y[i] += self.Psi_d @ np.linalg.solve(G, self.Psi_d.T @ B3[i])
+        return Y.reshape(B.shape)

@@ -8,6 +8,7 @@ itself (the system, its residual and Jacobian, one point at a fixed frequency) i
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 from dataclasses import dataclass
 
@@ -57,12 +58,20 @@ def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: in
     rscale : float
     """
     from .modes import stuck_modes
+    from .preconditioner import MODAL_STAGE
     lo, hi = sorted((omega_start, omega_end))
     z0 = system.static_coordinates()
     ws = list(np.linspace(omega_start, omega_end, n))
     res = []
+    # the stuck joint's modes on the contact coordinates, where the Krylov path's
+    # preconditioners make them anyway: its frequencies and its stuck responses
+    flex = system.lin.flexibility if system.krylov and MODAL_STAGE else None
     if system.model.n_dof:
-        f_hz = stuck_modes(system.model, min(system.model.n_dof, 40)).frequency_hz
+        n_modes = min(system.model.n_dof, 40)
+        if flex is not None:
+            f_hz = np.sqrt(flex.lam[:n_modes]) / (2 * np.pi)
+        else:
+            f_hz = stuck_modes(system.model, n_modes).frequency_hz
         res = [2 * np.pi * f for f in f_hz if lo < 2 * np.pi * f < hi]
     q_off, q_res, rref, best = 0.0, 0.0, 0.0, (0.0, None, None)
     for w in ws + res:
@@ -72,7 +81,8 @@ def frc_scales(system: HBMSystem, F, omega_start: float, omega_end: float, n: in
             continue
         try:
             # the stuck joint couples no harmonics: only the forced ones are solved
-            dz = ev.J.solve_uncoupled(-ev.R) if is_structured(ev.J) else None
+            dz = ev.J.solve_uncoupled(-ev.R, flexibility=flex) if is_structured(ev.J) \
+                else None
             dz = solve(ev.J, -ev.R) if dz is None else dz
         except (np.linalg.LinAlgError, RuntimeError):
             continue
@@ -117,6 +127,28 @@ RESONANCE_STALL = 3
 RESONANCE_BOUND = 10.0
 
 
+@contextlib.contextmanager
+def loose_solves(system: HBMSystem, rtol: float | None):
+    """Within: the Krylov path's linear solves stop at ``rtol`` (or the system's own
+    tolerance, if looser), each with its own preconditioner
+    (``PreconditionerCache.single_solve``): a low-rank stage too large for one LU is
+    then solved through its capacitance system instead of truncated.  For a Newton
+    solve at one frequency, which stops on its true residual.  Nothing changes for
+    ``rtol = None`` or the direct path."""
+    if not system.krylov or rtol is None:
+        yield
+        return
+    cache = system.preconditioner
+    saved = system.krylov_rtol, cache.single_solve
+    cache.forget()
+    system.krylov_rtol, cache.single_solve = max(rtol, saved[0]), True
+    try:
+        yield
+    finally:
+        system.krylov_rtol, cache.single_solve = saved
+        cache.forget()
+
+
 class _Implausible(Exception):
     """An iterate of the resonance solve beyond its bound (:func:`_resonance_response`)."""
 
@@ -140,25 +172,17 @@ def _resonance_response(system: HBMSystem, omega: float, F, z_start, z0, rscale:
         ev = system.evaluate(z, omega, F, wrt=())
         return ev.R, ev.J, ev
 
-    cache = system.preconditioner
-    saved = system.krylov_rtol, cache.single_solve
-    loose = system.krylov and RESONANCE_RTOL is not None
-    if loose:          # loose linear solves, one preconditioner each (RESONANCE_RTOL)
-        cache.forget()
-        system.krylov_rtol, cache.single_solve = max(RESONANCE_RTOL, saved[0]), True
     try:
-        res = newton(fun, np.asarray(z_start, dtype=float),
-                     NewtonOptions(tol, 15, line_search="decrease", max_tries=6,
-                                   stall=RESONANCE_STALL),
-                     solve=solve, measure=lambda R, _ev: np.abs(R).max(initial=0.0) / rscale)
+        with loose_solves(system, RESONANCE_RTOL):
+            res = newton(fun, np.asarray(z_start, dtype=float),
+                         NewtonOptions(tol, 15, line_search="decrease", max_tries=6,
+                                       stall=RESONANCE_STALL),
+                         solve=solve,
+                         measure=lambda R, _ev: np.abs(R).max(initial=0.0) / rscale)
     except _Implausible:
         log.debug("frc_scales: the resonance solve at omega = %g left %g of z0; "
                   "the stuck estimate is kept", omega, bound)
         return None
-    finally:
-        if loose:
-            system.krylov_rtol, cache.single_solve = saved
-            cache.forget()
     if not res.success:
         log.debug("frc_scales: the resonance solve at omega = %g: %s; the stuck estimate "
                   "is kept", omega, res.message)

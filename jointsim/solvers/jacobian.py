@@ -90,6 +90,10 @@ FLOOR_FACTOR = 1e3
 CAPACITANCE_REFINE = 6
 CAPACITANCE_MARGIN = 0.02
 CAPACITANCE_STEP = 0.03
+#: :meth:`HBMJacobian.solve_uncoupled` by the stuck flexibility: at most this many
+#: refinement steps against ``J`` (each gains about the flexibility's accuracy, 1e-8
+#: off a stuck resonance and 3e-6 at one, :mod:`~jointsim.solvers.flexibility`).
+UNCOUPLED_REFINE = 3
 #: Unknowns ``n_z`` from which ``linear_solver = "auto"`` chooses Krylov.
 KRYLOV_MIN_UNKNOWNS = 1200
 LINEAR_SOLVERS = ("auto", "direct", "krylov")
@@ -318,7 +322,7 @@ class HBMJacobian:
         return m
 
     # -- solves -----------------------------------------------------------------------
-    def solve_uncoupled(self, b, tol: float = 1e-8) -> np.ndarray | None:
+    def solve_uncoupled(self, b, tol: float = 1e-8, flexibility=None) -> np.ndarray | None:
         """``J^-1 b`` harmonic by harmonic, for a contact tangent that couples no
         harmonics (every element stuck, or open, over the whole period: the linearised
         joint at its static state).
@@ -326,7 +330,10 @@ class HBMJacobian:
         Only the harmonics where ``b`` is above ``1e-13`` of its largest entry are
         solved, each by one complex ``n_r`` LU of ``S_h`` plus the harmonic projection
         of the tangent; no other ``S_h`` is formed (a full preconditioner forms and
-        inverts every harmonic's).
+        inverts every harmonic's).  With the stuck joint's ``flexibility`` given, by
+        it first (no ``S_h`` and no LU), refined by up to ``UNCOUPLED_REFINE`` steps
+        against ``J``; the LU where that does not meet ``tol`` (a tangent that is not
+        the stuck one).
 
         Parameters
         ----------
@@ -335,6 +342,9 @@ class HBMJacobian:
             Relative residual ``max |J x - b| / max |b|`` the result must meet (a
             coupling tangent misses it by orders of magnitude; at a lightly damped
             resonance the round-off of the products alone reaches about 1e-10).
+        flexibility : jointsim.solvers.flexibility.StuckFlexibility, optional
+            ``(S_h + diag(k))^-1`` of the model (``self.lin.flexibility``), where it is
+            made anyway (it costs an eigen-decomposition).
 
         Returns
         -------
@@ -345,6 +355,10 @@ class HBMJacobian:
         b = np.asarray(b, dtype=float)
         bmax = float(np.abs(b).max(initial=0.0))
         Bc = self._to_complex(b.reshape(self.n_c, self.n_r))
+        if flexibility is not None:
+            x = self._solve_stuck(flexibility, b, Bc, tol * bmax)
+            if x is not None:
+                return x
         Y = np.zeros_like(Bc)
         for i in range(len(self.basis.harmonics)):
             if not np.abs(Bc[i]).max(initial=0.0) > 1e-13 * bmax:
@@ -360,6 +374,32 @@ class HBMJacobian:
                 or not np.abs(self.matvec(x) - b).max(initial=0.0) <= tol * bmax:
             return None
         return x
+
+    def _solve_stuck(self, flex, b, Bc, atol: float):
+        """:meth:`solve_uncoupled` by the stuck flexibility, refined; None where it does
+        not reach ``max |J x - b| <= atol``."""
+        nus = np.asarray(self.basis.harmonics, dtype=float) * self.freq.omega
+        xi = self.freq.xi
+        active = np.flatnonzero(np.abs(Bc).max(axis=1, initial=0.0)
+                                > 1e-13 * np.abs(Bc).max(initial=0.0))
+        out = np.empty((self.n_c, self.n_r))
+
+        def step(Rc, rows):
+            Y = np.zeros_like(Rc)
+            Y[rows] = flex.solve(nus[rows], Rc[rows], xi)
+            Y[self._h0] = Y[self._h0].real
+            self._from_complex(Y, out)
+            return out.ravel() / self.col
+        x = step(Bc, active)
+        for _ in range(UNCOUPLED_REFINE + 1):
+            r = b - self.matvec(x)
+            if not np.all(np.isfinite(r)):
+                return None
+            if np.abs(r).max(initial=0.0) <= atol:
+                return x
+            x = x + step(self._to_complex(r.reshape(self.n_c, self.n_r)),
+                          np.arange(len(nus)))
+        return None
 
     def solve(self, b, rtol=None) -> np.ndarray:
         """``J^-1 b`` by preconditioned GMRES to ``rtol`` (default and least

@@ -316,9 +316,9 @@ class HarmonicPreconditioner:
         self.proj = {"uu": None if jac.Juu is None else stuck(jac.t_row, 1.0),
                      "ug": None if jac.Jug is None else np.zeros((nh, ne), dtype=complex),
                      "NN": None if jac.JNN is None else stuck(jac.n_row, -1.0)}
+        # (read-only, kept by flex: the builds at one frequency share it)
         Pinv = flex.inverses(np.asarray(jac.basis.harmonics, dtype=float) * self.omega,
                              self.xi)
-        Pinv[jac._h0] = Pinv[jac._h0].real
         if jac.rtol >= SINGLE_LU_RTOL:       # a loose solve: single precision throughout
             self.Pinv = Pinv.astype(np.complex64)
             return

@@ -197,3 +197,18 @@ def test_low_rank_factors_reproduce_a_low_rank_matrix_and_refuse_a_full_one():
     V = rng.normal(size=(n, 40))
     for full in (A + A.T, V @ V.T, np.zeros((n, n))):
         assert _low_rank_factors(full, n_r) is None
+
+
+@pytest.mark.parametrize("kind", ["modal", "lowrank", "direct"])
+def test_transformed_blocks_are_the_congruence(kind):
+    """The blocks of ``K``, ``M``, ``C`` in the coordinates ``(q, y)`` (for the modal and
+    low-rank kinds from ``A Psi`` and the known welded-mode blocks ``diag(lam)``, ``I``,
+    ``Z' C Z``) equal ``V' A V``, ``V = [Psi, Z]``, formed in full."""
+    M, K, C, T = _structure(kind)
+    lin = ReducedLinear(M, K, C, T)
+    V = np.hstack([lin.Psi, lin.Z])
+    r, y = slice(0, lin.n_r), slice(lin.n_r, lin.n)
+    for A, blocks in ((K, lin.K), (M, lin.M), (C, lin.C)):
+        At = V.T @ A @ V
+        for b, (i, j) in {"qq": (r, r), "qy": (r, y), "yq": (y, r), "yy": (y, y)}.items():
+            assert np.abs(blocks[b] - At[i, j]).max() <= 1e-12 * np.abs(At).max(), b

@@ -172,3 +172,54 @@ def test_no_flexibility_where_its_modes_cost_more_than_they_save(coarse_model, m
     assert flexibility() is not None                # 108 / 34 = 3.2 <= 6
     monkeypatch.setattr(fx, "FLEX_DOF_RATIO", 3.0)
     assert flexibility() is None
+
+
+def test_solve_is_the_inverses_applied(coarse_model):
+    """``StuckFlexibility.solve`` (no inverse formed) equals ``inverses(nus) @ b`` for one
+    and for several right-hand sides, with and without self-excitation; the inverses at
+    the frequencies of the last call are kept (the same read-only array), a zero
+    frequency's block is real."""
+    system = HBMSystem(coarse_model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    fl = system.lin.flexibility
+    rng = np.random.default_rng(3)
+    nus = np.array([0.0, 900.0, 2700.0, 6300.0])
+    for xi in (0.0, 0.8):
+        Y = fl.inverses(nus, xi)
+        assert not Y.flags.writeable and fl.inverses(nus, xi) is Y
+        assert not np.any(Y[0].imag)
+        B = rng.normal(size=(4, fl.n_r, 3)) + 1j * rng.normal(size=(4, fl.n_r, 3))
+        ref = Y @ B
+        X = fl.solve(nus, B, xi)
+        assert np.abs(X - ref).max() <= 1e-10 * np.abs(ref).max()
+        X1 = fl.solve(nus, B[:, :, 0], xi)
+        assert X1.shape == (4, fl.n_r)
+        assert np.abs(X1 - ref[:, :, 0]).max() <= 1e-10 * np.abs(ref[:, :, 0]).max()
+    assert fl.inverses(nus[:2]) is not fl.inverses(nus)
+
+
+def test_stuck_solve_by_the_flexibility_is_the_lu_solve(coarse_model, monkeypatch):
+    """``HBMJacobian.solve_uncoupled`` with the flexibility (refined against ``J``) equals
+    the LU solve of the blocks, off and at a stuck resonance, and forms no ``S_h``; with
+    a flexibility that is not the Jacobian's (its eigenvalues 5 % high) and no refinement
+    it falls back to the LU solve."""
+    import jointsim.solvers.jacobian as jm
+    system = HBMSystem(coarse_model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    fl = system.lin.flexibility
+    z0, F = system.static_coordinates(), system.force_coefficients(2.0)
+    w1 = np.sqrt(np.sort(fl.lam)[3])                 # the first bending mode
+    for w in (900.0, w1):
+        ev = system.evaluate(z0, w, F, wrt=())
+        b, J = -ev.R, ev.J
+        x = J.solve_uncoupled(b, flexibility=fl)
+        assert all(S is None for S in J._S)          # (S_h are shared per frequency)
+        x_lu = J.solve_uncoupled(b)
+        assert all(S is not None for S in J._S[:2])
+        assert np.abs(x - x_lu).max() <= 1e-7 * np.abs(x_lu).max()
+        assert np.abs(J.matvec(x) - b).max() <= 1e-8 * np.abs(b).max()
+    monkeypatch.setattr(jm, "UNCOUPLED_REFINE", 0)
+    wrong = fx.StuckFlexibility(1.05 * fl.lam, fl.Psi, fl.k, fl.damped, fl.Cd)
+    ev = system.evaluate(z0, 1100.0, F, wrt=())
+    b, J = -ev.R, ev.J
+    x = J.solve_uncoupled(b, flexibility=wrong)
+    assert any(S is not None for S in J._S)            # the LU path
+    assert np.abs(J.matvec(x) - b).max() <= 1e-8 * np.abs(b).max()
