@@ -144,7 +144,7 @@ class ReducedLinear:
         if yy is not None:
             # symmetric K, M, C with their yy blocks known in the welded modes (diag(lam),
             # the identity, Cyy): only A Psi is formed, 2 n^2 n_r flops of the 4 n^3 of
-            # V' A V (n = 1964, n_r = 960 at 480 Gauss points: 0.96 -> 0.4 s)
+            # V' A V (480 Gauss points, n = 1964, n_r = 960: the condensation 2.80 -> 2.22 s)
             def transformed(A, Ayy):
                 AP = A @ Psi
                 yq = Z.T @ AP
