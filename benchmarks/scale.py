@@ -10,7 +10,8 @@ default lap-joint scene (coupled N with separation, H = 0..7, Nt = 128) runs
 
 through ``jointsim.run.run_scene`` in a fresh process per case (so the peak
 resident memory is that case's), once with ``linear_solver = "krylov"`` and,
-while the dense path's estimated time stays below ``--dense-limit`` seconds,
+while the dense path's estimated time stays below ``--dense-limit`` seconds (the first
+size's from the flops of its LUs, the next ones from the last measured),
 once with ``"direct"``.  Printed per case: unknowns, Newton iterations, GMRES
 iterations, preconditioner builds, time per point (analysis time / points) of both
 paths, the FRC branch's set-up (``frc_scales``: the stuck responses and the resonance
@@ -56,6 +57,14 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+#: The first size's dense path, with no smaller size to extrapolate from, is estimated
+#: from its LUs: about this many of ``n_z`` unknowns per point (Newton steps and the
+#: tangent) at this many flop/s (2 cores; 96 Gauss points, 2,880 unknowns: estimated 3.2
+#: s a point, measured 4.2 s).
+DENSE_LUS_PER_POINT = 4
+DENSE_FLOP_RATE = 2e10
 
 
 def _mesh(n: int, cache: Path, interface: str = "nodes") -> str:
@@ -230,14 +239,18 @@ def main(argv=None) -> None:
                   f"{'krylov s/pt':>11} {'setup s':>7} {'w/o s/pt':>8} {'dense s/pt':>10} "
                   f"{'ratio':>6} {'max dX':>8} {'MB krylov':>9} {'MB dense':>8}", flush=True)
             sizes, tpp, tpp0 = [], [], []
-            dense_est = None
+            dense_est, measured = None, False
             for n in a.elements:
                 mesh = _mesh(n, cache, a.interface)
                 k = _run_child(mesh, analysis, "krylov", points[n], tmp, sets=a.set)
                 d = None
-                if a.dense_limit > 0 and (dense_est is None or dense_est < a.dense_limit):
+                if not measured:        # no smaller size measured: from the LUs' flops
+                    dense_est = points[n] * DENSE_LUS_PER_POINT * 2 / 3 * k["n_z"] ** 3 \
+                        / DENSE_FLOP_RATE
+                if a.dense_limit > 0 and dense_est < a.dense_limit:
                     d = _run_child(mesh, analysis, "direct", points[n], tmp, sets=a.set)
                     dense_est = d["time"] * 10.0      # next size: about n^3, x 2^3
+                    measured = True
                 kt = k["time"] / max(k["points"], 1)
                 kt0 = (k["time"] - k["setup"]) / max(k["points"], 1)    # without the set-up
                 dt = d["time"] / max(d["points"], 1) if d else np.nan
