@@ -355,14 +355,13 @@ class HBMJacobian:
         b = np.asarray(b, dtype=float)
         bmax = float(np.abs(b).max(initial=0.0))
         Bc = self._to_complex(b.reshape(self.n_c, self.n_r))
+        active = np.flatnonzero(np.abs(Bc).max(axis=1, initial=0.0) > 1e-13 * bmax)
         if flexibility is not None:
-            x = self._solve_stuck(flexibility, b, Bc, tol * bmax)
+            x = self._solve_stuck(flexibility, b, Bc, active, tol * bmax)
             if x is not None:
                 return x
         Y = np.zeros_like(Bc)
-        for i in range(len(self.basis.harmonics)):
-            if not np.abs(Bc[i]).max(initial=0.0) > 1e-13 * bmax:
-                continue
+        for i in active:
             P = np.array(self.schur(i), dtype=complex)
             add_projected_tangent(P, self, i)
             Y[i] = np.linalg.solve(P, Bc[i])
@@ -375,13 +374,12 @@ class HBMJacobian:
             return None
         return x
 
-    def _solve_stuck(self, flex, b, Bc, atol: float):
-        """:meth:`solve_uncoupled` by the stuck flexibility, refined; None where it does
-        not reach ``max |J x - b| <= atol``."""
+    def _solve_stuck(self, flex, b, Bc, active, atol: float):
+        """:meth:`solve_uncoupled` by the stuck flexibility (first on the ``active``
+        harmonics, then refined on all); None where it does not reach ``max |J x - b| <=
+        atol``."""
         nus = np.asarray(self.basis.harmonics, dtype=float) * self.freq.omega
         xi = self.freq.xi
-        active = np.flatnonzero(np.abs(Bc).max(axis=1, initial=0.0)
-                                > 1e-13 * np.abs(Bc).max(initial=0.0))
         out = np.empty((self.n_c, self.n_r))
 
         def step(Rc, rows):
