@@ -510,6 +510,8 @@ def krylov_solve(core: HBMJacobian, matvec, b, make_psolve, shift=None, rtol=Non
         stats.solves += b.shape[1] if multi else 1
         stats.krylov_iterations += total
     cache.after_solve(it, fresh)
+    log.debug("GMRES: %d iterations (%d in the last run, fresh %s, partial %s, truncated %s)",
+              total, it, fresh, P.partial, getattr(P, "truncated", None))
     if not np.all(np.isfinite(x)) or rel > max(1e-6, rtol):
         raise RuntimeError(f"GMRES reached only {rel:.1e} relative residual in {total} "
                            f"iterations")

@@ -32,21 +32,19 @@ TWO_STAGE = True
 #: harmonics (Woodbury, :meth:`HarmonicPreconditioner._lowrank`).
 LOWRANK = True
 #: Largest low-rank correction: the exact one (every element whose tangent couples
-#: harmonics) while it has at most ``LOWRANK_EXACT_FRACTION n_z`` coordinates, and at
-#: most ``LOWRANK_MAX`` (its dense ``m x m`` LU costs ``m^3``); beyond that it is
-#: truncated to the ``LOWRANK_MAX_FRACTION n_z`` largest.  ``LOWRANK_MIN`` coordinates
-#: are always allowed (small systems).  Exact up to 0.9 instead of 0.35 (round 13),
-#: measured on 96 Gauss points (2,880 unknowns), FRC at force scale 20 (gross slip, 74
-#: elements slip: m = 2,220), one thread, two branches side by side: GMRES iterations
-#: 8,886 -> 1,837, builds 152 -> 75, the branch's solves 37.4 -> 20.9 s; truncating
-#: to 0.6 instead (m = 1,710, still truncated) was slower than 0.35: 42.0 s (the larger
-#: LU, and 5,011 iterations).  Force scale 2 (m at most 990): unchanged.
-#: ``LOWRANK_MAX`` 3000 -> 4600 (round 14, with the row-block stage): the EPMC's
-#: extended indicator systems (5,952 unknowns, 31 coefficients) needed up to about
-#: 3,400; at 3000, 14 of 36 builds were truncated.  One process, indicators inline:
-#: builds 36 -> 25, their GMRES iterations 846 -> 516, the EPMC 37.0 -> 29.1 s (30.0 s
-#: in a second run); the FRC's force-20 branch is unchanged (none truncated either way;
-#: peak memory 930 MB).
+#: harmonics) while it has at most ``LOWRANK_EXACT_FRACTION n_z`` coordinates and at most
+#: ``LOWRANK_MAX`` (its dense ``m x m`` LU costs ``m^3``; a preconditioner cache raises
+#: that limit where truncated ones fail, ``preconditioner_cache.LOWRANK_MAX_RAISED``);
+#: beyond, truncated to the ``LOWRANK_MAX_FRACTION n_z`` largest.  ``LOWRANK_MIN``
+#: coordinates are always allowed (small systems).  Exact up to 0.9 instead of 0.35
+#: (round 13), on 96 Gauss points (2,880 unknowns), FRC at force scale 20 (74 elements
+#: slip: m = 2,220), one thread, side by side: GMRES iterations 8,886 -> 1,837, builds
+#: 152 -> 75, the branch's solves 37.4 -> 20.9 s; truncating to 0.6 instead (m = 1,710)
+#: was slower than 0.35: 42.0 s (the larger LU, and 5,011 iterations).  ``LOWRANK_MAX``
+#: 3000 -> 4600 (round 14, with the row-block stage): the EPMC's extended indicator
+#: systems (5,952 unknowns, 31 coefficients) needed up to about 3,400; at 3000, 14 of
+#: 36 builds were truncated; builds 36 -> 25, GMRES iterations 846 -> 516, the EPMC
+#: 37.0 -> 29.1 s; the FRC's force-20 branch unchanged (peak memory 930 MB).
 LOWRANK_EXACT_FRACTION = 0.9
 LOWRANK_MAX_FRACTION = 0.35
 LOWRANK_MAX = 4600
@@ -491,8 +489,10 @@ class HarmonicPreconditioner:
         # round-off of the AFT (or changes GMRES by an iteration at most)
         sel = np.flatnonzero(norm > LOWRANK_NEGLIGIBLE * ref)  # index e nb + kind
 
+        limit = jac.cache.lowrank_max          # LOWRANK_MAX, or raised by the cache
+
         def blocks(fraction):           # row blocks in a correction of that many coordinates
-            return int(min(max(fraction * jac.n_z, LOWRANK_MIN), LOWRANK_MAX)) // nc
+            return int(min(max(fraction * jac.n_z, LOWRANK_MIN), limit)) // nc
         nh = len(jac.basis.harmonics)
         n_groups = 1
         if jac.rtol >= SINGLE_LU_RTOL and sel.size * nc > LOOSE_SPLIT_MIN \
@@ -500,10 +500,12 @@ class HarmonicPreconditioner:
             # a loose solve: every row block, the correction split by harmonics
             # (solve_capacitance)
             n_groups, most = nh, sel.size
-        else:
-            most = blocks(LOWRANK_MAX_FRACTION) \
-                if sel.size > blocks(LOWRANK_EXACT_FRACTION) else sel.size
+        else:       # a raised limit truncates to itself, not to LOWRANK_MAX_FRACTION
+            most = sel.size if sel.size <= blocks(LOWRANK_EXACT_FRACTION) else \
+                blocks(LOWRANK_EXACT_FRACTION if limit > LOWRANK_MAX else LOWRANK_MAX_FRACTION)
         self.truncated = sel.size > most
+        log.debug("low-rank stage: %d of %d coordinates wanted, %d kept",
+                  sel.size * nc, jac.n_z, min(most, sel.size) * nc)
         if self.truncated and self.modal and not self.partial:
             # the stuck stiffness is far from this tangent: a truncated correction
             # serves better on the harmonic projections of the tangent

@@ -8,7 +8,12 @@ same frequency it keeps the harmonic stage and builds only the low-rank one
 """
 from __future__ import annotations
 
+import logging
+
+from . import preconditioner
 from .preconditioner import SINGLE_LU_RTOL, HarmonicPreconditioner
+
+log = logging.getLogger(__name__)
 
 #: GMRES iterations above which a reused preconditioner is always allowed to be
 #: rebuilt (the least threshold of :meth:`PreconditionerCache.threshold`).
@@ -57,6 +62,22 @@ TRUNCATED_REUSE = 0.0
 #: iterations 2,949 / 3,105 / 3,257, X equal to 2.4e-12).
 SHARE_HARMONIC_STAGE = 5e-3
 
+#: A truncated low-rank stage that fails: after ``RAISE_AFTER`` solves in which a
+#: fresh, full, truncated preconditioner needed more than ``RAISE_ITERATIONS`` GMRES
+#: iterations in one run, the cache raises its low-rank limit from
+#: ``preconditioner.LOWRANK_MAX`` to ``LOWRANK_MAX_RAISED`` coordinates for the rest of
+#: its life (:attr:`PreconditionerCache.lowrank_max`; the correction is then exact up to
+#: that size and truncated to it beyond).  Measured (round 37) on the force-20 FRC
+#: branch: at 480 Gauss points its stage wants 6,300 to 6,700 coordinates, kept 4,590,
+#: and a fresh one needed 80 to 400 iterations in a run (1,600 to 2,850 a point, 6 to 9
+#: builds, about 60 s a point); exact (8000): 41 to 82 a point, 1 to 3 builds, about
+#: 4 s a point.  At 240 points, where a fresh truncated stage needs at most 20
+#: iterations but once (224), a limit of 8000 throughout made the whole FRC slower
+#: (80.7 against 75.3 s): the limit is raised only where truncation is seen to fail.
+RAISE_ITERATIONS = 100
+RAISE_AFTER = 2
+LOWRANK_MAX_RAISED = 8000
+
 
 class PreconditionerCache:
     """The harmonic preconditioner in use, shared by successive Jacobians (chord reuse).
@@ -104,6 +125,17 @@ class PreconditionerCache:
         #: (``preconditioner.SINGLE_INVERSE_MIN``): an FRC branch's continuation sets it
         #: (:func:`jointsim.analyses.hbm._run_branch`), where it pays; off elsewhere
         self.single_inverses = False
+        #: fresh, full, truncated preconditioners that needed more than
+        #: ``RAISE_ITERATIONS`` GMRES iterations (``RAISE_AFTER`` raise the limit)
+        self.failed_truncations = 0
+
+    @property
+    def lowrank_max(self) -> int:
+        """Largest low-rank correction (coordinates) of the preconditioners built here:
+        ``preconditioner.LOWRANK_MAX``, or ``LOWRANK_MAX_RAISED`` once truncated ones
+        failed (``RAISE_AFTER``)."""
+        return max(LOWRANK_MAX_RAISED, preconditioner.LOWRANK_MAX) \
+            if self.failed_truncations >= RAISE_AFTER else preconditioner.LOWRANK_MAX
 
     def get(self, jac, shift=None) -> tuple["HarmonicPreconditioner", bool]:
         """A preconditioner for ``jac`` and whether it was built from ``jac`` itself
@@ -199,6 +231,14 @@ class PreconditionerCache:
         """
         if fresh:
             self.fresh_iterations = max(self.fresh_iterations, int(iterations))
+            P = self.current
+            if iterations > RAISE_ITERATIONS and getattr(P, "truncated", False) \
+                    and not P.partial and self.failed_truncations < RAISE_AFTER:
+                self.failed_truncations += 1
+                if self.failed_truncations == RAISE_AFTER:
+                    log.info("a truncated preconditioner needed %d GMRES iterations: "
+                             "low-rank corrections exact up to %d coordinates from here",
+                             iterations, self.lowrank_max)
             if self.current is self.stage and self.stage_iterations is None:
                 self.stage_iterations = int(iterations)
             if iterations > self.threshold():

@@ -134,6 +134,42 @@ def test_lowrank_preconditioner_is_exact_at_stick_slip_and_separation(law, norma
     assert it > 1 and np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
 
 
+def test_the_cache_raises_the_lowrank_limit_after_failed_truncations(monkeypatch):
+    """Two fresh, full, truncated preconditioners whose GMRES needed more than
+    RAISE_ITERATIONS iterations raise the cache's low-rank limit (a partial one does
+    not count); the next build is then exact: GMRES in one iteration, to the dense
+    solution."""
+    import jointsim.solvers.preconditioner as pm
+    import jointsim.solvers.preconditioner_cache as pc
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
+    F = sd.force_coefficients(0.3)
+    rng = np.random.default_rng(5)
+    z = rng.normal(size=sd.n_z) * 0.4
+    J = sk.evaluate(z, 1.1, F).J
+    v = rng.normal(size=sd.n_z)
+    xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, v)
+    monkeypatch.setattr(pm, "LOWRANK_MAX", 2 * sk.n_c)             # two row blocks
+    monkeypatch.setattr(pc, "LOWRANK_MAX_RAISED", sk.n_z)
+    cache = sk.preconditioner
+    P = cache.refresh(J, full=True)
+    assert P.truncated and cache.lowrank_max == 2 * sk.n_c
+    _, it, _, _ = gmres(J.matvec, v, lambda u: P.apply(u, J), rtol=1e-12)
+    assert it > 1
+    monkeypatch.setattr(pc, "RAISE_ITERATIONS", it - 1)
+    cache.after_solve(it, fresh=True)
+    cache.after_solve(it - 1, fresh=True)                    # not more than the limit
+    cache.current.partial = True
+    cache.after_solve(it, fresh=True)                        # a partial one
+    assert cache.failed_truncations == 1 and cache.lowrank_max == 2 * sk.n_c
+    cache.refresh(J, full=True)
+    cache.after_solve(it, fresh=True)
+    assert cache.lowrank_max == sk.n_z
+    P = cache.refresh(J, full=True)
+    assert not P.truncated
+    x, it, rel, _ = gmres(J.matvec, v, lambda u: P.apply(u, J), rtol=1e-12)
+    assert it == 1 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
+
+
 @pytest.mark.parametrize("law,normal", [("jenkins", "coupled"), ("iwan4", "coupled"),
                                         ("jenkins", "fixed")])
 def test_a_shared_harmonic_stage_is_exact_at_its_frequency(law, normal, monkeypatch):
