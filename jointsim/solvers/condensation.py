@@ -512,6 +512,52 @@ class DynamicProducts:
                 if E._small_inv is not None:
                     self.W[j] = E._small_inv
         self.Ed = d
+        self.xi = float(xi)
+
+    def derivatives(self, wrt: str, omega: float, harmonics, Q, Y):
+        """:meth:`ReducedLinear.dproducts` of every harmonic at once: ``(dA_h q_h + dB_h
+        y_h, dB'_h q_h + dE_h y_h)``, the derivatives with respect to ``omega`` or ``xi``,
+        by one real product per block of ``M`` (and of ``C``, or its low-rank factors)
+        for all the columns instead of two per harmonic.
+
+        Parameters
+        ----------
+        wrt : str
+            ``"omega"`` or ``"xi"``.
+        omega : float
+            Fundamental angular frequency [rad/s] (``nu = h omega``).
+        harmonics : array of int, shape (n_h,)
+        Q : ndarray, shape (n_r, n_h), complex
+        Y : ndarray, shape (n_y, n_h), complex
+
+        Returns
+        -------
+        dq : ndarray, shape (n_r, n_h), complex
+        dy : ndarray, shape (n_y, n_h), complex
+        """
+        lin = self.lin
+        h = np.asarray(harmonics, dtype=float)
+        nu = h * omega
+        if wrt == "omega":
+            cm, cc = -h * (2.0 * nu + 1j * self.xi), 1j * h
+        else:
+            cm, cc = -1j * nu, np.zeros_like(nu)
+
+        def prod(A, X):                  # a real matrix times complex columns
+            P = A @ np.concatenate([X.real, X.imag], axis=1)
+            p = X.shape[1]
+            return P[:, :p] + 1j * P[:, p:]
+        Mq = prod(lin.M["qq"], Q) + prod(lin.M["qy"], Y)
+        My = prod(lin.M["yq"], Q) + lin.myy[:, None] * Y
+        if lin.KMC_lowc is not None:     # C = W diag(c) W^T
+            Wq, Wy, c = lin.KMC_lowc
+            t = c[:, None] * (Wq.T @ Q + Wy.T @ Y)
+            Cq, Cy = Wq @ t, Wy @ t
+        else:
+            Cq = prod(lin.C["qq"], Q) + prod(lin.C["qy"], Y)
+            Cy = prod(lin.C["yq"], Q) + (lin.cyy[:, None] * Y if lin.modal
+                                         else prod(lin.Cyy, Y))
+        return cm * Mq + cc * Cq, cm * My + cc * Cy
 
     def _from_q(self, X, k):
         """``(A_h X, B'_h X)`` for the columns of ``X`` (n_r, n_h k), harmonic-major: one

@@ -342,7 +342,7 @@ class HBMSystem:
         """:meth:`_linear_part` for every harmonic at once by
         :class:`~.condensation.DynamicProducts` (modal or low-rank condensation): the
         complex per-harmonic blocks are not formed."""
-        lin, dyn = self.lin, fb.dynamic
+        dyn = fb.dynamic
         H = self.basis.harmonics
         cq = self.basis.to_complex(Q).T                                  # (n_r, n_h)
         cF = self.basis.to_complex(FPsi).T
@@ -350,12 +350,7 @@ class HBMSystem:
         lhs, y = dyn.parts(cq, cFy)
         self.basis.from_complex((lhs - cF).T, R)
         for p in dR:
-            dq = np.zeros_like(cq)
-            dy = np.zeros_like(y)
-            for j, h in enumerate(H):
-                if h == 0 and p == "omega":
-                    continue
-                dq[:, j], dy[:, j] = lin.dproducts(h * fb.omega, fb.xi, p, h, cq[:, j], y[:, j])
+            dq, dy = dyn.derivatives(p, fb.omega, H, cq, y)
             v = dq - dyn.b_einv(dy)
             for j, h in enumerate(H):
                 if not (h == 0 and p == "omega"):

@@ -57,6 +57,28 @@ def test_derivative_products_match_finite_differences(kind):
         assert lin.dproducts(h * omega, xi, wrt, h, q, y, parts="y")[0] is None
 
 
+@pytest.mark.parametrize("kind,factors", [("modal", False), ("lowrank", True),
+                                          ("lowrank", False)])
+def test_batched_derivative_products_equal_the_per_harmonic_ones(kind, factors):
+    """``DynamicProducts.derivatives`` (every harmonic at once) against ``dproducts``
+    harmonic by harmonic (checked against finite differences above), with
+    self-excitation; a low-rank damping by its factors and by its dense blocks."""
+    lin = ReducedLinear(*_structure(kind))
+    if not factors:
+        lin.KMC_lowc = None
+    rng = np.random.default_rng(4)
+    harmonics, omega, xi = np.array([0, 1, 2, 5]), 1.7, 0.04
+    Q = rng.normal(size=(lin.n_r, 4)) + 1j * rng.normal(size=(lin.n_r, 4))
+    Y = rng.normal(size=(lin.n_y, 4)) + 1j * rng.normal(size=(lin.n_y, 4))
+    dyn = DynamicProducts(lin, harmonics * omega, xi)
+    for wrt in ("omega", "xi"):
+        dq, dy = dyn.derivatives(wrt, omega, harmonics, Q, Y)
+        for j, h in enumerate(harmonics):
+            rq, ry = lin.dproducts(h * omega, xi, wrt, h, Q[:, j], Y[:, j])
+            assert np.abs(dq[:, j] - rq).max() <= 1e-13 * max(np.abs(rq).max(), 1.0)
+            assert np.abs(dy[:, j] - ry).max() <= 1e-13 * max(np.abs(ry).max(), 1.0)
+
+
 @pytest.mark.parametrize("kind", ["modal", "lowrank"])
 def test_dynamic_products_equal_the_schur_complements(kind):
     """``DynamicProducts.apply`` (every harmonic at once, real BLAS-3 products) against
