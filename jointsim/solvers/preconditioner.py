@@ -463,7 +463,8 @@ class HarmonicPreconditioner:
         if ne == 0:
             self.truncated = False
             return
-        Lk = Tk
+        ref = max(float(np.abs(Tk).max(initial=0.0)), 1e-300)   # the largest tangent entry
+        Lk = Tk                         # (made in place: ref is taken before)
         # subtract the harmonic projection that P already holds
         pairs = []
         if jac.Juu is not None:
@@ -484,7 +485,6 @@ class HarmonicPreconditioner:
         d = nb * nc
         Lb = Lk.reshape(ne, nb, nc, d)                        # row blocks (element, kind)
         norm = np.sqrt(np.einsum("ebij,ebij->eb", Lb, Lb)).ravel()
-        ref = max(float(np.abs(Tk).max(initial=0.0)), 1e-300)
         # below LOWRANK_NEGLIGIBLE of the largest tangent entry the correction is
         # round-off of the AFT (or changes GMRES by an iteration at most)
         sel = np.flatnonzero(norm > LOWRANK_NEGLIGIBLE * ref)  # index e nb + kind

@@ -134,6 +134,25 @@ def test_lowrank_preconditioner_is_exact_at_stick_slip_and_separation(law, norma
     assert it > 1 and np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
 
 
+@pytest.mark.parametrize("normal", ["coupled", "fixed"])
+def test_a_stuck_joint_has_no_lowrank_stage(normal):
+    """Every element stuck (and closed) over the period: the tangent does not couple
+    harmonics, so what is left of it after the harmonic projection is the AFT's
+    round-off, far below LOWRANK_NEGLIGIBLE of the largest tangent entry, and no
+    low-rank stage is built (it once was: the threshold was taken relative to that
+    round-off itself); the harmonic stage alone is then exact (the dense solve)."""
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", normal)))
+    F = sd.force_coefficients(1e-6)
+    rng = np.random.default_rng(9)
+    z = rng.normal(size=sd.n_z) * 1e-9
+    Jk = sk.evaluate(z, 1.1, F).J
+    P = HarmonicPreconditioner(Jk)
+    assert P.lowrank is None and not P.truncated
+    v = rng.normal(size=sd.n_z)
+    xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, v)
+    assert np.abs(P.solve(v) - xd).max() <= 1e-10 * np.abs(xd).max()
+
+
 def test_the_cache_raises_the_lowrank_limit_after_failed_truncations(monkeypatch):
     """Two fresh, full, truncated preconditioners whose GMRES needed more than
     RAISE_ITERATIONS iterations raise the cache's low-rank limit (a partial one does
