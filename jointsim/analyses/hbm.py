@@ -118,8 +118,7 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
                      out.deferred)
     else:
         failures = []
-        # the branches run here: their indicators on a pool of forked workers
-        # (issue 10; every core when workers = 0, none when workers = 1)
+        # the branches here, their indicators on forked workers (workers 0: all cores, 1: none)
         with _indicator_pool(writer, a, system, a.workers) as out.inds:
             for job in todo:
                 conv = _run_branch(job, on_record=out.write_point, progress=True,
@@ -440,9 +439,12 @@ class _Output:
                 f"where its normal load is smallest, or follow the history by time "
                 f"marching")
 
-    def finish_branch(self, ib, fs, success, message) -> str | None:
-        """Status, peak and peak loops of a finished branch; the failure, if any."""
+    def finish_branch(self, ib, fs, success, message, failed_truncations=0) -> str | None:
+        """Status, peak and peak loops of a finished branch; the failure, if any
+        (``failed_truncations``: a worker's, :attr:`.PreconditionerCache.failed_truncations`)."""
         a, system, writer, units = self.a, self.system, self.writer, self.units
+        cache = system.preconditioner
+        cache.failed_truncations = max(cache.failed_truncations, failed_truncations)
         F = system.force_coefficients(fs)
         rows = np.flatnonzero(np.asarray(self.points["branch"]) == ib) \
             if self.points["branch"] else np.zeros(0, dtype=np.int64)
@@ -702,13 +704,12 @@ def _parent_indicators(writer, a, system, watch):
 def _branch_process(job, job_args, queue, parent_pid, defer=None) -> None:
     """Body of a worker process: compute a branch, send its points to the parent.
 
-    The workers are the parallelism: each builds its own system with
-    ``parallel=False`` (on the parent's condensation, made before the fork), so its
-    AFT kernels stay on one thread (no numba thread
-    pool is started in a forked process, and the cores are not oversubscribed).
-    Once a core is free the worker leaves some of its points' error indicators to
-    the parent (``defer``, :class:`~jointsim.analyses.forking.Deferral`).  The
-    worker dies with its parent (:func:`die_with_parent`).
+    The workers are the parallelism: each builds its own system with ``parallel=False``
+    (on the parent's condensation, made before the fork): its AFT kernels stay on one
+    thread (no numba thread pool in a forked process, no oversubscribed cores).  Once a
+    core is free the worker leaves some of its points' error indicators to the parent
+    (``defer``, :class:`~jointsim.analyses.forking.Deferral`).  It dies with its parent
+    (:func:`die_with_parent`).
     """
     die_with_parent(parent_pid)
     try:
@@ -716,7 +717,8 @@ def _branch_process(job, job_args, queue, parent_pid, defer=None) -> None:
                          lin=job_args["system"].lin)
         conv = _run_branch(job, on_record=lambda rec: queue.put(("point", job.ib, rec)),
                            progress=False, defer=defer, **dict(job_args, system=serial))
-        queue.put(("done", job.ib, (conv.success, conv.message)))
+        queue.put(("done", job.ib, (conv.success, conv.message,
+                                    serial.preconditioner.failed_truncations)))
     except BaseException as exc:  # reported to the parent, which keeps the file valid
         queue.put(("done", job.ib, (False, f"worker failed: {type(exc).__name__}: {exc}")))
 

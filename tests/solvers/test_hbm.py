@@ -401,6 +401,30 @@ def test_harmonic_amplitude():
     assert harmonic_amplitude(b, X, 0)[0] == 1.0
 
 
+def test_a_workers_failed_truncations_reach_the_parent(tmp_path, monkeypatch):
+    """A branch computed on a worker returns its preconditioner cache's failed
+    truncations (PreconditionerCache.failed_truncations) with its result: the parent,
+    which refines the peak, starts from them."""
+    import jointsim.analyses.hbm as ah
+    run_branch, finish = ah._run_branch, ah._Output.finish_branch
+    seen = []
+
+    def marked(job, **kw):
+        kw["system"].preconditioner.failed_truncations = 5 + job.ib
+        return run_branch(job, **kw)
+
+    def recorded(self, ib, *args):
+        out = finish(self, ib, *args)
+        seen.append(self.system.preconditioner.failed_truncations)
+        return out
+    monkeypatch.setattr(ah, "_run_branch", marked)
+    monkeypatch.setattr(ah._Output, "finish_branch", recorded)
+    base = ["analysis.hbm.force_scale=[0.05, 0.2]", "analysis.hbm.harmonics=[0, 1, 3]",
+            "analysis.hbm.n_samples=32", "analysis.hbm.workers=2"]
+    run_scene(load_scene(MODELS / "chain2_jenkins.toml", base), tmp_path / "p.h5")
+    assert len(seen) == 2 and min(seen) >= 5 and max(seen) == 6   # the largest so far
+
+
 def test_parallel_branches_equal_serial_and_resume(tmp_path, monkeypatch):
     """Branches on two worker processes give the serial branches point for point
     (rows interleave; /hbm/branch tells them apart); an interrupted parallel run
