@@ -389,9 +389,8 @@ class ReducedLinear:
         """Derivatives of the blocks' products with respect to ``omega`` (``nu = h omega``)
         or ``xi``: ``(dA q + dB y, dB' q + dE y)``.
 
-        With ``D = K - nu^2 M + i nu (C - xi M)``: ``dD/domega = h (-(2 nu + i xi) M +
-        i C)`` and ``dD/dxi = -i nu M``, applied to ``q`` and ``y`` by real products
-        (forming the complex blocks costs more than the products).
+        ``dD/domega = h (-(2 nu + i xi) M + i C)``, ``dD/dxi = -i nu M``
+        (:func:`_dD_coefficients`) applied by real products (cheaper than complex blocks).
 
         Parameters
         ----------
@@ -412,10 +411,7 @@ class ReducedLinear:
         dq, dy : ndarray (complex) or None
             Shapes (n_r,) and (n_y,).
         """
-        if wrt == "omega":
-            cm, cc = -h * (2.0 * nu + 1j * xi), 1j * h
-        else:
-            cm, cc = -1j * nu, 0.0
+        cm, cc = _dD_coefficients(wrt, h, nu, xi)
 
         def d(b, v):
             Mv, Cv = self._real_product(b, v)
@@ -515,10 +511,9 @@ class DynamicProducts:
         self.xi = float(xi)
 
     def derivatives(self, wrt: str, omega: float, harmonics, Q, Y):
-        """:meth:`ReducedLinear.dproducts` of every harmonic at once: ``(dA_h q_h + dB_h
-        y_h, dB'_h q_h + dE_h y_h)``, the derivatives with respect to ``omega`` or ``xi``,
-        by one real product per block of ``M`` (and of ``C``, or its low-rank factors)
-        for all the columns instead of two per harmonic.
+        """:meth:`ReducedLinear.dproducts` of every harmonic at once, ``(dA_h q_h + dB_h y_h,
+        dB'_h q_h + dE_h y_h)`` by ``omega`` or ``xi``: one real product per block of ``M``
+        (and of ``C``, or its low-rank factors) for all the harmonics.
 
         Parameters
         ----------
@@ -538,10 +533,7 @@ class DynamicProducts:
         lin = self.lin
         h = np.asarray(harmonics, dtype=float)
         nu = h * omega
-        if wrt == "omega":
-            cm, cc = -h * (2.0 * nu + 1j * self.xi), 1j * h
-        else:
-            cm, cc = -1j * nu, np.zeros_like(nu)
+        cm, cc = _dD_coefficients(wrt, h, nu, self.xi)
 
         def prod(A, X):                  # a real matrix times complex columns
             P = A @ np.concatenate([X.real, X.imag], axis=1)
@@ -767,6 +759,14 @@ class _LowRankE:
         if self._small_inv is None:      # no damping term (harmonic 0)
             return x
         return x - (self.U @ (self._small_inv @ (self.U.T @ x))) / d
+
+
+def _dD_coefficients(wrt: str, h, nu, xi: float):
+    """``(c_M, c_C)`` with ``dD/dp = c_M M + c_C C`` for ``D = K - nu^2 M + i nu (C - xi M)``,
+    ``nu = h omega``, ``p`` = ``"omega"`` or ``"xi"`` (scalars or arrays over harmonics)."""
+    if wrt == "omega":
+        return -h * (2.0 * nu + 1j * xi), 1j * h
+    return -1j * nu, 0.0 * nu
 
 
 def _low_rank_factors(C, n_r: int, seed: int = 0):
