@@ -87,7 +87,7 @@ def test_lap_joint_epmc_with_the_scaled_law_turns_at_the_fold_then_stops_at_a_ju
     from jointsim.run import run_scene
     from jointsim.scene import parse_scene
 
-    path = Path("models/lap_joint_nodes.toml")
+    path = Path(__file__).resolve().parents[2] / "models" / "lap_joint_nodes.toml"
     data = _toml.loads(path.read_text(encoding="utf-8"))
     data["model"]["mesh"] = "../meshes/lap_joint_coarse.msh"
     data["joint"]["reversal"] = "scaled"
