@@ -14,12 +14,14 @@ while the dense path's estimated time stays below ``--dense-limit`` seconds (the
 size's from the flops of its LUs, the next ones from the last measured),
 once with ``"direct"``.  Printed per case: unknowns, Newton iterations, GMRES
 iterations, preconditioner builds, time per point (analysis time / points) of both
-paths, the FRC branch's set-up (``frc_scales``: the stuck responses and the resonance
-solve, once per branch) and the time per point without it, their ratio, the largest
+paths, the analysis's one-time set-up (the condensation, ``ReducedLinear``, and the
+branch's scales: for the FRC ``frc_scales``, the stuck responses and the resonance
+solve; for the EPMC the elastic mode, its linear start and ``_scales``) and the time
+per point without it, their ratio, the largest
 relative difference of ``X`` between the two paths over the points they placed at the
 same frequency (FRC) or amplitude (EPMC), with how many those are, and peak memory;
 then the fitted exponent ``p`` of time per point ~ n^p (Krylov path, least squares over
-the sizes from 57 on; for the FRC also without the set-up).
+the sizes from 57 on; also without the set-up).
 
 ``--interface gauss`` runs the default scene's own interface instead (2 Gauss
 points per interface edge, pressure-proportional stiffness, washer bolts; the mesh
@@ -121,20 +123,28 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str,
         ov += ["analysis.epmc.loop_amplitudes=[]"]
     data = apply_overrides(_toml.loads("\n".join(lines)), ov, str(path))
     scene = parse_scene(data, str(path), path.parent)
-    # the FRC branch's set-up (frc_scales: the stuck responses and a Newton solve at
-    # the strongest resonance, for the variables' scales), timed apart: one per branch,
-    # not per point
+    # the one-time work of the analysis, timed apart (once per run or branch, not per
+    # point): the condensation onto the contact coordinates (ReducedLinear) and the
+    # branch's scales (FRC: frc_scales, the stuck responses and a Newton solve at the
+    # strongest resonance; EPMC: the elastic mode, its linear start and _scales)
+    import jointsim.analyses.epmc as ae
     import jointsim.analyses.hbm as ah
+    import jointsim.solvers.hbm as sh
     setup = [0.0]
-    scales = ah.frc_scales
 
-    def timed(*args, **kw):
-        t = time.perf_counter()
-        try:
-            return scales(*args, **kw)
-        finally:
-            setup[0] += time.perf_counter() - t
-    ah.frc_scales = timed
+    def timed(module, name):
+        inner = getattr(module, name)
+
+        def wrapper(*args, **kw):
+            t = time.perf_counter()
+            try:
+                return inner(*args, **kw)
+            finally:
+                setup[0] += time.perf_counter() - t
+        setattr(module, name, wrapper)
+    for module, name in ((sh, "ReducedLinear"), (ah, "frc_scales"), (ae, "elastic_mode"),
+                         (ae, "_linear_start"), (ae, "_scales")):
+        timed(module, name)
     t0 = time.perf_counter()
     try:
         run_scene(scene, out)
@@ -274,8 +284,8 @@ def main(argv=None) -> None:
                       f"{kt0:>8.3f} {dt:>10.3f} {dt / kt:>6.2f} {dx:>8.1e} "
                       f"{k['rss_mb']:>9.0f} {d['rss_mb'] if d else np.nan:>8.0f}{same}", flush=True)
             sel = [i for i, n in enumerate(sizes) if n >= (48 if a.interface == "gauss" else 57)]
-            for label, t in (("", tpp), (" without the branch set-up", tpp0)):
-                if len(sel) < 2 or (t is tpp0 and analysis != "hbm"):
+            for label, t in (("", tpp), (" without the set-up", tpp0)):
+                if len(sel) < 2:
                     continue
                 pfit = np.polyfit(np.log([sizes[i] for i in sel]),
                                   np.log([t[i] for i in sel]), 1)[0]
