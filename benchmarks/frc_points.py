@@ -26,17 +26,12 @@ def main(argv):
     from jointsim import _toml
     from jointsim.run import run_scene
     from jointsim.scene import apply_overrides, parse_scene
+    from resolution_study import only_analyses
     coarse = "model.mesh='../meshes/lap_joint_coarse.msh'"
 
     def only_hbm(path, ovs):
-        out, keep = [], True
-        for line in path.read_text().splitlines():
-            s = line.strip()
-            if s.startswith("[") and not s.startswith("[["):
-                keep = not s.startswith("[analysis.") or s[len("[analysis."):-1] == "hbm"
-            if keep:
-                out.append(line)
-        return parse_scene(apply_overrides(_toml.loads("\n".join(out)), ovs, str(path)),
+        text = only_analyses(path.read_text(), ("hbm",))
+        return parse_scene(apply_overrides(_toml.loads(text), ovs, str(path)),
                            str(path), path.parent)
 
     m = root / "models"

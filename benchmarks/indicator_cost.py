@@ -94,15 +94,9 @@ CASES = {
 
 def _drop_others(path, kind):
     """Overrides are not enough to drop sections: write a copy keeping [analysis.<kind>]."""
-    out, keep = [], True
-    for line in path.read_text().splitlines():
-        s = line.strip()
-        if s.startswith("[") and not s.startswith("[["):
-            keep = not s.startswith("[analysis.") or s[len("[analysis."):-1] in (kind, "modes")
-        if keep:
-            out.append(line)
+    from resolution_study import only_analyses
     tmp = path.parent / f".indicator_cost_{path.name}"
-    tmp.write_text("\n".join(out) + "\n")
+    tmp.write_text(only_analyses(path.read_text(), (kind, "modes")))
     return tmp
 
 

@@ -28,7 +28,7 @@ import numpy as np
 import scipy.linalg as sla
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from resolution_study import resolution_sets  # noqa: E402
+from resolution_study import only_analyses, resolution_sets  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 log = logging.getLogger("interface_compression")
@@ -41,15 +41,9 @@ def build_system(n: int, sets):
     from jointsim.scene import apply_overrides, parse_scene
     from jointsim.solvers.hbm import HBMSystem
     path = ROOT / "models" / "lap_joint.toml"
-    lines, keep = [], True
-    for line in path.read_text().splitlines():        # the model and its modes only
-        s = line.strip()
-        if s.startswith("[") and not s.startswith("[["):
-            keep = not s.startswith("[analysis.") or s == "[analysis.modes]"
-        if keep:
-            lines.append(line)
+    text = only_analyses(path.read_text(), ("modes",))      # the model and its modes only
     over = resolution_sets(0.24 / n, None) + list(sets)
-    scene = parse_scene(apply_overrides(_toml.loads("\n".join(lines)), over, str(path)),
+    scene = parse_scene(apply_overrides(_toml.loads(text), over, str(path)),
                         str(path), path.parent)
     model = build_model(scene)
     return model, HBMSystem(model, [0, 1, 7], 32, linear_solver="krylov", parallel=False)
@@ -114,10 +108,9 @@ def main(argv=None) -> None:
                 cells = [f"{table[n, h, name, eps][0]} | {table[n, h, name, eps][1]:.2f}"
                          for n in ns]
                 stores = [table[n, h, name, eps][1] * (2 * n) ** 2 for n in ns]
-                p = np.log(stores[-1] / stores[0]) / np.log(ns[-1] / ns[0]) \
-                    if len(ns) > 1 else np.nan
-                print(f"{name:>18} h={h} eps={eps:.0e}: " + "; ".join(cells)
-                      + f"; storage ~ n^{p:.2f}")
+                growth = "" if len(ns) < 2 else \
+                    f"; storage ~ n^{np.log(stores[-1] / stores[0]) / np.log(ns[-1] / ns[0]):.2f}"
+                print(f"{name:>18} h={h} eps={eps:.0e}: " + "; ".join(cells) + growth)
 
 
 if __name__ == "__main__":

@@ -50,13 +50,8 @@ def main(argv=None) -> None:
     cache.mkdir(exist_ok=True)
     mesh = _mesh(a.pairs, cache)
     path = root / "models" / "lap_joint_nodes.toml"
-    lines, keep = [], True
-    for line in path.read_text().splitlines():
-        s = line.strip()
-        if s.startswith("[") and not s.startswith("[["):
-            keep = not s.startswith("[analysis.") or s[10:-1] in ("modes", a.analysis)
-        if keep:
-            lines.append(line)
+    from resolution_study import only_analyses
+    text = only_analyses(path.read_text(), ("modes", a.analysis))
     ov = [f"model.mesh='{mesh}'", f"analysis.{a.analysis}.linear_solver='{a.solver}'",
           f"analysis.{a.analysis}.max_points={a.points}"]
     if a.analysis == "hbm":
@@ -64,7 +59,7 @@ def main(argv=None) -> None:
                "analysis.hbm.workers=1"]
     else:
         ov += ["analysis.epmc.loop_amplitudes=[]"]
-    data = apply_overrides(_toml.loads("\n".join(lines)), ov, str(path))
+    data = apply_overrides(_toml.loads(text), ov, str(path))
     scene = parse_scene(data, str(path), path.parent)
     import jointsim
     print(f"jointsim from {Path(jointsim.__file__).parent}; load average at start: "

@@ -42,6 +42,19 @@ def without_frc(text: str) -> str:
     return re.sub(r"(?ms)^\[analysis\.hbm\]\n.*?(?=^\[|\Z)", "", text)
 
 
+def only_analyses(text: str, keep) -> str:
+    """The scene text without the ``[analysis.<name>]`` tables whose name is not in
+    ``keep`` (each with its ``[[...]]`` arrays, up to the next table)."""
+    out, kept = [], True
+    for line in text.splitlines():
+        s = line.strip()
+        if s.startswith("[") and not s.startswith("[["):
+            kept = not s.startswith("[analysis.") or s[len("[analysis."):-1] in keep
+        if kept:
+            out.append(line)
+    return "\n".join(out) + "\n"
+
+
 def resolution_sets(dx: float, washer: float | None) -> list[str]:
     """``--set`` items of one uniform-refinement level."""
     ny = max(1, int(round(0.02 / dx)))

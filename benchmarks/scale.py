@@ -103,15 +103,9 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str,
     from jointsim.scene import apply_overrides, parse_scene
     gauss = mesh.startswith("gauss:")
     path = ROOT / "models" / ("lap_joint.toml" if gauss else "lap_joint_nodes.toml")
-    lines, keep = [], True
-    for line in path.read_text().splitlines():
-        s = line.strip()
-        if s.startswith("[") and not s.startswith("[["):
-            keep = not s.startswith("[analysis.") or s[10:-1] in ("modes", analysis)
-        if keep:
-            lines.append(line)
+    from resolution_study import only_analyses, resolution_sets
+    text = only_analyses(path.read_text(), ("modes", analysis))
     if gauss:      # the uniform refinement of the resolution study (the scene's washers)
-        from resolution_study import resolution_sets
         ov = resolution_sets(float(mesh[6:]), None)
     else:
         ov = [f"model.mesh='{mesh}'"]
@@ -121,7 +115,7 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str,
         ov += ["analysis.hbm.force_scale=[2.0]", "analysis.hbm.refine_peak=false"]
     else:
         ov += ["analysis.epmc.loop_amplitudes=[]"]
-    data = apply_overrides(_toml.loads("\n".join(lines)), ov, str(path))
+    data = apply_overrides(_toml.loads(text), ov, str(path))
     scene = parse_scene(data, str(path), path.parent)
     # the one-time work of the analysis, timed apart (once per run or branch, not per
     # point): the condensation onto the contact coordinates (ReducedLinear) and the
