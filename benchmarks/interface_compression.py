@@ -3,7 +3,7 @@
 A measurement, not a solver: for each interface resolution it condenses the lap
 joint (``models/lap_joint.toml``, the lap refined to ``n`` Gauss points, the body
 mesh fixed by ``--set``) onto its contact coordinates, forms ``S_h`` (the dynamic
-stiffness of harmonic ``h``, :meth:`~jointsim.solvers.condensation.FrequencyBlocks.schur`)
+stiffness of harmonic ``h``, :meth:`~jointsim.solvers.frequency_blocks.FrequencyBlocks.schur`)
 and ``(S_h + diag(k))^-1`` (``k`` the stuck joint's stiffness on each coordinate, the
 inverse the harmonic preconditioner applies), orders the coordinates by position
 along the lap (slip and gap of one point together), bisects them down to leaves of
@@ -80,7 +80,7 @@ def main(argv=None) -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    from jointsim.solvers.condensation import FrequencyBlocks
+    from jointsim.solvers.frequency_blocks import FrequencyBlocks
     harmonics = (7, 1, 0)          # the highest first: the quasi-static sums are made for it
     table = {}
     for n in args.elements:

@@ -47,14 +47,12 @@ MAX_DENSE_DOF = 6000
 #: the modes of the welded structure above this many times the harmonic's frequency
 #: enter by a Taylor expansion in ``s = nu^2`` to ``s^QUASI_STATIC_ORDER``, summed once
 #: (:meth:`ReducedLinear._b_dinv_bp`): their relative remainder is of order ``(nu /
-#: w)^8``, below 1.5e-12.  Measured on the 240-Gauss-point lap joint (``n_r = 480``,
-#: ``n_y = 524``, 52 of them below the threshold up to harmonic 15 of 1,000 rad/s):
-#: ``S_h`` equal to the full product's to 2e-16 of its largest entry (8e-14 to ``s^2``),
-#: 7.4 -> 4.2 ms per harmonic (round 32).  0: the full ``n_r x n_y x n_r`` product.
+#: w)^8``, below 1.5e-12 (measured in docs/hbm.md, round 32).  0: the full ``n_r x n_y
+#: x n_r`` product.
 QUASI_STATIC_RATIO = 30.0
 QUASI_STATIC_ORDER = 3
 #: Up to this many structural DOFs the direct path forms the linear part of every
-#: harmonic at once (:attr:`FrequencyBlocks.stacked`): the lumped models, whose
+#: harmonic at once (:attr:`~jointsim.solvers.frequency_blocks.FrequencyBlocks.stacked`): the lumped models, whose
 #: per-harmonic blocks of a few numbers cost more in calls than in arithmetic.
 STACKED_MAX_DOF = 64
 
@@ -77,11 +75,15 @@ class ReducedLinear:
         The stiffness with the joint stuck at its static state
         (:attr:`jointsim.solvers.static.StuckLinearisation.K`): gives
         :attr:`flexibility`.
+    positions : ndarray, shape (n_r, d), optional
+        Position of every contact coordinate [m]: orders them for the hierarchical
+        form of ``S_h`` (:mod:`jointsim.solvers.hierarchical`).
 
     See the module docstring for the formulation.
     """
 
-    def __init__(self, M, K, C, T, K_stuck=None):
+    def __init__(self, M, K, C, T, K_stuck=None, positions=None):
+        self.positions = positions
         M, K, C, T = dense_array(M), dense_array(K), dense_array(C), dense_array(T)
         # what the stuck joint adds to K (sparse: its contact DOFs)
         self._dK = None if K_stuck is None else sp.csr_matrix(dense_array(K_stuck) - K)
@@ -271,9 +273,7 @@ class ReducedLinear:
         """
         Wq, Wy, c = self.damping_factors
         s = nu * nu + 1j * nu * xi if xi else nu * nu
-        d = self.lam - s * self.myy
-        if np.any(d == 0):
-            raise np.linalg.LinAlgError(WELDED_SINGULAR)
+        d = self.welded_stiffness(s)
         B0 = self.K["qy"] - s * self.M["qy"]
         B0p = self.K["yq"] - s * self.M["yq"]
         B0d = B0 / d
@@ -299,6 +299,15 @@ class ReducedLinear:
         right = np.vstack([Pr, Wc.T, Wc.T, np.linalg.solve(Kc, Gr)])
         S += left @ right
         return S
+
+    def welded_stiffness(self, s) -> np.ndarray:
+        """``D = lam - s m_yy`` (n_y,) of a modal or low-rank condensation: the diagonal of
+        ``E`` without its damping at ``s = nu^2 + i nu xi``; raises ``LinAlgError`` where
+        it vanishes (``WELDED_SINGULAR``)."""
+        d = self.lam - s * self.myy
+        if np.any(d == 0):
+            raise np.linalg.LinAlgError(WELDED_SINGULAR)
+        return d
 
     def _b_dinv_bp(self, s, B0d, B0p) -> np.ndarray:
         """``B_0 D^-1 B'_0`` at ``s = nu^2 + i nu xi`` (``n_r x n_r``, real when ``s`` is;
@@ -332,9 +341,7 @@ class ReducedLinear:
         Kept for one ``nu_max`` (``2 nu`` when it is made), valid for every frequency up
         to it: a run's first harmonics raise it a few times.  The quasi-static modes
         only become fewer as it rises: the sums lose the modes that leave them (a few
-        each time) instead of being formed again (at 480 Gauss points, formed afresh,
-        the FRC branch's set-up took 21.5 s and the EPMC 3.74 s a point; lowered,
-        20.3 s and 3.05 s, ``benchmarks/scale.py``)."""
+        each time) instead of being formed again."""
         q = self._quasi
         if q is not None and nu <= q[0]:
             return q[1]
@@ -372,7 +379,7 @@ class ReducedLinear:
     @property
     def transformed(self) -> tuple:
         """``(K, M, C)`` in the coordinates ``(q, y)``, whole, real ``n x n`` (made once:
-        the stacked blocks of a small structure, :meth:`FrequencyBlocks.stacked`)."""
+        the stacked blocks of a small structure, :meth:`~jointsim.solvers.frequency_blocks.FrequencyBlocks.stacked`)."""
         if self._transformed is None:
             self._transformed = tuple(np.block([[X["qq"], X["qy"]], [X["yq"], X["yy"]]])
                                       for X in (self.K, self.M, self.C))
@@ -467,13 +474,10 @@ class DynamicProducts:
     harmonics; so ``A X``, ``B' X`` and ``B Y`` for the columns of all harmonics are
     two real BLAS-3 products with the stacked ``K``, ``M``, ``C`` (read once), and
     ``E^-1`` is diagonal (modal) or diagonal plus rank ``r`` (Woodbury, the ``r x r``
-    inverse of :class:`_LowRankE` per harmonic, made here once).  Per product this reads 3 real ``n_r x n_r`` and 6 real
-    ``n_r x n_y`` arrays instead of, per harmonic, three complex blocks: measured on
-    96 Gauss points (``n_r = 192``, ``n_y = 236``, 15 harmonics), 1.1 to 1.7 ms
-    against 3.0 ms.  A damping of low rank enters by its factors (two thirds of the
-    arrays; round 35, 240 Gauss points, one thread: 8 harmonics, 3 columns 5.04 ->
-    3.31 ms, 16 harmonics 8.87 -> 6.11 ms).  Only for a modal or low-rank condensation
-    (``ReducedLinear.kind``).
+    inverse of :class:`_LowRankE` per harmonic, made here once).  Per product this reads
+    the real ``K``, ``M`` (and ``C``, or its low-rank factors) once instead of, per
+    harmonic, three complex blocks (docs/hbm.md: 1.1 to 1.7 ms against 3.0 ms at 96
+    Gauss points).  Only for a modal or low-rank condensation (``ReducedLinear.kind``).
 
     Parameters
     ----------
@@ -638,103 +642,13 @@ class DynamicProducts:
         return self._b(self._solve_E(Y, 1), 1)
 
 
-class FrequencyBlocks:
-    """The linear part at one frequency, shared by every Jacobian there.
-
-    Parameters
-    ----------
-    lin : ReducedLinear
-    harmonics : sequence of int
-    omega : float
-        Base angular frequency [rad/s].
-    xi : float
-        Self-excitation [1/s].
-
-    Attributes
-    ----------
-    S : list
-        ``S_h`` per harmonic once formed (by a preconditioner's build or after
-        ``FORM_AFTER`` products, :class:`~jointsim.solvers.jacobian.HBMJacobian`),
-        else None.
-    """
-
-    def __init__(self, lin: ReducedLinear, harmonics, omega: float, xi: float = 0.0):
-        self.lin = lin
-        self.harmonics = tuple(harmonics)
-        self.omega, self.xi = float(omega), float(xi)
-        self.S = [None] * len(self.harmonics)
-        self._blocks = [None] * len(self.harmonics)
-        self._dynamic = None
-        self._stacked = None
-
-    @property
-    def formed(self) -> bool:
-        """Whether every harmonic's blocks have been formed."""
-        return all(b is not None for b in self._blocks)
-
-    def block(self, i: int) -> tuple:
-        """``(A, B, B', Ef)`` of the ``i``-th harmonic (read-only, ``Ef`` factorised),
-        formed on first use (forming ``S_h`` needs them; products and residuals with a
-        modal or low-rank condensation do not, :attr:`dynamic`)."""
-        if self._blocks[i] is None:
-            lin = self.lin
-            A, B, Bp, E = lin.blocks(self.harmonics[i] * self.omega, self.xi)
-            for a in (A, B, Bp):
-                a.flags.writeable = False
-            self._blocks[i] = (A, B, Bp, lin.factor_E(E) if lin.n_y else E)
-        return self._blocks[i]
-
-    def schur(self, i: int) -> np.ndarray:
-        """``S_h = A - B E^-1 B'`` of the ``i``-th harmonic (complex n_r x n_r, a new
-        array): with a damping of low rank by :meth:`ReducedLinear.schur_low_rank_damping`
-        (real products for a forced response), else from :meth:`block`."""
-        lin = self.lin
-        if lin.damping_factors is not None:
-            return lin.schur_low_rank_damping(self.harmonics[i] * self.omega, self.xi)
-        A, B, Bp, Ef = self.block(i)
-        if not lin.n_y:
-            return np.array(A, dtype=complex)
-        return A - B @ lin.solve_E(Ef, Bp)
-
-    @property
-    def blocks(self) -> list:
-        """Every harmonic's :meth:`block`."""
-        return [self.block(i) for i in range(len(self.harmonics))]
-
-    @property
-    def stacked(self) -> np.ndarray:
-        """``D_h = K - nu^2 M + i nu (C - xi M)`` of every harmonic in the coordinates
-        ``(q, y)``, shape ``(n_h, n, n)`` complex (made once, read-only): ``A``, ``B``,
-        ``B'``, ``E`` are its blocks.  For a small structure
-        (:data:`STACKED_MAX_DOF`), whose per-harmonic blocks cost more in calls than
-        in arithmetic."""
-        if self._stacked is None:
-            K, M, C = self.lin.transformed
-            nu = np.asarray(self.harmonics, dtype=float)[:, None, None] * self.omega
-            D = K + (-nu * nu) * M + 1j * nu * (C - self.xi * M)
-            D.flags.writeable = False
-            self._stacked = D
-        return self._stacked
-
-    @property
-    def dynamic(self):
-        """The :class:`DynamicProducts` at this frequency (made once), or None when the
-        condensation is not modal or low-rank."""
-        if self._dynamic is None and hasattr(self.lin, "KMC_q"):
-            self._dynamic = DynamicProducts(
-                self.lin, np.asarray(self.harmonics, dtype=float) * self.omega, self.xi)
-        return self._dynamic
-
-
 class _LowRankE:
     """``E = diag(d) + U diag(s) U^T`` (``U`` real, ``n_y x r``), solved by Woodbury:
     ``E^-1 = D^-1 - D^-1 U (diag(1/s) + U^T D^-1 U)^-1 U^T D^-1``.
 
     The ``r x r`` matrix (``r`` the damped modes, 12 on the lap joint) is inverted
     once: a solve is then two thin products and an ``r x r`` one, with no LAPACK
-    wrapper per call.  The solve is applied per harmonic in every ``J v``: on the
-    force-2 FRC branch of 96 Gauss points (profiled, 42 s) these solves took 5.2 s,
-    mostly ``scipy.linalg.lu_solve``'s call overhead, and 2.4 s with the inverse.
+    wrapper per call.
     """
 
     def __init__(self, d, s, U):

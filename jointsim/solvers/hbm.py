@@ -26,8 +26,8 @@ import numpy as np
 
 from ..harmonics import HarmonicBasis
 from .aft import AFT, AFTResult
-from .condensation import (STACKED_MAX_DOF, WELDED_SINGULAR, FrequencyBlocks, ReducedLinear,
-                           dense_array)
+from .condensation import STACKED_MAX_DOF, WELDED_SINGULAR, ReducedLinear, dense_array
+from .frequency_blocks import FrequencyBlocks
 from .jacobian import (KRYLOV_MIN_UNKNOWNS, KRYLOV_RTOL, LINEAR_SOLVERS, HBMJacobian, LinearStats,
                        add_element_blocks, fill_harmonic_blocks, solve)
 from .preconditioner_cache import PreconditionerCache
@@ -120,7 +120,8 @@ class HBMSystem:
                              f"model needs {model.n_dof} onto {nr}")
         self.lin = lin if lin is not None else ReducedLinear(
             model.M, model.K, model.C, T, K_stuck=model.linearisation.K
-            if model.linearisation is not None else None)
+            if model.linearisation is not None else None,
+            positions=np.vstack([c.position] * (nr // ne)) if nr else None)
         self.n_r = nr
         self.n_c = self.basis.n_coeff
         self.n_z = self.n_c * nr
@@ -186,7 +187,7 @@ class HBMSystem:
 
     # -- the linear part per frequency ------------------------------------------
     def harmonic_blocks(self, omega: float, xi: float = 0.0) -> FrequencyBlocks:
-        """The linear part at ``omega`` (:class:`~.condensation.FrequencyBlocks`: the
+        """The linear part at ``omega`` (:class:`~.frequency_blocks.FrequencyBlocks`: the
         per-harmonic blocks, formed on first use, the ``S_h`` formed so far and the
         all-harmonic products).
 
@@ -301,7 +302,7 @@ class HBMSystem:
 
     def _linear_part_stacked(self, fb, Q, FPsi, FZ, R, dR, J, dense):
         """:meth:`_linear_part` with the blocks of every harmonic stacked
-        (:attr:`~.condensation.FrequencyBlocks.stacked`, a small structure): a few
+        (:attr:`~.frequency_blocks.FrequencyBlocks.stacked`, a small structure): a few
         batched products and solves instead of a dozen calls per harmonic."""
         nr, ny = self.n_r, self.lin.n_y
         D = fb.stacked

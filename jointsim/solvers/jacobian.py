@@ -143,7 +143,7 @@ class HBMJacobian:
     ----------
     basis : jointsim.harmonics.HarmonicBasis
     lin : jointsim.solvers.condensation.ReducedLinear
-    freq : jointsim.solvers.condensation.FrequencyBlocks
+    freq : jointsim.solvers.frequency_blocks.FrequencyBlocks
         The linear part at the Jacobian's frequency (its blocks, formed on first use,
         and its ``S_h``, shared by every Jacobian at that frequency,
         :meth:`jointsim.solvers.hbm.HBMSystem.harmonic_blocks`).
@@ -214,13 +214,17 @@ class HBMJacobian:
         """``S_h x_h`` (or ``S_h^H x_h``) for every harmonic; ``Xc`` (n_h, n_r[, k]) complex."""
         lin = self.lin
         out = np.empty_like(Xc)
-        if all(S is not None for S in self._S):
+        # the hierarchical form is cheaper than even the formed S_h
+        products = None if herm else self.freq.hierarchical
+        if products is None and all(S is not None for S in self._S):
             for i, S in enumerate(self._S):      # formed (n_r^2 per harmonic)
                 out[i] = (S.conj().T @ Xc[i]) if herm else S @ Xc[i]
             return out
-        if not herm and self.freq.dynamic is not None:      # every harmonic at once
+        if products is None and not herm:
+            products = self.freq.dynamic
+        if products is not None:                              # every harmonic at once
             X3 = Xc if Xc.ndim == 3 else Xc[:, :, None]          # (n_h, n_r, k)
-            Y3 = self.freq.dynamic.apply(X3.transpose(1, 0, 2))  # (n_r, n_h, k)
+            Y3 = products.apply(X3.transpose(1, 0, 2))           # (n_r, n_h, k)
             return Y3.transpose(1, 0, 2).reshape(Xc.shape)
         for i, (A, B, Bp, Ef) in enumerate(self.freq.blocks):
             x = Xc[i]
@@ -259,8 +263,8 @@ class HBMJacobian:
     def matvec(self, v) -> np.ndarray:
         """``J @ v``, shape (n_z,), or ``J @ V`` for ``V`` of shape (n_z, k) (the
         blocks read once for the k columns); ``S_h`` is formed after ``FORM_AFTER``
-        unformed products."""
-        if self._S and self._S[-1] is None:
+        unformed products, unless the hierarchical form applies (it is cheaper)."""
+        if self._S and self._S[-1] is None and self.freq.hierarchical is None:
             self._products[0] += 1
             if self._products[0] > FORM_AFTER:
                 self.form_schur()

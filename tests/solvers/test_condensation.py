@@ -5,8 +5,9 @@ differences, and ``E^-1`` against a dense solve."""
 import numpy as np
 import pytest
 
-from jointsim.solvers.condensation import (DynamicProducts, FrequencyBlocks, ReducedLinear,
-                                          _LowRankE, _low_rank_factors)
+from jointsim.solvers.condensation import (DynamicProducts, ReducedLinear, _LowRankE,
+                                          _low_rank_factors)
+from jointsim.solvers.frequency_blocks import FrequencyBlocks
 
 
 def _structure(kind: str, n: int = 14, n_r: int = 4, seed: int = 0):

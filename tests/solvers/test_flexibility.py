@@ -13,7 +13,7 @@ import pytest
 import jointsim.solvers.flexibility as fx
 import jointsim.solvers.preconditioner as pm
 from jointsim.model import build_model
-from jointsim.solvers.condensation import FrequencyBlocks
+from jointsim.solvers.frequency_blocks import FrequencyBlocks
 from jointsim.solvers.hbm import HBMSystem
 from jointsim.solvers.jacobian import gmres
 from jointsim.solvers.preconditioner import HarmonicPreconditioner

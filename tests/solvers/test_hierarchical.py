@@ -1,0 +1,134 @@
+"""The hierarchical interface operator (jointsim.solvers.hierarchical): the bisection
+tree, the HODLR product against the dense one, ``S_h`` of every harmonic against the
+formed Schur complement, and the Krylov path with it against the dense direct path."""
+
+import numpy as np
+import pytest
+
+from jointsim.solvers import hierarchical as hi
+
+
+def _kernel_parts(n: int = 300, seed: int = 1):
+    """Three smooth kernels on points of a line (numerically low rank off the diagonal)
+    and the points, shuffled, two coordinates at each."""
+    rng = np.random.default_rng(seed)
+    x = np.repeat(np.sort(rng.uniform(0.0, 1.0, n // 2)), 2)
+    d = np.abs(x[:, None] - x[None, :])
+    parts = [1.0 / (1.0 + 40.0 * d) + 3.0 * np.eye(n), np.exp(-5.0 * d), np.cos(2.0 * d)]
+    perm = rng.permutation(n)
+    return [G[np.ix_(perm, perm)] for G in parts], x[perm, None]
+
+
+def test_bisection_tree_orders_every_coordinate_and_keeps_a_position_together():
+    """Every coordinate once; leaves of at most ``leaf`` coordinates tile the order;
+    each cut cluster's halves are its children; the two coordinates at one position
+    share a leaf; along a line the leaves are intervals (no leaf's span overlaps
+    another's)."""
+    _, pos = _kernel_parts()
+    order, levels, leaves = hi.bisection_tree(pos, leaf=32)
+    n = pos.shape[0]
+    assert np.array_equal(np.sort(order), np.arange(n))
+    assert leaves[0][0] == 0 and all(a[1] == b[0] for a, b in zip(leaves, leaves[1:]))
+    assert leaves[-1][1] == n and all(hi_ - lo <= 32 for lo, hi_ in leaves)
+    spans = sorted((pos[order[lo:hi_], 0].min(), pos[order[lo:hi_], 0].max())
+                   for lo, hi_ in leaves)
+    assert all(a[1] < b[0] for a, b in zip(spans, spans[1:]))
+    leaf_of = np.empty(n, dtype=int)
+    for k, (lo, hi_) in enumerate(leaves):
+        leaf_of[order[lo:hi_]] = k
+    for p in np.unique(pos[:, 0]):
+        assert np.unique(leaf_of[pos[:, 0] == p]).size == 1
+    assert levels[0] == [(0, levels[1][0][2], n)]
+    for upper, lower in zip(levels, levels[1:]):
+        cuts = {(lo, mid) for lo, mid, _ in upper} | {(mid, hi_) for _, mid, hi_ in upper}
+        assert all((lo, hi_) in cuts for lo, _, hi_ in lower)
+
+
+@pytest.mark.parametrize("complex_s", [False, True])
+def test_hodlr_product_equals_the_dense_one_within_its_tolerance(complex_s):
+    """``sum_p s_p G_p X`` by :class:`HODLR` against the dense product, for real and
+    complex ``s`` per column: within the truncations' sum (``levels x`` each part's
+    tolerance times ``|s^p|``) in the 2-norm; with a tolerance of 1e-10 the storage is
+    below half of the dense parts' and a part below its tolerance is dropped."""
+    parts, pos = _kernel_parts()
+    n = parts[0].shape[0]
+    tree = hi.bisection_tree(pos, leaf=32)
+    tols = [1e-10 * np.linalg.norm(G, 2) for G in parts]
+    parts.append(1e-17 * np.ones((n, n)))           # below its tolerance: dropped
+    tols.append(1e-12)
+    H = hi.HODLR(parts, tols, tree)
+    assert H.powers == [0, 1, 2] and H.compression < 0.5
+    rng = np.random.default_rng(2)
+    X = rng.normal(size=(n, 5)) + 1j * rng.normal(size=(n, 5))
+    s = rng.uniform(0.5, 2.0, 5) * (np.exp(0.7j) if complex_s else 1.0)
+    spow = np.stack([s ** p for p in H.powers])
+    Y = H.apply(X, spow)
+    for j in range(5):
+        ref = sum(spow[k, j] * (parts[p] @ X[:, j]) for k, p in enumerate(H.powers))
+        bound = len(tree[1]) * sum(abs(spow[k, j]) * tols[p] for k, p in enumerate(H.powers))
+        assert np.linalg.norm(Y[:, j] - ref) <= bound * np.linalg.norm(X[:, j])
+        assert np.linalg.norm(Y[:, j] - ref) > 0.0          # truncated, not dense
+
+
+@pytest.fixture
+def small_tree(monkeypatch):
+    """The hierarchical form from any size, on leaves of 12 coordinates."""
+    monkeypatch.setattr(hi, "HIERARCHICAL_MIN_ROWS", 0)
+    monkeypatch.setattr(hi, "LEAF_ROWS", 12)
+
+
+@pytest.mark.parametrize("xi", [0.0, 3.0])
+def test_interface_products_equal_the_formed_schur_complement(small_tree, coarse_lap_coupled,
+                                                              xi):
+    """``S_h x_h`` through the hierarchical form (``G(s)`` plus the basis ``F`` and each
+    harmonic's ``M_h``) against the formed ``S_h``
+    (:meth:`~jointsim.solvers.condensation.ReducedLinear.schur_low_rank_damping`) at
+    harmonics 0 to 7 of 300 rad/s (the split applies), forced (``xi = 0``) and self-excited: to 1e-10 of
+    the product; the tree has at least two levels."""
+    from jointsim.solvers.hbm import HBMSystem
+    system = HBMSystem(coarse_lap_coupled, tuple(range(8)), 32, linear_solver="krylov")
+    fb = system.harmonic_blocks(300.0, xi)
+    prod = fb.hierarchical
+    assert prod is not None and len(hi.InterfaceHierarchy.of(system.lin).tree[1]) >= 2
+    rng = np.random.default_rng(4)
+    X = rng.normal(size=(system.n_r, 8, 2)) + 1j * rng.normal(size=(system.n_r, 8, 2))
+    Y = prod.apply(X)
+    for i in range(8):
+        ref = fb.schur(i) @ X[:, i]
+        assert np.abs(Y[:, i] - ref).max() <= 1e-10 * np.abs(ref).max(), i
+
+
+def test_krylov_path_with_the_hierarchical_form_agrees_with_the_dense_path(
+        small_tree, monkeypatch):
+    """Fixed-frequency solves of the coarse FE lap joint (coupled N with separation, force
+    scale 20, harmonics 0 to 3) by GMRES with ``J v`` through the hierarchical form and
+    by the dense direct path: the same points to 1e-8 in X and the same Newton
+    iterations; the structured Jacobian's product equals its dense form to 1e-10."""
+    from jointsim.analyses.hbm import _system
+    from jointsim.model import build_model
+    from jointsim.solvers.hbm import solve_point
+
+    from .._scenes import ROOT, lap_scene
+    used = []
+    orig = hi.InterfaceProducts.apply
+    monkeypatch.setattr(hi.InterfaceProducts, "apply",
+                        lambda self, X: used.append(1) or orig(self, X))
+    recs = {}
+    for solver in ("direct", "krylov"):
+        sc = lap_scene(ROOT / "models" / "lap_joint_nodes.toml", ("modes", "hbm"),
+                       ["analysis.hbm.harmonics=[0,1,2,3]", "analysis.hbm.n_samples=64",
+                        f"analysis.hbm.linear_solver='{solver}'"])
+        s = _system(build_model(sc), sc.analysis.hbm)
+        F = s.force_coefficients(20.0)
+        pts = [solve_point(s, w, F) for w in (900.0, 960.0)]
+        recs[solver] = ([p.X for p in pts], [p.convergence.iterations for p in pts])
+        if solver == "krylov":
+            ev = s.evaluate(pts[0].z, 900.0, F)
+            v = np.random.default_rng(5).normal(size=s.n_z)
+            ref = ev.J.to_dense() @ v
+            assert np.abs(ev.J.matvec(v) - ref).max() <= 1e-10 * np.abs(ref).max()
+    assert used
+    (Xd, itd), (Xk, itk) = recs["direct"], recs["krylov"]
+    for a, b in zip(Xd, Xk):
+        assert np.abs(a - b).max() <= 1e-8 * np.abs(a).max()
+    assert itd == itk and max(itd) > 2
