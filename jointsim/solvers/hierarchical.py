@@ -22,11 +22,18 @@ stays bounded as the interface is refined (``benchmarks/interface_compression.py
 about 25 at ``1e-12`` from 120 to 480 Gauss points). :class:`HODLR` keeps them as
 truncated SVDs, so its product's storage and flops grow as ``n log n``, not ``n^2``.
 
-The Krylov path uses it for ``J v`` from :data:`HIERARCHICAL_MIN_ROWS` contact
-coordinates on (:attr:`~jointsim.solvers.frequency_blocks.FrequencyBlocks.hierarchical`).
-``J v`` is then the only approximate quantity, within ``COMPRESSION_EPS`` of ``||G||``.
-The residual and its derivatives stay exact (``DynamicProducts``), and the
-preconditioner stays formed, so the error only perturbs Newton's direction.
+The Krylov path uses it from :data:`HIERARCHICAL_MIN_ROWS` contact coordinates on
+(:attr:`~jointsim.solvers.frequency_blocks.FrequencyBlocks.hierarchical`):
+
+* for ``J v`` (:class:`InterfaceProducts`), within ``COMPRESSION_EPS`` of ``||G||``;
+* for the harmonic stage of a loose solve's preconditioner (the error indicators'):
+  :class:`HierarchicalInverse` factorises ``G(s_h)`` plus the element tangents' harmonic
+  projection as a HODLR matrix and adds ``F M_h F^T`` by Woodbury's formula, without an
+  ``n_r x n_r`` array or the stuck flexibility's eigen-decomposition (backward error
+  1e-9 to 1e-6, measured in ``tests/solvers/test_hierarchical.py``).
+
+The residual and its derivatives stay exact (``DynamicProducts``), so these errors only
+perturb Newton's directions and GMRES's iterations, not the solution.
 """
 from __future__ import annotations
 
@@ -47,6 +54,9 @@ LEAF_ROWS = 128
 #: Truncation of the off-diagonal blocks, relative to ``||G(s)||_F`` over the split's
 #: frequencies.
 COMPRESSION_EPS = 1e-12
+#: Singular values of the low-rank terms' basis kept by :class:`HierarchicalInverse`,
+#: relative to the largest (``F`` with its columns weighted by ``M_h``).
+BASIS_EPS = 1e-15
 
 
 def bisection_tree(positions: np.ndarray, leaf: int = LEAF_ROWS):
@@ -137,6 +147,11 @@ class HODLR:
         tols = [tols[p] for p in self.powers]
         self.leaf_idx = _padded(leaves, order, n)
         m = self.leaf_idx.shape[1]
+        #: the leaf and the place in it of every coordinate, (n, 2)
+        self.leaf_of = np.zeros((n, 2), dtype=np.int64)
+        for i, (lo, hi) in enumerate(leaves):
+            self.leaf_of[order[lo:hi]] = np.column_stack([np.full(hi - lo, i),
+                                                          np.arange(hi - lo)])
         self.D = np.zeros((len(leaves), len(parts) * m, m))
         for i, (lo, hi) in enumerate(leaves):
             ix = order[lo:hi]
@@ -352,6 +367,131 @@ class InterfaceProducts:
         FU = F @ np.concatenate([Uz.real, Uz.imag], axis=1)
         Y += FU[:, :nh * k] + 1j * FU[:, nh * k:]
         return Y.reshape(nr, nh, k)
+
+
+def _leaf_places(hodlr: HODLR, rows, cols):
+    """``(leaf, row place, column place)`` of the entries ``(rows[k], cols[k])``, each pair
+    in one leaf (an element's coordinates share a position, :func:`bisection_tree`)."""
+    (lr, jr), (lc, jc) = hodlr.leaf_of[rows].T, hodlr.leaf_of[cols].T
+    if np.any(lr != lc):
+        raise ValueError("an entry couples two leaves of the bisection")
+    return lr, jr, jc
+
+
+def schur_entries(prod: InterfaceProducts, rows, cols) -> np.ndarray:
+    """The entries ``S_h[rows[k], cols[k]]`` of every harmonic, shape (n_h, len(rows))
+    complex, without forming ``S_h``: from the leaves of ``G(s)`` and the rows of ``F``
+    (each pair within one leaf)."""
+    H = prod.form.hodlr
+    L, m = H.leaf_idx.shape
+    lf, jr, jc = _leaf_places(H, rows, cols)
+    D = H.D.reshape(L, len(H.powers), m, m)[lf, :, jr, jc]             # (len, n_kept)
+    F = prod.form.F
+    return (D @ prod.spow).T + np.einsum("ka,hab,kb->hk", F[rows], prod.Mh, F[cols])
+
+
+class HierarchicalInverse:
+    """``P_h^-1`` of every harmonic at one frequency, ``P_h = S_h + T_h`` with ``T_h``
+    local to the leaves (the harmonic projection of the element tangents), without an
+    ``n_r x n_r`` array: a HODLR factorisation of ``G(s_h) + T_h`` and Woodbury's formula
+    for ``F M_h F^T``.
+
+    The HODLR factorisation (recursive Woodbury): a node ``A = diag(A_11, A_22) + W Z^T``
+    with ``W = diag(U_12, U_21)`` and ``Z^T = [[0, s V_12], [s V_21, 0]]`` (its
+    off-diagonal blocks, ``s`` the parts' powers) has ``A^-1 = D^-1 - D^-1 W K^-1 Z^T
+    D^-1``, ``K = I + Z^T D^-1 W`` of twice the block's rank.  Built from the deepest
+    level up, every level of every harmonic at once; a solve is the leaves' dense
+    inverses and, per level, three batched products.  Storage and a solve's flops grow
+    as ``n k log n``, the build as ``n k^2 log^2 n`` (``k`` the off-diagonal rank), not
+    as ``n^2`` and ``n^3``.
+
+    Parameters
+    ----------
+    prod : InterfaceProducts
+        ``S_h`` at this frequency.
+    entries : sequence of (rows, cols, vals)
+        ``T_h``: ``vals`` (n_h, len(rows)) complex added at ``(rows[k], cols[k])``, each
+        pair within one leaf.
+    """
+
+    def __init__(self, prod: InterfaceProducts, entries=()):
+        self.prod = prod
+        H = prod.form.hodlr
+        spow = prod.spow                                             # (n_kept, n_h)
+        nh = spow.shape[1]
+        L, m = H.leaf_idx.shape
+        n = self.n = H.n
+        self.leaf_idx = H.leaf_idx
+        A = np.einsum("ph,lpij->hlij", spow, H.D.reshape(L, len(H.powers), m, m)).astype(complex)
+        pl, pj = np.nonzero(H.leaf_idx == n)                          # padding: identity
+        A[:, pl, pj, pj] = 1.0
+        for rows, cols, vals in entries:
+            lf, jr, jc = _leaf_places(H, rows, cols)
+            A[:, lf, jr, jc] += vals
+        self.Linv = np.linalg.inv(A)
+        self.levels = []                                              # deepest first
+        flops = 8.0 * nh * L * m ** 3
+        for rows, cols, U, V, pid in reversed(H.levels):
+            nb, k = U.shape[0], U.shape[2]
+            sV = np.moveaxis(spow[pid], -1, 0)[..., None] * V[None]  # (n_h, nb, k, m_c)
+            B = np.zeros((nh, n + 1, k), dtype=complex)
+            B[:, rows] = U[None]
+            X = np.concatenate([self._solve(B[:, :n]), np.zeros((nh, 1, k))], axis=1)
+            Kb = sV @ X[:, cols]                                      # (n_h, nb, k, k)
+            Kn = np.zeros((nh, nb // 2, 2 * k, 2 * k), dtype=complex)
+            Kn[..., np.arange(2 * k), np.arange(2 * k)] = 1.0
+            Kn[:, :, :k, k:] = Kb[:, 0::2]
+            Kn[:, :, k:, :k] = Kb[:, 1::2]
+            self.levels.append((rows, cols, X[:, rows], sV, np.linalg.inv(Kn)))
+            flops += 8.0 * nh * k * (self.apply_flops / (8.0 * nh)) + 64.0 * nh * nb * k ** 3
+        # F M_h F^T in an orthonormal basis of the weighted F's range: F's columns span
+        # fifty decades and depend on each other (the P_p), and Woodbury's capacitance
+        # in F itself is singular to round-off (condition 1e42 on the 120-point lap
+        # joint, 1e4 to 1e8 in the basis)
+        g = np.sqrt(np.abs(prod.Mh).max(axis=(0, 2)))                 # (rho,)
+        on = np.flatnonzero(g > 0)
+        U, sv, Vt = np.linalg.svd(prod.form.F[:, on] * g[on], full_matrices=False)
+        k = sv > BASIS_EPS * sv[0] if sv.size else np.zeros(0, bool)
+        F, B = U[:, k], sv[k, None] * Vt[k] / g[on]                 # F[:, on] = U B
+        M = B @ prod.Mh[:, on[:, None], on] @ B.T
+        self.F = F
+        HF = self._solve(np.broadcast_to(F, (nh,) + F.shape))         # (n_h, n, rho)
+        rho = F.shape[1]
+        self.HF = HF
+        # (H + F M F^T)^-1 = H^-1 - H^-1 F (I + M F^T H^-1 F)^-1 M F^T H^-1
+        self.CapM = np.linalg.solve(np.eye(rho) + M @ (F.T @ HF), M)
+        self.build_flops = flops + 8.0 * nh * rho * (self.apply_flops / (8.0 * nh)) \
+            + 8.0 * nh * (2 * n * rho * rho + 2 * rho ** 3)
+
+    @property
+    def apply_flops(self) -> float:
+        """Real flops of one solve of one column (every harmonic)."""
+        nh, L, m = self.Linv.shape[0], self.Linv.shape[1], self.Linv.shape[2]
+        per = L * m * m + sum(2 * X.shape[1] * X.shape[2] * X.shape[3]
+                              + Ki.shape[1] * Ki.shape[2] ** 2
+                              for _, _, X, _, Ki in self.levels)
+        if getattr(self, "F", None) is not None:
+            per += 2 * self.n * self.F.shape[1] + self.F.shape[1] ** 2
+        return 8.0 * nh * per
+
+    def _solve(self, Y: np.ndarray) -> np.ndarray:
+        """``H_h^-1 Y[h]`` (``H_h = G(s_h) + T_h``) by the levels built so far."""
+        nh, n, c = Y.shape
+        Ye = np.zeros((nh, n + 1, c), dtype=complex)
+        Ye[:, :n] = Y
+        Ye[:, self.leaf_idx] = self.Linv @ Ye[:, self.leaf_idx]
+        for rows, cols, X, sV, Kinv in self.levels:
+            T = sV @ Ye[:, cols]                                      # (n_h, nb, k, c)
+            nb, k = T.shape[1], T.shape[2]
+            u = Kinv @ T.reshape(nh, nb // 2, 2 * k, c)
+            Ye[:, rows] -= X @ u.reshape(nh, nb, k, c)
+        return Ye[:, :n]
+
+    def solve(self, Y: np.ndarray) -> np.ndarray:
+        """``P_h^-1 Y[h]`` for every harmonic; ``Y`` (n_h, n_r, k) complex."""
+        out = self._solve(Y)
+        out -= self.HF @ (self.CapM @ (self.F.T @ out))
+        return out
 
 
 class InterfaceHierarchy:

@@ -21,6 +21,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .gmres import gmres_columns
+from .hierarchical import HierarchicalInverse, schur_entries
 from .tangent_projection import add_projected_tangent, project_tangent
 
 log = logging.getLogger(__name__)
@@ -36,15 +37,9 @@ LOWRANK = True
 #: ``LOWRANK_MAX`` (its dense ``m x m`` LU costs ``m^3``; a preconditioner cache raises
 #: that limit where truncated ones fail, ``preconditioner_cache.LOWRANK_MAX_RAISED``);
 #: beyond, truncated to the ``LOWRANK_MAX_FRACTION n_z`` largest.  ``LOWRANK_MIN``
-#: coordinates are always allowed (small systems).  Exact up to 0.9 instead of 0.35
-#: (round 13), on 96 Gauss points (2,880 unknowns), FRC at force scale 20 (74 elements
-#: slip: m = 2,220), one thread, side by side: GMRES iterations 8,886 -> 1,837, builds
-#: 152 -> 75, the branch's solves 37.4 -> 20.9 s; truncating to 0.6 instead (m = 1,710)
-#: was slower than 0.35: 42.0 s (the larger LU, and 5,011 iterations).  ``LOWRANK_MAX``
-#: 3000 -> 4600 (round 14, with the row-block stage): the EPMC's extended indicator
-#: systems (5,952 unknowns, 31 coefficients) needed up to about 3,400; at 3000, 14 of
-#: 36 builds were truncated; builds 36 -> 25, GMRES iterations 846 -> 516, the EPMC
-#: 37.0 -> 29.1 s; the FRC's force-20 branch unchanged (peak memory 930 MB).
+#: coordinates are always allowed (small systems).  Measured in docs/hbm.md (rounds 13
+#: and 14: exact up to 0.9 instead of 0.35, GMRES iterations 8,886 -> 1,837 on 96 Gauss
+#: points at force 20; ``LOWRANK_MAX`` 3000 -> 4600 for the EPMC's extended systems).
 LOWRANK_EXACT_FRACTION = 0.9
 LOWRANK_MAX_FRACTION = 0.35
 LOWRANK_MAX = 4600
@@ -52,27 +47,19 @@ LOWRANK_MIN = 600
 #: The low-rank stage's LU is in single precision (half the flops and memory) for
 #: Jacobians solved to this GMRES tolerance or looser: the error indicators' extended
 #: systems (``INDICATOR_RTOL = 1e-3``), where a preconditioner exact to about 1e-6 still
-#: solves in one or two iterations.  Measured on the 121-pair EPMC (one process): the
-#: extended systems' LUs (``m`` up to 4,600) were 61 of its 175 s.
+#: solves in one or two iterations (the 121-pair EPMC's LUs were 61 of its 175 s).
 SINGLE_LU_RTOL = 1e-6
 #: ... and for any Jacobian once the LU is this large (``m`` coordinates), where its
 #: ``m^3`` dominates the build: GMRES then needs a few more iterations to the tight
-#: tolerance (the preconditioner is exact to single-precision round-off, and each
-#: restart cycle gains about six digits) and the solution is the same.  Measured
-#: (round 15, one thread, indicators off, side by side): the force-20 FRC branch on
-#: 96 Gauss points 13.7 -> 11.7 s (GMRES iterations 1,718 -> 1,749), on 121 node
-#: pairs 37.3 -> 29.5 s (2,545 -> 2,660); the same Newton iterations and
-#: preconditioner builds, X equal to 3.8e-13 and 1.8e-13.
+#: tolerance and the solution is the same (round 15: the force-20 branch on 96 Gauss
+#: points 13.7 -> 11.7 s, X equal to 3.8e-13; docs/hbm.md).
 SINGLE_LU_MIN = 1000
 #: An FRC point's extended solve (loose, ``SINGLE_LU_RTOL``; one solve per
 #: preconditioner, :attr:`.PreconditionerCache.single_solve`) whose low-rank stage exceeds
 #: ``LOOSE_SPLIT_MIN`` coordinates keeps every row block and is solved through its
 #: capacitance system (:meth:`HarmonicPreconditioner.solve_capacitance`): GMRES on
 #: ``I + L_r G`` preconditioned by its blocks of one harmonic each (``G`` couples a
-#: harmonic with itself only; their inverses cost ``m^3 / (H + 1)^2``), refined on
-#: the system itself (:func:`~jointsim.solvers.jacobian.krylov_solve`); ``inf``: never.
-#: Before round 34 the correction was split into up to 4 contiguous harmonic groups
-#: and GMRES iterated on the whole extended system (docs/hbm.md, "Round 34").
+#: harmonic with itself only), refined on the system itself; ``inf``: never (round 34).
 LOOSE_SPLIT_MIN = 1000
 #: Elements whose harmonic coupling ``|L_e|`` is below this fraction of the largest
 #: tangent entry are left out of the low-rank stage (in the stuck range the AFT's
@@ -81,31 +68,26 @@ LOWRANK_NEGLIGIBLE = 1e-9
 #: For Jacobians solved to a loose tolerance (``SINGLE_LU_RTOL``: the error indicators'
 #: extended systems) the harmonic stage keeps single-precision LU factors of its blocks
 #: instead of their double-precision inverses: the columns of ``P_h^-1`` the low-rank
-#: stage needs and each application are triangular solves.  An estimate needs a digit
-#: or two and GMRES stops at ``1e-3``.  Measured on 16 complex blocks of 480 x 480 (240
-#: Gauss points' extended systems, 2 threads): the inverses 217 ms, the single LUs 52
-#: ms plus 20 ms of column solves; the 240-point FRC's indicators spent 37 % of their
-#: samples in those inverses (round 31).
+#: stage needs and each application are triangular solves (round 31: 16 blocks of 480 x
+#: 480, the inverses 217 ms, the single LUs 52 ms plus 20 ms of column solves).
 FACTORED_LOOSE_STAGE = True
 #: From this many rows ``n_r`` the harmonic stage's explicit inverses are formed and
-#: applied in single precision (complex64: half the flops of the inverses and half the
-#: memory traffic of an application), except the fundamental's: near a resonance of an
-#: FRC, and in the EPMC, that block is nearly singular, and its single-precision
-#: inverse (error about its condition times 6e-8) made the stuck, reused
-#: preconditioners of the 240-point force-0.02 branch need twice the GMRES iterations
-#: and 4.6 times the builds.  GMRES, on the double-precision Jacobian, still reaches
-#: its tolerance.  Measured side by side (round 33, one branch, error indicators off,
-#: 240 points): force 0.02 16.8 -> 16.4 s, force 2 29.7 -> 28.7 s, force 20 47.7 ->
-#: 43.9 s (GMRES iterations 2,546 -> 2,619); all single: force 20 44.7 s but force
-#: 0.02 41.0 s.  Only where the preconditioner cache allows it
-#: (:attr:`.PreconditionerCache.single_inverses`, round 34): an FRC branch's
-#: continuation.  Elsewhere it cost more than it saved: the 240-point EPMC's first
-#: four points took 1.41 s a point, 149 GMRES iterations and 7 builds against 0.50 s,
-#: 32 and 1 in double, the 480-point ones 13.2 s against 3.05 s, and the 480-point FRC
-#: branch's set-up (its scales and first point) 67 s against 20 s
-#: (``benchmarks/scale.py``): a preconditioner there serves many solves to the tight
-#: tolerance, and its single-precision blocks cost GMRES iterations and rebuilds.
+#: applied in single precision (complex64: half the flops and memory traffic), except
+#: the fundamental's, which is nearly singular near a resonance of an FRC and in the
+#: EPMC (its single inverse doubled the GMRES iterations of the 240-point force-0.02
+#: branch).  Only where the preconditioner cache allows it
+#: (:attr:`.PreconditionerCache.single_inverses`: an FRC branch's continuation);
+#: elsewhere, where a preconditioner serves many tight solves, it cost more than it
+#: saved.  Measured in docs/hbm.md, "Round 33" and "Round 34".
 SINGLE_INVERSE_MIN = 200
+#: A solve to this tolerance or looser (the indicators') with this many rows ``n_r``
+#: takes its harmonic stage from the hierarchical ``S_h`` (:class:`~jointsim.solvers.
+#: hierarchical.HierarchicalInverse`: no ``n_r x n_r`` array, no flexibility) while its
+#: low-rank stage needs at most ``HIERARCHICAL_COLUMNS n_r`` columns of ``P_h^-1`` (a
+#: solve each; predicted from the cache's last build).  docs/hbm.md, "Round 38".
+HIERARCHICAL_STAGE_RTOL = SINGLE_LU_RTOL
+HIERARCHICAL_STAGE_MIN_ROWS = 800
+HIERARCHICAL_COLUMNS = 0.1
 #: The harmonic stage from the stuck joint's flexibility where it applies
 #: (:class:`~jointsim.solvers.flexibility.StuckFlexibility`; not with a shift, and not
 #: where the low-rank stage would be truncated): ``P_h = S_h + diag(k)`` formed from the
@@ -212,8 +194,8 @@ class HarmonicPreconditioner:
             # projection of its tangent): only the low-rank stage is new
             if shift is not None or base.C2 is not None:
                 raise ValueError("a shifted harmonic stage is not shared")
-            self.Pinv, self.Plu, self.proj, self.S = base.Pinv, base.Plu, base.proj, base.S
-            self.Pinv_double = base.Pinv_double
+            self.Pinv, self.Plu, self.Phier = base.Pinv, base.Plu, base.Phier
+            self.proj, self.S, self.Pinv_double = base.proj, base.S, base.Pinv_double
             self.omega, self.xi = base.omega, base.xi
             self.modal = base.modal
             self.partial = True
@@ -234,29 +216,39 @@ class HarmonicPreconditioner:
             self.Binv = None
         self._count_flops()
 
-    def _harmonic_stage(self, shift, modal: bool = True):
+    def _harmonic_stage(self, shift, modal: bool = True, hierarchical: bool = True):
         """Per harmonic, the inverse of ``S_h`` plus the harmonic projection of every
         element's tangent (``self.Pinv``, complex64 from ``SINGLE_INVERSE_MIN`` rows where
         the cache allows it, with the fundamental's in double in ``self.Pinv_double``;
         or for a loose solve single-precision LU factors ``self.Plu``:
-        ``FACTORED_LOOSE_STAGE``; ``self.proj``; ``S_h`` kept as ``self.S``); from the
-        stuck flexibility instead where it applies (:meth:`_modal_stage`)."""
-        jac = self.jac
-        nr = jac.n_r
-        self.omega, self.xi = jac.freq.omega, jac.freq.xi
+        ``FACTORED_LOOSE_STAGE``, or its hierarchical factorisation ``self.Phier``:
+        ``HIERARCHICAL_STAGE_RTOL``; ``self.proj``; ``S_h`` kept as ``self.S``); from
+        the stuck flexibility instead where it applies (:meth:`_modal_stage`)."""
+        jac, nr = self.jac, self.jac.n_r
+        self.omega, self.xi, self.Phier = jac.freq.omega, jac.freq.xi, None
+
+        def proj():     # the complex-form projections of the (h, h) blocks, (n_h, n_e)
+            return {key: None if Jb is None else np.array(
+                [project_tangent(Jb, jac._ic[i], jac._is[i], h)
+                 for i, h in enumerate(jac.basis.harmonics)])
+                for key, Jb in (("uu", jac.Juu), ("ug", jac.Jug), ("NN", jac.JNN))}
+        if hierarchical and jac.rtol >= HIERARCHICAL_STAGE_RTOL and shift is None \
+                and nr >= HIERARCHICAL_STAGE_MIN_ROWS and jac.freq.hierarchical is not None \
+                and jac.cache.lowrank_columns <= HIERARCHICAL_COLUMNS:
+            self.modal, self.S, self.Pinv, self.Plu, self.Pinv_double = False, *[None] * 3, {}
+            self.proj, t, n = proj(), jac.t_row, jac.n_row
+            self.Phier = HierarchicalInverse(jac.freq.hierarchical, [
+                (r, c, sign * self.proj[key]) for key, r, c, sign in (
+                    ("uu", t, t, 1.0), ("ug", t, n, 1.0), ("NN", n, n, -1.0))
+                if self.proj[key] is not None])
+            return
         flex = jac.lin.flexibility if MODAL_STAGE and modal and shift is None else None
         self.modal = flex is not None
         if self.modal:
-            self._modal_stage(flex)
-            return
+            return self._modal_stage(flex)
         self.S = [jac.schur(i) for i in range(len(jac.basis.harmonics))]
-        # the complex-form projections of the (h, h) coefficient blocks, (n_h, n_e)
-        self.proj = {key: None if Jb is None else np.array(
-            [project_tangent(Jb, jac._ic[i], jac._is[i], h)
-             for i, h in enumerate(jac.basis.harmonics)])
-            for key, Jb in (("uu", jac.Juu), ("ug", jac.Jug), ("NN", jac.JNN))}
-        # assembled in place in one stacked (n_h, n_r, n_r) array (S_h is jac's kept,
-        # read-only array: copied once, here)
+        self.proj = proj()
+        # assembled in one stacked (n_h, n_r, n_r) array (jac's read-only S_h copied once)
         blocks = np.empty((len(jac.basis.harmonics), nr, nr), dtype=complex)
         for i in range(len(jac.basis.harmonics)):
             P = blocks[i]
@@ -305,9 +297,7 @@ class HarmonicPreconditioner:
         jac = self.jac
         nh, ne = len(jac.basis.harmonics), len(jac.t_row)
         k = flex.k
-        self.S = None
-        self.Plu = None
-        self.Pinv_double = {}
+        self.S, self.Plu, self.Pinv_double = None, None, {}
 
         def stuck(rows, sign):
             return np.broadcast_to(sign * k[rows].astype(complex), (nh, ne)).copy()
@@ -329,6 +319,10 @@ class HarmonicPreconditioner:
 
     def _inverse_times(self, X) -> np.ndarray:
         """``P_h^-1 X[h]`` for every harmonic; ``X`` (n_h, n_r, k) complex."""
+        if self.Phier is not None:
+            Y = self.Phier.solve(X)
+            Y[self.jac._h0] = Y[self.jac._h0].real
+            return Y
         if self.Plu is None:
             Y = np.matmul(self.Pinv, X.astype(self.Pinv.dtype, copy=False)).astype(
                 complex, copy=False)
@@ -344,14 +338,14 @@ class HarmonicPreconditioner:
 
     def _inverse_columns(self, cols) -> np.ndarray:
         """The columns ``cols`` of every ``P_h^-1``, shape (n_h, n_r, len(cols))."""
-        if self.Plu is None:
+        if self.Plu is None and self.Phier is None:
             C = np.ascontiguousarray(self.Pinv[:, :, cols])
             if self.Pinv_double:           # the fundamental's columns in double
                 C = C.astype(complex)
                 for i, Pd in self.Pinv_double.items():
                     C[i] = Pd[:, cols]
             return C
-        nh, nr = len(self.Plu), self.jac.n_r
+        nh, nr = len(self.jac.basis.harmonics), self.jac.n_r
         E = np.zeros((nh, nr, len(cols)), dtype=complex)
         E[:, cols, np.arange(len(cols))] = 1.0
         return self._inverse_times(E)
@@ -360,14 +354,12 @@ class HarmonicPreconditioner:
         """The cost model of the chord policy (:class:`.PreconditionerCache`).
 
         ``build_flops``: the ``H + 1`` complex inverses (``8 n_r^3`` each; from the stuck
-        flexibility ``4 n_r^2 n_L``), the
-        low-rank LU (``2/3 m^3``) and its ``G L`` product (``2 m^2 d``), the element
-        blocks (``2 n_e d^3``).  ``iteration_flops``: one GMRES iteration, i.e. one
-        application (two harmonic solves with the low-rank stage, ``8 n_r^2`` per
-        harmonic each, its triangular solves ``2 m^2``; the element-block stage adds a
-        product with ``J``), one product with ``J`` and the orthogonalisation
-        (``4 n_z`` times an average Krylov dimension of 20).
-        """
+        flexibility ``4 n_r^2 n_L``; hierarchical: its own count), the low-rank LU (``2/3
+        m^3``) and its ``G L`` (``2 m^2 d``), the element blocks (``2 n_e d^3``).
+        ``iteration_flops``: one application (two harmonic solves with the low-rank stage,
+        ``8 n_r^2`` per harmonic each, its triangular solves ``2 m^2``; the element-block
+        stage adds a product with ``J``), one product with ``J`` and the
+        orthogonalisation (``4 n_z`` times an average Krylov dimension of 20)."""
         jac = self.jac
         nh, nr, nz = len(jac.basis.harmonics), jac.n_r, jac.n_z
         ne = len(jac.t_row)
@@ -377,9 +369,11 @@ class HarmonicPreconditioner:
             build = 0.0
         elif self.modal:             # the low modes' product (flexibility.StuckFlexibility)
             build = 4.0 * nh * nr ** 2 * jac.lin.flexibility.n_summed
+        elif self.Phier is not None:
+            build = self.Phier.build_flops
         else:
             build = 8.0 * nh * nr ** 3
-        apply = 8.0 * nh * nr ** 2
+        apply = 8.0 * nh * nr ** 2 if self.Phier is None else self.Phier.apply_flops
         if self.lowrank is not None:
             sizes = np.array(self.lowrank.sizes, dtype=float)
             m = float(sizes.sum())
@@ -503,13 +497,18 @@ class HarmonicPreconditioner:
         else:       # a raised limit truncates to itself, not to LOWRANK_MAX_FRACTION
             most = sel.size if sel.size <= blocks(LOWRANK_EXACT_FRACTION) else \
                 blocks(LOWRANK_EXACT_FRACTION if limit > LOWRANK_MAX else LOWRANK_MAX_FRACTION)
-        self.truncated = sel.size > most
-        log.debug("low-rank stage: %d of %d coordinates wanted, %d kept",
-                  sel.size * nc, jac.n_z, min(most, sel.size) * nc)
+        self.truncated, kept = sel.size > most, min(most, sel.size)
+        jac.cache.lowrank_columns = kept / jac.n_r
+        log.debug("low-rank stage: %d of %d coordinates wanted, %d kept", sel.size * nc,
+                  jac.n_z, kept * nc)
         if self.truncated and self.modal and not self.partial:
             # the stuck stiffness is far from this tangent: a truncated correction
             # serves better on the harmonic projections of the tangent
             self._harmonic_stage(self._shift, modal=False)
+            return self._lowrank()
+        if self.Phier is not None and not self.partial \
+                and kept > HIERARCHICAL_COLUMNS * jac.n_r:
+            self._harmonic_stage(self._shift, hierarchical=False)   # (columns by solves)
             return self._lowrank()
         if self.truncated:
             sel = np.sort(sel[np.argsort(norm[sel])[::-1][:most]])
@@ -644,8 +643,9 @@ class HarmonicPreconditioner:
         Bk = np.zeros((ne, nb * nc, nb * nc))
         for a, ra in enumerate(rows):
             for b, rb in enumerate(rows):
+                Se = schur_entries(self.Phier.prod, ra, rb) if self.S is None else None
                 for i, h in enumerate(jac.basis.harmonics):
-                    S = self.S[i][ra, rb]
+                    S = self.S[i][ra, rb] if Se is None else Se[i]
                     ic, is_ = jac._ic[i], jac._is[i]
                     Bk[:, a * nc + ic, b * nc + ic] += S.real
                     if h:

@@ -73,7 +73,10 @@ def test_hodlr_product_equals_the_dense_one_within_its_tolerance(complex_s):
 @pytest.fixture
 def small_tree(monkeypatch):
     """The hierarchical form from any size, on leaves of 12 coordinates."""
+    import jointsim.solvers.preconditioner as pm
     monkeypatch.setattr(hi, "HIERARCHICAL_MIN_ROWS", 0)
+    monkeypatch.setattr(pm, "HIERARCHICAL_STAGE_MIN_ROWS", 0)
+    monkeypatch.setattr(pm, "HIERARCHICAL_COLUMNS", 1.0)
     monkeypatch.setattr(hi, "LEAF_ROWS", 12)
 
 
@@ -132,3 +135,47 @@ def test_krylov_path_with_the_hierarchical_form_agrees_with_the_dense_path(
     for a, b in zip(Xd, Xk):
         assert np.abs(a - b).max() <= 1e-8 * np.abs(a).max()
     assert itd == itk and max(itd) > 2
+
+
+def test_a_loose_solves_harmonic_stage_is_the_hierarchical_factorisation(small_tree,
+                                                                         monkeypatch):
+    """For a loose solve (the error indicators' GMRES tolerance) the harmonic stage is
+    :class:`~jointsim.solvers.hierarchical.HierarchicalInverse` (no ``n_r x n_r`` array):
+    on the coarse FE lap joint at a slipping point (force scale 20, harmonics 0 to 3) its
+    ``P_h^-1`` has a backward error below 1e-6 against ``S_h`` plus the harmonic
+    projection of the element tangents, and the whole preconditioner (with its exact
+    low-rank stage) solves ``J`` to 1e-4.  Where the low-rank stage needs more columns
+    of ``P_h^-1`` than ``HIERARCHICAL_COLUMNS n_r``, the dense stage is built instead."""
+    import jointsim.solvers.preconditioner as pm
+    from jointsim.analyses.hbm import _system
+    from jointsim.model import build_model
+    from jointsim.solvers.hbm import solve_point
+    from jointsim.solvers.preconditioner import HarmonicPreconditioner
+    from jointsim.solvers.tangent_projection import add_projected_tangent
+
+    from .._scenes import ROOT, lap_scene
+    sc = lap_scene(ROOT / "models" / "lap_joint_nodes.toml", ("modes", "hbm"),
+                   ["analysis.hbm.harmonics=[0,1,2,3]", "analysis.hbm.n_samples=64",
+                    "analysis.hbm.linear_solver='krylov'"])
+    s = _system(build_model(sc), sc.analysis.hbm)
+    F = s.force_coefficients(20.0)
+    z = solve_point(s, 900.0, F).z
+    s.krylov_rtol = 1e-3
+    J = s.evaluate(z, 900.0, F).J
+    P = HarmonicPreconditioner(J)
+    assert P.Phier is not None and P.Pinv is None and P.S is None and P.lowrank is not None
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(4, s.n_r, 2)) + 1j * rng.normal(size=(4, s.n_r, 2))
+    X[0] = X[0].real                           # harmonic 0 is real
+    Y = P._inverse_times(X)
+    for i in range(4):
+        B = np.array(J.schur(i))
+        add_projected_tangent(B, J, i, P.proj)
+        assert np.abs(B @ Y[i] - X[i]).max() <= 1e-6 * np.abs(X[i]).max(), i
+    b = rng.normal(size=s.n_z)
+    ref = np.linalg.solve(J.to_dense(), b)
+    assert np.abs(P.solve(b) - ref).max() <= 1e-4 * np.abs(ref).max()
+    monkeypatch.setattr(pm, "HIERARCHICAL_COLUMNS", 0.0)
+    P = HarmonicPreconditioner(J)
+    assert P.Phier is None and P.lowrank is not None
+    assert np.abs(P.solve(b) - ref).max() <= 1e-4 * np.abs(ref).max()
