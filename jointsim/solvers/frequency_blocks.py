@@ -81,8 +81,8 @@ class FrequencyBlocks:
         """``D_h = K - nu^2 M + i nu (C - xi M)`` of every harmonic in the coordinates
         ``(q, y)``, shape ``(n_h, n, n)`` complex (made once, read-only): ``A``, ``B``,
         ``B'``, ``E`` are its blocks.  For a small structure
-        (:data:`~jointsim.solvers.condensation.STACKED_MAX_DOF`), whose per-harmonic blocks cost more in calls than
-        in arithmetic."""
+        (:data:`~jointsim.solvers.condensation.STACKED_MAX_DOF`), whose per-harmonic
+        blocks cost more in calls than in arithmetic."""
         if self._stacked is None:
             K, M, C = self.lin.transformed
             nu = np.asarray(self.harmonics, dtype=float)[:, None, None] * self.omega

@@ -86,8 +86,8 @@ def test_interface_products_equal_the_formed_schur_complement(small_tree, coarse
     """``S_h x_h`` through the hierarchical form (``G(s)`` plus the basis ``F`` and each
     harmonic's ``M_h``) against the formed ``S_h``
     (:meth:`~jointsim.solvers.condensation.ReducedLinear.schur_low_rank_damping`) at
-    harmonics 0 to 7 of 300 rad/s (the split applies), forced (``xi = 0``) and self-excited: to 1e-10 of
-    the product; the tree has at least two levels."""
+    harmonics 0 to 7 of 300 rad/s (the split applies), forced (``xi = 0``) and
+    self-excited: to 1e-10 of the product; the tree has at least two levels."""
     from jointsim.solvers.hbm import HBMSystem
     system = HBMSystem(coarse_lap_coupled, tuple(range(8)), 32, linear_solver="krylov")
     fb = system.harmonic_blocks(300.0, xi)
