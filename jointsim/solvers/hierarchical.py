@@ -411,7 +411,7 @@ class HierarchicalInverse:
     """
 
     def __init__(self, prod: InterfaceProducts, entries=()):
-        self.prod = prod
+        self.prod, self.F = prod, None
         H = prod.form.hodlr
         spow = prod.spow                                             # (n_kept, n_h)
         nh = spow.shape[1]
@@ -439,7 +439,7 @@ class HierarchicalInverse:
             Kn[:, :, :k, k:] = Kb[:, 0::2]
             Kn[:, :, k:, :k] = Kb[:, 1::2]
             self.levels.append((rows, cols, X[:, rows], sV, np.linalg.inv(Kn)))
-            flops += 8.0 * nh * k * (self.apply_flops / (8.0 * nh)) + 64.0 * nh * nb * k ** 3
+            flops += k * self.apply_flops + 64.0 * nh * nb * k ** 3     # B's solve, K^-1
         # F M_h F^T in an orthonormal basis of the weighted F's range: F's columns span
         # fifty decades and depend on each other (the P_p), and Woodbury's capacitance
         # in F itself is singular to round-off (condition 1e42 on the 120-point lap
@@ -456,8 +456,8 @@ class HierarchicalInverse:
         self.HF = HF
         # (H + F M F^T)^-1 = H^-1 - H^-1 F (I + M F^T H^-1 F)^-1 M F^T H^-1
         self.CapM = np.linalg.solve(np.eye(rho) + M @ (F.T @ HF), M)
-        self.build_flops = flops + 8.0 * nh * rho * (self.apply_flops / (8.0 * nh)) \
-            + 8.0 * nh * (2 * n * rho * rho + 2 * rho ** 3)
+        self.build_flops = flops + rho * self.apply_flops + 8.0 * nh * (2 * n * rho * rho
+                                                                        + 2 * rho ** 3)
 
     @property
     def apply_flops(self) -> float:
@@ -466,7 +466,7 @@ class HierarchicalInverse:
         per = L * m * m + sum(2 * X.shape[1] * X.shape[2] * X.shape[3]
                               + Ki.shape[1] * Ki.shape[2] ** 2
                               for _, _, X, _, Ki in self.levels)
-        if getattr(self, "F", None) is not None:
+        if self.F is not None:
             per += 2 * self.n * self.F.shape[1] + self.F.shape[1] ** 2
         return 8.0 * nh * per
 
