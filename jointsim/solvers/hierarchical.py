@@ -201,6 +201,12 @@ class HODLR:
         return np.hstack(Us), np.vstack(Vs), np.concatenate(pid)
 
     @property
+    def leaves(self) -> np.ndarray:
+        """The parts' dense leaf blocks, shape (n_leaves, len(powers), m, m) (a view)."""
+        L, m = self.leaf_idx.shape
+        return self.D.reshape(L, len(self.powers), m, m)
+
+    @property
     def compression(self) -> float:
         """Stored numbers over the dense parts' ``len(powers) n^2``."""
         return self.stored / max(len(self.powers) * self.n ** 2, 1)
@@ -379,9 +385,8 @@ def schur_entries(prod: InterfaceProducts, rows, cols) -> np.ndarray:
     complex, without forming ``S_h``: from the leaves of ``G(s)`` and the rows of ``F``
     (each pair within one leaf)."""
     H = prod.form.hodlr
-    L, m = H.leaf_idx.shape
     lf, jr, jc = _leaf_places(H, rows, cols)
-    D = H.D.reshape(L, len(H.powers), m, m)[lf, :, jr, jc]             # (len, n_kept)
+    D = H.leaves[lf, :, jr, jc]                                       # (len, n_kept)
     F = prod.form.F
     return (D @ prod.spow).T + np.einsum("ka,hab,kb->hk", F[rows], prod.Mh, F[cols])
 
@@ -418,7 +423,7 @@ class HierarchicalInverse:
         L, m = H.leaf_idx.shape
         n = self.n = H.n
         self.leaf_idx = H.leaf_idx
-        A = np.einsum("ph,lpij->hlij", spow, H.D.reshape(L, len(H.powers), m, m)).astype(complex)
+        A = np.einsum("ph,lpij->hlij", spow, H.leaves).astype(complex)
         pl, pj = np.nonzero(H.leaf_idx == n)                          # padding: identity
         A[:, pl, pj, pj] = 1.0
         for rows, cols, vals in entries:
