@@ -113,14 +113,16 @@ def run_epmc_analysis(scene, model, writer, results=None) -> None:
     ep = EPMCSystem(system, em.phi, F)
     xi0 = float(em.phi @ dense_array(model.C) @ em.phi)
     g = _write_header(writer, a, model, em, xi0)
-    with _indicators(writer, a, system, ep) as inds:
+    with _indicators(writer, a, system, ep, em.omega, xi0) as inds:
         _run(writer, scene, model, a, system, ep, em, F, xi0, g, inds, t_start)
 
 
-def _indicators(writer, a, system, ep):
+def _indicators(writer, a, system, ep, omega0, xi0):
     """The error indicators of the branch's points (:mod:`.indicator_pool`): on
     ``analysis.epmc.workers`` forked workers, or serially; stored rows left NaN
-    (a run killed or a worker lost before they were computed) are computed first."""
+    (a run killed or a worker lost before they were computed) are computed first.
+    ``omega0`` [rad/s] and ``xi0`` [1/s]: the linear mode's, for which the workers'
+    shared pieces are made (:meth:`~jointsim.solvers.hbm.HBMSystem.prepare_forks`)."""
     from ..io.hbm_points import missing_error_indicators, pad_error_indicators
     from .indicator_pool import PointIndicators, pool_workers
 
@@ -131,6 +133,8 @@ def _indicators(writer, a, system, ep):
     done = writer.h5["epmc"].attrs.get("branch_status", "") in ("complete", "gave up")
     n = pool_workers(a.workers, len(missing) if done else None, system.n_z) \
         if system.n_z else 1
+    if n > 1:
+        system.prepare_forks(omega0, xi0, flexibility=False)
     # the workers never start numba threads (a forked process must not): parallel=False
     estimator = ErrorEstimator(system, parallel=n == 1)
     steps = a.error_newton_steps

@@ -109,8 +109,7 @@ def run_hbm_analysis(scene, model, writer, results=None) -> HBMSolutions:
             _indicator_pool(writer, a, system, 1).close()
         # the indicators of the points a worker defers once a core is free
         out.inds = _parent_indicators(writer, a, system, out.watch)
-        if system.krylov:   # made once, before the fork: the workers share the condensation
-            system.lin.flexibility
+        system.prepare_forks(max(a.omega_start, a.omega_end))   # the workers share them
         failures = _run_branches_forked(todo, job_args, min(n_workers, len(todo)),
                                         out.write_point, out.finish_branch)
         if out.deferred:
@@ -669,6 +668,7 @@ def _indicator_pool(writer, a, system, workers):
     writer.h5["hbm"].attrs["indicator_workers"] = n
     if n == 1 and not missing.size:   # serial: each branch computes its own
         return PointIndicators(writer, "hbm", None, ToleranceWatch(a.error_tol, "hbm"), 1)
+    system.prepare_forks(max(a.omega_start, a.omega_end))   # before a fork: shared
     estimator = _estimator(system, a, n == 1 and system.aft.parallel)
     forces = {ib: system.force_coefficients(fs) for ib, fs in enumerate(a.force_scale)}
     inds = PointIndicators(

@@ -258,10 +258,11 @@ class StuckFlexibility:
         d = 1.0 / (lamL[None, :] - s[:, None])                   # (n_h, n_L)
         # the low modes: Psi_L diag(d_h) Psi_L^T b_h
         Y = np.matmul(PsiL, d[:, :, None] * np.matmul(PsiL.T, B3))
-        # the quasi-static modes: sum_p s^p C_p b_h (C_p real)
+        # the quasi-static modes: sum_p s^p C_p b_h (C_p real: applied to the real and
+        # imaginary parts as one real product, no complex copy of C)
         n_h, n_r, m = B3.shape
-        CB = (C.reshape(-1, n_r) @ B3.transpose(1, 0, 2).reshape(n_r, -1)).reshape(
-            FLEX_ORDER, n_r, n_h, m)
+        Bt = np.ascontiguousarray(B3.transpose(1, 0, 2)).reshape(n_r, -1).view(float)
+        CB = (C.reshape(-1, n_r) @ Bt).view(complex).reshape(FLEX_ORDER, n_r, n_h, m)
         powers = s[:, None] ** np.arange(FLEX_ORDER)[None, :]      # (n_h, P)
         Y += np.einsum("hp,prhm->hrm", powers, CB)
         if self.damped.size:
@@ -270,3 +271,38 @@ class StuckFlexibility:
                 G = np.diag(lamd - si) + (1j * nu) * self.Cd
                 Y[i] += self.Psi_d @ np.linalg.solve(G, self.Psi_d.T @ B3[i])
         return Y.reshape(B.shape)
+
+
+class FlexibilitySolve:
+    """The stuck flexibility at fixed frequencies as a harmonic stage applied by solves
+    (:meth:`StuckFlexibility.solve`): no ``n_r x n_r`` inverse is formed (for a loose
+    solve whose low-rank stage needs few columns of ``P_h^-1``,
+    :data:`jointsim.solvers.preconditioner.SOLVED_STAGE_COLUMNS`).
+
+    Parameters
+    ----------
+    flex : StuckFlexibility
+    nus : array_like, shape (n_h,)
+        Angular frequencies of the harmonics [rad/s].
+    xi : float
+        Self-excitation [1/s].
+    """
+
+    build_flops = 0.0
+
+    def __init__(self, flex: StuckFlexibility, nus, xi: float = 0.0):
+        self.flex, self.nus, self.xi = flex, np.asarray(nus, dtype=float), float(xi)
+        flex._made_for(float(np.abs(self.nus).max(initial=0.0)))
+
+    @property
+    def apply_flops(self) -> float:
+        """Real flops of one solve of one column (every harmonic): the low modes, the
+        quasi-static series and the damped modes."""
+        f = self.flex
+        n_l = f._series[1].shape[1]
+        return self.nus.size * (8.0 * f.n_r * n_l + 4.0 * FLEX_ORDER * f.n_r ** 2
+                                + 8.0 * f.n_r * f.damped.size)
+
+    def solve(self, Y: np.ndarray) -> np.ndarray:
+        """``(S_h + diag(k))^-1 Y[h]`` for every harmonic; ``Y`` (n_h, n_r, k) complex."""
+        return self.flex.solve(self.nus, Y, self.xi)

@@ -208,6 +208,32 @@ class HBMSystem:
             cache.pop(next(iter(cache)))
         return got
 
+    def prepare_forks(self, omega_max: float, xi: float = 0.0,
+                      flexibility: bool = True) -> None:
+        """Make the condensation's one-time pieces that the Krylov solves use before
+        workers are forked, so that the workers share them instead of each making them
+        again: the stuck joint's flexibility (an eigen-decomposition, ``n^3``) and the
+        hierarchical interface operator (its quasi-static split and ``G_p``,
+        ``n_r^2 n_y``), made for every harmonic up to ``omega_max``.
+
+        Parameters
+        ----------
+        omega_max : float
+            The highest fundamental frequency the workers will meet [rad/s]; the split
+            made for it (``2 h_max omega_max``) serves every frequency below.
+        xi : float
+            Self-excitation [1/s] (EPMC), as in :meth:`harmonic_blocks`.
+        flexibility : bool
+            Whether the workers use the flexibility (not the EPMC's: its bordered
+            solves are shifted, :class:`~.preconditioner.HarmonicPreconditioner`).
+
+        Nothing is made on the direct path, nor at a zero frequency.
+        """
+        if self.krylov and self.lin.n_r and omega_max > 0.0:
+            if flexibility:
+                self.lin.flexibility
+            self.harmonic_blocks(float(omega_max), float(xi)).hierarchical
+
     # -- residual --------------------------------------------------------------
     def evaluate(self, z, omega: float, F, xi: float = 0.0, jacobian: bool = True,
                  wrt=("omega",), J_out=None) -> Evaluation:
@@ -391,18 +417,15 @@ class HBMSystem:
         lin = self.lin
         Y = np.zeros((nc, lin.n_y))            # coefficients of the other coordinates
         FZ = np.asarray(F, dtype=float) @ lin.Z
-        # the blocks of an evaluated frequency where they were formed (not for a full
-        # E: its solve from the LU factors differs from a fresh solve in the last bits)
-        kept = self.omega_cache.get((float(omega), float(xi))) \
-            if lin.kind != "direct" else None
-        if kept is not None and not kept.formed:
-            kept = None
-        for k, h in enumerate(self.basis.harmonics):
-            if kept is not None:
-                _, _, Bp, E = kept.block(k)
-            else:
+        dyn = self.harmonic_blocks(omega, xi).dynamic if lin.n_y else None
+        if dyn is not None:
+            # modal or low-rank condensation: every harmonic at once, no complex block
+            # formed (DynamicProducts.parts; B'_h alone is n_y x n_r per harmonic)
+            _, y = dyn.parts(self.basis.to_complex(Q).T, self.basis.to_complex(FZ).T)
+            self.basis.from_complex(y.T, Y)
+        elif lin.n_y:
+            for h in self.basis.harmonics:
                 _, _, Bp, E = lin.blocks(h * omega, xi, parts="yq")
-            if lin.n_y:
                 self._store(Y, h, lin.solve_E(E, self._complex(FZ, h) - Bp @ self._complex(Q, h)))
         # x = Psi q + Z y, every coefficient at once (real products)
         return Q @ lin.Psi.T + Y @ lin.Z.T

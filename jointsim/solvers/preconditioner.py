@@ -15,13 +15,14 @@ are in :mod:`jointsim.solvers.jacobian`, which explains the whole scheme.
 from __future__ import annotations
 
 import logging
-from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg as sla
 
 from .gmres import gmres_columns
+from .flexibility import FlexibilitySolve
 from .hierarchical import HierarchicalInverse, schur_entries
+from .lowrank_stage import LowRankStage, RowBlocks
 from .tangent_projection import add_projected_tangent, project_tangent
 
 log = logging.getLogger(__name__)
@@ -80,14 +81,17 @@ FACTORED_LOOSE_STAGE = True
 #: elsewhere, where a preconditioner serves many tight solves, it cost more than it
 #: saved.  Measured in docs/hbm.md, "Round 33" and "Round 34".
 SINGLE_INVERSE_MIN = 200
-#: A solve to this tolerance or looser (the indicators') with this many rows ``n_r``
-#: takes its harmonic stage from the hierarchical ``S_h`` (:class:`~jointsim.solvers.
-#: hierarchical.HierarchicalInverse`: no ``n_r x n_r`` array, no flexibility) while its
-#: low-rank stage needs at most ``HIERARCHICAL_COLUMNS n_r`` columns of ``P_h^-1`` (a
-#: solve each; predicted from the cache's last build).  docs/hbm.md, "Round 38".
-HIERARCHICAL_STAGE_RTOL = SINGLE_LU_RTOL
+#: A solve to this tolerance or looser (the indicators') whose low-rank stage keeps at
+#: most ``SOLVED_STAGE_COLUMNS n_r`` row blocks (a column of ``P_h^-1``, i.e. a solve,
+#: each) takes a harmonic stage applied by solves, no ``n_r x n_r`` array formed: from
+#: ``FLEX_SOLVE_MIN_ROWS`` rows the stuck flexibility's (:class:`~jointsim.solvers.
+#: flexibility.FlexibilitySolve`), else from ``HIERARCHICAL_STAGE_MIN_ROWS`` the
+#: hierarchical ``S_h``'s (:class:`~jointsim.solvers.hierarchical.HierarchicalInverse`).
+#: docs/hbm.md, "Round 38" and "Round 39".
+SOLVED_STAGE_RTOL = SINGLE_LU_RTOL
+SOLVED_STAGE_COLUMNS = 0.1
+FLEX_SOLVE_MIN_ROWS = 400
 HIERARCHICAL_STAGE_MIN_ROWS = 800
-HIERARCHICAL_COLUMNS = 0.1
 #: The harmonic stage from the stuck joint's flexibility where it applies
 #: (:class:`~jointsim.solvers.flexibility.StuckFlexibility`; not with a shift, and not
 #: where the low-rank stage would be truncated): ``P_h = S_h + diag(k)`` formed from the
@@ -103,61 +107,6 @@ def _inverse(blocks) -> np.ndarray:
     except np.linalg.LinAlgError:
         log.debug("harmonic preconditioner: a singular block, pseudo-inverse used")
         return np.linalg.pinv(blocks)
-
-
-class LowRankStage(NamedTuple):
-    """The Woodbury stage of :class:`HarmonicPreconditioner` (:meth:`~HarmonicPreconditioner._lowrank`).
-
-    Attributes
-    ----------
-    R : ndarray of int, shape (nb n_l,)
-        Contact coordinates (slip rows, then gap rows) of the ``n_l`` column elements,
-        index ``b n_l + l``.
-    Rrow : ndarray of int, shape (n_rb,)
-        Contact coordinate of each selected row block.
-    block_element : ndarray of int, shape (n_rb,)
-        Column element (index into the ``n_l``) of each row block.
-    Lr : ndarray, shape (n_rb, n_c, nb n_c)
-        ``L`` on each row block, over its element's coordinates [N/m] (without the
-        terms that couple two harmonic groups, when there are several).
-    groups : tuple
-        The coordinates (index ``j n_c + k`` into the ``m = n_rb n_c``) of each
-        group, one per harmonic (:meth:`~HarmonicPreconditioner._lowrank`);
-        ``(slice(None),)`` for one group.
-    lus : tuple
-        With one group, ``scipy.linalg.lu_factor`` of ``I + L_r G`` (single precision
-        for a loose solve or a large ``m``: ``SINGLE_LU_RTOL``, ``SINGLE_LU_MIN``);
-        else empty.
-    nb : int
-        Row kinds per element (slip and gap rows: 2; one of them: 1).
-    full : ndarray, shape (n_rb, n_c, nb n_c), or None
-        With several groups, ``L`` on each row block with the terms between groups
-        (:meth:`~HarmonicPreconditioner.solve_capacitance`); else None.
-    Q : ndarray, shape (n_h, nb n_l, n_rb), complex, or None
-        With several groups, the ``(R, Rrow)`` part of each ``P_h^-1`` (``G`` by
-        harmonics, single precision); else None.
-    inverses : tuple of ndarray, or None
-        With several groups, the inverse of each group's block of ``I + L_r G``
-        (single precision); else None.
-    """
-
-    R: np.ndarray
-    Rrow: np.ndarray
-    block_element: np.ndarray
-    Lr: np.ndarray
-    groups: tuple
-    lus: tuple
-    nb: int
-    full: np.ndarray | None = None
-    Q: np.ndarray | None = None
-    inverses: tuple | None = None
-
-    @property
-    def sizes(self) -> list[int]:
-        """Coordinates of each group (of its LU, or of its inverse)."""
-        if self.inverses is not None:
-            return [inv.shape[0] for inv in self.inverses]
-        return [lu.shape[0] for lu, _ in self.lus]
 
 
 class HarmonicPreconditioner:
@@ -189,12 +138,13 @@ class HarmonicPreconditioner:
     def __init__(self, jac, shift=None, base=None):
         self.jac = jac
         self.C2 = None
+        self._sel = None         # (proj, RowBlocks) of _few_columns, for _lowrank
         if base is not None:
             # the harmonic stage of ``base`` (S_h at its frequency, the harmonic
             # projection of its tangent): only the low-rank stage is new
             if shift is not None or base.C2 is not None:
                 raise ValueError("a shifted harmonic stage is not shared")
-            self.Pinv, self.Plu, self.Phier = base.Pinv, base.Plu, base.Phier
+            self.Pinv, self.Plu, self.Psolve = base.Pinv, base.Plu, base.Psolve
             self.proj, self.S, self.Pinv_double = base.proj, base.S, base.Pinv_double
             self.omega, self.xi = base.omega, base.xi
             self.modal = base.modal
@@ -216,34 +166,42 @@ class HarmonicPreconditioner:
             self.Binv = None
         self._count_flops()
 
-    def _harmonic_stage(self, shift, modal: bool = True, hierarchical: bool = True):
+    def _harmonic_stage(self, shift, modal: bool = True, by_solves: bool = True):
         """Per harmonic, the inverse of ``S_h`` plus the harmonic projection of every
         element's tangent (``self.Pinv``, complex64 from ``SINGLE_INVERSE_MIN`` rows where
         the cache allows it, with the fundamental's in double in ``self.Pinv_double``;
         or for a loose solve single-precision LU factors ``self.Plu``:
-        ``FACTORED_LOOSE_STAGE``, or its hierarchical factorisation ``self.Phier``:
-        ``HIERARCHICAL_STAGE_RTOL``; ``self.proj``; ``S_h`` kept as ``self.S``); from
-        the stuck flexibility instead where it applies (:meth:`_modal_stage`)."""
+        ``FACTORED_LOOSE_STAGE``, or a stage applied by solves ``self.Psolve``:
+        ``SOLVED_STAGE_RTOL``; ``self.proj``; ``S_h`` kept as ``self.S``); from the stuck
+        flexibility instead where it applies (:meth:`_modal_stage`)."""
         jac, nr = self.jac, self.jac.n_r
-        self.omega, self.xi, self.Phier = jac.freq.omega, jac.freq.xi, None
+        self.omega, self.xi, self.Psolve = jac.freq.omega, jac.freq.xi, None
 
         def proj():     # the complex-form projections of the (h, h) blocks, (n_h, n_e)
             return {key: None if Jb is None else np.array(
                 [project_tangent(Jb, jac._ic[i], jac._is[i], h)
                  for i, h in enumerate(jac.basis.harmonics)])
                 for key, Jb in (("uu", jac.Juu), ("ug", jac.Jug), ("NN", jac.JNN))}
-        if hierarchical and jac.rtol >= HIERARCHICAL_STAGE_RTOL and shift is None \
-                and nr >= HIERARCHICAL_STAGE_MIN_ROWS and jac.freq.hierarchical is not None \
-                and jac.cache.lowrank_columns <= HIERARCHICAL_COLUMNS:
+        # a loose solve whose low-rank stage needs few columns of P_h^-1: a stage applied
+        # by solves (SOLVED_STAGE_COLUMNS), the flexibility's first, else the hierarchical
+        loose = by_solves and jac.rtol >= SOLVED_STAGE_RTOL and shift is None
+        flex = jac.lin.flexibility if MODAL_STAGE and modal and shift is None else None
+        self.modal = flex is not None
+        if self.modal and loose and nr >= FLEX_SOLVE_MIN_ROWS \
+                and self._few_columns(self._stuck_proj(flex)):
+            self.S, self.Plu, self.Pinv, self.Pinv_double = None, None, None, {}
+            self.Psolve = FlexibilitySolve(flex, np.asarray(jac.basis.harmonics, dtype=float)
+                                           * self.omega, self.xi)
+            return
+        if loose and nr >= HIERARCHICAL_STAGE_MIN_ROWS and jac.freq.hierarchical is not None \
+                and self._few_columns(proj()):
             self.modal, self.S, self.Pinv, self.Plu, self.Pinv_double = False, *[None] * 3, {}
-            self.proj, t, n = proj(), jac.t_row, jac.n_row
-            self.Phier = HierarchicalInverse(jac.freq.hierarchical, [
+            t, n = jac.t_row, jac.n_row
+            self.Psolve = HierarchicalInverse(jac.freq.hierarchical, [
                 (r, c, sign * self.proj[key]) for key, r, c, sign in (
                     ("uu", t, t, 1.0), ("ug", t, n, 1.0), ("NN", n, n, -1.0))
                 if self.proj[key] is not None])
             return
-        flex = jac.lin.flexibility if MODAL_STAGE and modal and shift is None else None
-        self.modal = flex is not None
         if self.modal:
             return self._modal_stage(flex)
         self.S = [jac.schur(i) for i in range(len(jac.basis.harmonics))]
@@ -288,6 +246,27 @@ class HarmonicPreconditioner:
             return np.array([h != 1 for h in jac.basis.harmonics])
         return np.zeros(len(jac.basis.harmonics), dtype=bool)
 
+    def _stuck_proj(self, flex) -> dict:
+        """``proj`` of the stuck stiffness ``k`` (:meth:`_modal_stage`) for every harmonic."""
+        jac = self.jac
+        nh, ne = len(jac.basis.harmonics), len(jac.t_row)
+
+        def stuck(rows, sign):
+            return np.broadcast_to(sign * flex.k[rows].astype(complex), (nh, ne)).copy()
+        return {"uu": None if jac.Juu is None else stuck(jac.t_row, 1.0),
+                "ug": None if jac.Jug is None else np.zeros((nh, ne), dtype=complex),
+                "NN": None if jac.JNN is None else stuck(jac.n_row, -1.0)}
+
+    def _few_columns(self, proj) -> bool:
+        """Whether, with ``P`` holding ``proj``, the low-rank stage keeps at most
+        ``SOLVED_STAGE_COLUMNS n_r`` row blocks (a column of ``P_h^-1`` each); sets
+        ``self.proj`` and keeps the selection for :meth:`_lowrank`.  Decided from this
+        Jacobian alone: a point's indicators do not depend on the points before it."""
+        self.proj = proj
+        self._sel = (proj, self._selection())
+        sel = self._sel[1]
+        return sel is None or min(sel.most, sel.sel.size) <= SOLVED_STAGE_COLUMNS * self.jac.n_r
+
     def _modal_stage(self, flex):
         """The harmonic stage from the stuck joint's flexibility (``MODAL_STAGE``): ``P_h =
         S_h + diag(k)`` with ``k`` the stuck contact stiffness, its inverses formed from
@@ -295,15 +274,8 @@ class HarmonicPreconditioner:
         ``S_h`` formed; ``proj`` holds ``k`` for every harmonic, so the low-rank stage
         corrects for every element whose tangent is not the stuck one."""
         jac = self.jac
-        nh, ne = len(jac.basis.harmonics), len(jac.t_row)
-        k = flex.k
         self.S, self.Plu, self.Pinv_double = None, None, {}
-
-        def stuck(rows, sign):
-            return np.broadcast_to(sign * k[rows].astype(complex), (nh, ne)).copy()
-        self.proj = {"uu": None if jac.Juu is None else stuck(jac.t_row, 1.0),
-                     "ug": None if jac.Jug is None else np.zeros((nh, ne), dtype=complex),
-                     "NN": None if jac.JNN is None else stuck(jac.n_row, -1.0)}
+        self.proj = self._stuck_proj(flex)
         # (read-only, kept by flex: the builds at one frequency share it)
         Pinv = flex.inverses(np.asarray(jac.basis.harmonics, dtype=float) * self.omega,
                              self.xi)
@@ -319,8 +291,8 @@ class HarmonicPreconditioner:
 
     def _inverse_times(self, X) -> np.ndarray:
         """``P_h^-1 X[h]`` for every harmonic; ``X`` (n_h, n_r, k) complex."""
-        if self.Phier is not None:
-            Y = self.Phier.solve(X)
+        if self.Psolve is not None:
+            Y = self.Psolve.solve(X)
             Y[self.jac._h0] = Y[self.jac._h0].real
             return Y
         if self.Plu is None:
@@ -338,7 +310,7 @@ class HarmonicPreconditioner:
 
     def _inverse_columns(self, cols) -> np.ndarray:
         """The columns ``cols`` of every ``P_h^-1``, shape (n_h, n_r, len(cols))."""
-        if self.Plu is None and self.Phier is None:
+        if self.Plu is None and self.Psolve is None:
             C = np.ascontiguousarray(self.Pinv[:, :, cols])
             if self.Pinv_double:           # the fundamental's columns in double
                 C = C.astype(complex)
@@ -367,13 +339,13 @@ class HarmonicPreconditioner:
         matvec = 8.0 * nh * nr ** 2 + 6.0 * ne * jac.n_c ** 2
         if self.partial:
             build = 0.0
+        elif self.Psolve is not None:
+            build = self.Psolve.build_flops
         elif self.modal:             # the low modes' product (flexibility.StuckFlexibility)
             build = 4.0 * nh * nr ** 2 * jac.lin.flexibility.n_summed
-        elif self.Phier is not None:
-            build = self.Phier.build_flops
         else:
             build = 8.0 * nh * nr ** 3
-        apply = 8.0 * nh * nr ** 2 if self.Phier is None else self.Phier.apply_flops
+        apply = 8.0 * nh * nr ** 2 if self.Psolve is None else self.Psolve.apply_flops
         if self.lowrank is not None:
             sizes = np.array(self.lowrank.sizes, dtype=float)
             m = float(sizes.sum())
@@ -423,40 +395,15 @@ class HarmonicPreconditioner:
             Tk[:, -nc:, -nc:] -= jac.JNN
         return rows, nb, Tk
 
-    def _lowrank(self):
-        """Exact correction for the elements whose tangent couples harmonics.
-
-        The preconditioner ``P`` holds ``S_h`` and the harmonic-``h`` projection of
-        every element's tangent, so ``J = P + L`` with ``L`` the rest of the element
-        tangents: block-diagonal over elements and zero for an element that sticks
-        (and stays closed) over the whole period.  (A partial preconditioner's ``P`` is
-        its base's, so ``L`` is the tangent minus the base's projection: zero for the
-        elements that stuck in both states.)  ``L`` is kept by *row blocks*: the
-        slip rows or the gap rows of one element over all coefficients (``n_c``
-        coordinates each), and only the blocks where it is not negligible.  An
-        element that slips but stays closed has a constant normal tangent, so only
-        its slip rows count (measured on 96 Gauss points at force scale 20: 66
-        elements slip, 26 of them separate, 92 row blocks instead of 132).  With
-        ``E_r`` the selected rows, ``E_c`` all coordinates of their elements and
-        ``L_r`` (``m`` x ``m_c``) those rows of ``L``, ``J = P + E_r L_r E_c^T`` and
-        Woodbury's identity gives ``J^-1 b = y - P^-1 E_r s`` with ``y = P^-1 b`` and
-        ``(I + L_r G) s = L_r y_c``, ``G = E_c^T P^-1 E_r`` (``m_c`` x ``m``): per
-        harmonic only the (columns' rows, selected rows) part of ``P_h^-1`` is needed.
-        The LU is of size ``m`` (``m^3``: a third of the cost of the element-wise
-        correction at that point).  When ``m`` would exceed ``LOWRANK_EXACT_FRACTION
-        n_z`` (but at least ``LOWRANK_MIN``) or ``LOWRANK_MAX``, only the row blocks
-        with the largest ``|L|`` are kept, ``LOWRANK_MAX_FRACTION n_z`` coordinates
-        (``self.truncated``; GMRES and the element-block stage handle the rest).  An FRC
-        point's extended solve keeps every row block instead and splits the correction
-        by harmonics (``LOOSE_SPLIT_MIN``, :meth:`_lr_g`, :meth:`solve_capacitance`).
-        """
+    def _selection(self) -> "RowBlocks | None":
+        """The row blocks of the low-rank stage with ``P`` holding ``self.proj``
+        (:meth:`_lowrank`); None without elements."""
         jac = self.jac
         nc = jac.n_c
         rows, nb, Tk = self._element_tangent()
         ne = Tk.shape[0]
         if ne == 0:
-            self.truncated = False
-            return
+            return None
         ref = max(float(np.abs(Tk).max(initial=0.0)), 1e-300)   # the largest tangent entry
         Lk = Tk                         # (made in place: ref is taken before)
         # subtract the harmonic projection that P already holds
@@ -497,18 +444,51 @@ class HarmonicPreconditioner:
         else:       # a raised limit truncates to itself, not to LOWRANK_MAX_FRACTION
             most = sel.size if sel.size <= blocks(LOWRANK_EXACT_FRACTION) else \
                 blocks(LOWRANK_EXACT_FRACTION if limit > LOWRANK_MAX else LOWRANK_MAX_FRACTION)
+        return RowBlocks(rows, nb, Lb, norm, sel, most, n_groups)
+
+    def _lowrank(self):
+        """Exact correction for the elements whose tangent couples harmonics.
+
+        The preconditioner ``P`` holds ``S_h`` and the harmonic-``h`` projection of
+        every element's tangent, so ``J = P + L`` with ``L`` the rest of the element
+        tangents: block-diagonal over elements and zero for an element that sticks
+        (and stays closed) over the whole period.  (A partial preconditioner's ``P`` is
+        its base's, so ``L`` is the tangent minus the base's projection: zero for the
+        elements that stuck in both states.)  ``L`` is kept by *row blocks*: the
+        slip rows or the gap rows of one element over all coefficients (``n_c``
+        coordinates each), and only the blocks where it is not negligible.  An
+        element that slips but stays closed has a constant normal tangent, so only
+        its slip rows count (measured on 96 Gauss points at force scale 20: 66
+        elements slip, 26 of them separate, 92 row blocks instead of 132).  With
+        ``E_r`` the selected rows, ``E_c`` all coordinates of their elements and
+        ``L_r`` (``m`` x ``m_c``) those rows of ``L``, ``J = P + E_r L_r E_c^T`` and
+        Woodbury's identity gives ``J^-1 b = y - P^-1 E_r s`` with ``y = P^-1 b`` and
+        ``(I + L_r G) s = L_r y_c``, ``G = E_c^T P^-1 E_r`` (``m_c`` x ``m``): per
+        harmonic only the (columns' rows, selected rows) part of ``P_h^-1`` is needed.
+        The LU is of size ``m`` (``m^3``: a third of the cost of the element-wise
+        correction at that point).  When ``m`` would exceed ``LOWRANK_EXACT_FRACTION
+        n_z`` (but at least ``LOWRANK_MIN``) or ``LOWRANK_MAX``, only the row blocks
+        with the largest ``|L|`` are kept, ``LOWRANK_MAX_FRACTION n_z`` coordinates
+        (``self.truncated``; GMRES and the element-block stage handle the rest).  An FRC
+        point's extended solve keeps every row block instead and splits the correction
+        by harmonics (``LOOSE_SPLIT_MIN``, :meth:`_lr_g`, :meth:`solve_capacitance`).
+        """
+        jac = self.jac
+        nc = jac.n_c
+        got = self._sel[1] if self._sel is not None and self._sel[0] is self.proj \
+            else self._selection()
+        self._sel = None
+        if got is None:
+            self.truncated = False
+            return
+        rows, nb, Lb, norm, sel, most, n_groups = got
         self.truncated, kept = sel.size > most, min(most, sel.size)
-        jac.cache.lowrank_columns = kept / jac.n_r
         log.debug("low-rank stage: %d of %d coordinates wanted, %d kept", sel.size * nc,
                   jac.n_z, kept * nc)
         if self.truncated and self.modal and not self.partial:
             # the stuck stiffness is far from this tangent: a truncated correction
             # serves better on the harmonic projections of the tangent
             self._harmonic_stage(self._shift, modal=False)
-            return self._lowrank()
-        if self.Phier is not None and not self.partial \
-                and kept > HIERARCHICAL_COLUMNS * jac.n_r:
-            self._harmonic_stage(self._shift, hierarchical=False)   # (columns by solves)
             return self._lowrank()
         if self.truncated:
             sel = np.sort(sel[np.argsort(norm[sel])[::-1][:most]])
@@ -643,7 +623,7 @@ class HarmonicPreconditioner:
         Bk = np.zeros((ne, nb * nc, nb * nc))
         for a, ra in enumerate(rows):
             for b, rb in enumerate(rows):
-                Se = schur_entries(self.Phier.prod, ra, rb) if self.S is None else None
+                Se = schur_entries(self.Psolve.prod, ra, rb) if self.S is None else None
                 for i, h in enumerate(jac.basis.harmonics):
                     S = self.S[i][ra, rb] if Se is None else Se[i]
                     ic, is_ = jac._ic[i], jac._is[i]

@@ -129,10 +129,6 @@ class PreconditionerCache:
         #: fresh, full, truncated preconditioners that needed more than
         #: ``RAISE_ITERATIONS`` GMRES iterations (``RAISE_AFTER`` raise the limit)
         self.failed_truncations = 0
-        #: the last low-rank stage's row blocks over ``n_r``: a loose build tries the
-        #: hierarchical harmonic stage while it is at most
-        #: ``preconditioner.HIERARCHICAL_COLUMNS`` (its columns of ``P_h^-1`` are solves)
-        self.lowrank_columns = 0.0
 
     @property
     def lowrank_max(self) -> int:

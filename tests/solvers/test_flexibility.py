@@ -160,6 +160,44 @@ def test_modal_preconditioner_is_the_inverse_of_the_jacobian(law, normal, monkey
     assert Pt.truncated and not Pt.modal and Pt.S is not None
 
 
+def test_a_loose_solves_stage_is_the_flexibility_applied_by_solves(monkeypatch):
+    """A loose solve (the error indicators' GMRES tolerance) whose low-rank stage keeps at
+    most ``SOLVED_STAGE_COLUMNS n_r`` row blocks takes the flexibility applied by solves
+    (:class:`~jointsim.solvers.flexibility.FlexibilitySolve`, no inverse formed); with its
+    low-rank stage the preconditioner is the inverse of ``J`` (the dense solve; to single
+    precision with a low-rank stage, whose LU is in float32 for a loose solve).  A
+    state with more row blocks forms the inverses instead.  The choice is made from each
+    Jacobian alone: a state gets the same stage before and after another one."""
+    model = build_model(four_dof("jenkins", "anchor", "coupled"))
+    sd = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="direct")
+    sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    sk.krylov_rtol = pm.SOLVED_STAGE_RTOL
+    monkeypatch.setattr(pm, "FLEX_SOLVE_MIN_ROWS", 0)
+    monkeypatch.setattr(pm, "SOLVED_STAGE_COLUMNS", 0.5)       # 2 of the 4 row blocks
+    F = sk.force_coefficients(0.3)
+    rng = np.random.default_rng(5)
+    z_stuck, z_slip = 1e-4 * rng.normal(size=sk.n_z), 0.4 * rng.normal(size=sk.n_z)
+    v = rng.normal(size=sk.n_z)
+    kinds = []
+    for z in (z_stuck, z_slip, z_stuck):
+        J = sk.evaluate(z, 1.1, F).J
+        P = HarmonicPreconditioner(J)
+        kinds.append(isinstance(P.Psolve, fx.FlexibilitySolve))
+        assert P.modal and P.S is None and (P.Pinv is None) == kinds[-1]
+        if kinds[-1]:
+            xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, v)
+            assert np.abs(P.solve(v) - xd).max() <= 1e-10 * np.abs(xd).max()
+            assert P.Psolve.apply_flops > 0.0 and P.build_flops < 1e3
+    assert kinds == [True, False, True]
+    # enough columns allowed: solves at the slipping state too, its low-rank stage's LU
+    # in single precision (a loose solve, SINGLE_LU_RTOL)
+    monkeypatch.setattr(pm, "SOLVED_STAGE_COLUMNS", 1.0)
+    P = HarmonicPreconditioner(sk.evaluate(z_slip, 1.1, F).J)
+    assert isinstance(P.Psolve, fx.FlexibilitySolve) and P.lowrank is not None
+    xd = np.linalg.solve(sd.evaluate(z_slip, 1.1, F).J, v)
+    assert np.abs(P.solve(v) - xd).max() <= 1e-5 * np.abs(xd).max()
+
+
 def test_no_flexibility_where_its_modes_cost_more_than_they_save(coarse_model, monkeypatch):
     """Above ``FLEX_SMALL_DOF`` DOFs a structure with more than ``FLEX_DOF_RATIO`` DOFs per
     contact coordinate gets no flexibility (its eigen-decomposition, ``9 n^3``, would cost

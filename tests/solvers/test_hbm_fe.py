@@ -42,6 +42,28 @@ def test_hbm_starts_at_the_static_state(fixed):
     assert np.abs(X[1:]).max() <= 1e-12 * np.abs(x0).max()
 
 
+@pytest.mark.parametrize("xi", [0.0, 0.7])
+def test_reconstruction_solves_the_condensed_coordinates(fixed, xi):
+    """``reconstruct`` (every harmonic at once by ``DynamicProducts``, no block formed)
+    against the formed blocks of each harmonic: ``x = Psi q + Z y`` with ``E_h y_h =
+    F_y,h - B'_h q_h`` (``ReducedLinear.blocks``, ``solve_E``), forced and self-excited,
+    to 1e-12 of the largest coefficient."""
+    s = HBMSystem(fixed, (0, 1, 2, 3), 32, linear_solver="krylov")
+    lin = s.lin
+    assert lin.kind in ("modal", "lowrank") and lin.n_y
+    F = s.force_coefficients(3.0)
+    z = np.random.default_rng(8).normal(size=s.n_z) * 1e-6
+    X = s.reconstruct(z, 900.0, F, xi)
+    Q = z.reshape(s.n_c, s.n_r)
+    Y = np.zeros((s.n_c, lin.n_y))
+    FZ = F @ lin.Z
+    for h in s.basis.harmonics:
+        _, _, Bp, E = lin.blocks(h * 900.0, xi, parts="yq")
+        s._store(Y, h, lin.solve_E(E, s._complex(FZ, h) - Bp @ s._complex(Q, h)))
+    ref = Q @ lin.Psi.T + Y @ lin.Z.T
+    assert np.abs(X - ref).max() <= 1e-12 * np.abs(ref).max()
+
+
 # --------------------------------------------------------------------------
 # EPMC: linear limit, Jacobian, first point at small amplitude
 # --------------------------------------------------------------------------

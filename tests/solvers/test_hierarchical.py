@@ -76,7 +76,7 @@ def small_tree(monkeypatch):
     import jointsim.solvers.preconditioner as pm
     monkeypatch.setattr(hi, "HIERARCHICAL_MIN_ROWS", 0)
     monkeypatch.setattr(pm, "HIERARCHICAL_STAGE_MIN_ROWS", 0)
-    monkeypatch.setattr(pm, "HIERARCHICAL_COLUMNS", 1.0)
+    monkeypatch.setattr(pm, "SOLVED_STAGE_COLUMNS", 1.0)
     monkeypatch.setattr(hi, "LEAF_ROWS", 12)
 
 
@@ -145,7 +145,7 @@ def test_a_loose_solves_harmonic_stage_is_the_hierarchical_factorisation(small_t
     ``P_h^-1`` has a backward error below 1e-6 against ``S_h`` plus the harmonic
     projection of the element tangents, and the whole preconditioner (with its exact
     low-rank stage) solves ``J`` to 1e-4.  Where the low-rank stage needs more columns
-    of ``P_h^-1`` than ``HIERARCHICAL_COLUMNS n_r``, the dense stage is built instead."""
+    of ``P_h^-1`` than ``SOLVED_STAGE_COLUMNS n_r``, the dense stage is built instead."""
     import jointsim.solvers.preconditioner as pm
     from jointsim.analyses.hbm import _system
     from jointsim.model import build_model
@@ -163,7 +163,7 @@ def test_a_loose_solves_harmonic_stage_is_the_hierarchical_factorisation(small_t
     s.krylov_rtol = 1e-3
     J = s.evaluate(z, 900.0, F).J
     P = HarmonicPreconditioner(J)
-    assert P.Phier is not None and P.Pinv is None and P.S is None and P.lowrank is not None
+    assert P.Psolve is not None and P.Pinv is None and P.S is None and P.lowrank is not None
     rng = np.random.default_rng(0)
     X = rng.normal(size=(4, s.n_r, 2)) + 1j * rng.normal(size=(4, s.n_r, 2))
     X[0] = X[0].real                           # harmonic 0 is real
@@ -175,7 +175,30 @@ def test_a_loose_solves_harmonic_stage_is_the_hierarchical_factorisation(small_t
     b = rng.normal(size=s.n_z)
     ref = np.linalg.solve(J.to_dense(), b)
     assert np.abs(P.solve(b) - ref).max() <= 1e-4 * np.abs(ref).max()
-    monkeypatch.setattr(pm, "HIERARCHICAL_COLUMNS", 0.0)
+    monkeypatch.setattr(pm, "SOLVED_STAGE_COLUMNS", 0.0)
     P = HarmonicPreconditioner(J)
-    assert P.Phier is None and P.lowrank is not None
+    assert P.Psolve is None and P.lowrank is not None
     assert np.abs(P.solve(b) - ref).max() <= 1e-4 * np.abs(ref).max()
+
+
+def test_the_pieces_shared_with_forked_workers_are_made_once(small_tree, coarse_lap_coupled):
+    """``HBMSystem.prepare_forks`` makes, before workers fork, the stuck flexibility and
+    the hierarchical form for every harmonic up to ``omega_max`` (its quasi-static split
+    at ``2 h_max omega_max``); a system on the same condensation (a worker's, an
+    indicator's) then uses that form at every lower frequency, none made again.  The
+    EPMC's workers (``flexibility=False``) get the form alone."""
+    from jointsim.solvers.hbm import HBMSystem
+    harmonics = tuple(range(8))
+    system = HBMSystem(coarse_lap_coupled, harmonics, 32, linear_solver="krylov")
+    system.prepare_forks(400.0, flexibility=False)
+    assert "flexibility" not in vars(system.lin)
+    system.prepare_forks(400.0)
+    assert vars(system.lin)["flexibility"] is not None
+    hier = hi.InterfaceHierarchy.of(system.lin)
+    form = hier._form
+    assert form is not None and form.nu_max == 2.0 * 7 * 400.0
+    other = HBMSystem(coarse_lap_coupled, harmonics + (8, 9), 32, linear_solver="krylov",
+                      lin=system.lin)
+    for omega in (250.0, 310.0, 400.0 * 7 / 9):
+        assert other.harmonic_blocks(omega).hierarchical is not None
+    assert hier._form is form

@@ -708,7 +708,7 @@ def test_frequency_cache_is_bit_identical(law, normal):
     v = rng.normal(size=sk.n_z)
     f2.J.form_schur()
     assert np.array_equal(e2.J.matvec(v), f2.J.matvec(v))
-    fresh.omega_cache.clear()          # reconstruct from blocks formed afresh
+    fresh.omega_cache.clear()          # reconstruct at a frequency not kept
     assert np.array_equal(sk.reconstruct(z2, 1.1, F, xi=0.05),
                           fresh.reconstruct(z2, 1.1, F, xi=0.05))
     for w in (1.2, 1.3, 1.4):
