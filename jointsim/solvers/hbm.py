@@ -208,7 +208,8 @@ class HBMSystem:
             cache.pop(next(iter(cache)))
         return got
 
-    def prepare_forks(self, omega_max: float, xi: float = 0.0) -> None:
+    def prepare_forks(self, omega_max: float, xi: float = 0.0,
+                      flexibility: bool = True) -> None:
         """Make the condensation's one-time pieces that the Krylov solves use before
         workers are forked, so that the workers share them instead of each making them
         again: the stuck joint's flexibility (an eigen-decomposition, ``n^3``) and the
@@ -222,11 +223,15 @@ class HBMSystem:
             made for it (``2 h_max omega_max``) serves every frequency below.
         xi : float
             Self-excitation [1/s] (EPMC), as in :meth:`harmonic_blocks`.
+        flexibility : bool
+            Whether the workers use the flexibility (not the EPMC's: its bordered
+            solves are shifted, :class:`~.preconditioner.HarmonicPreconditioner`).
 
         Nothing is made on the direct path, nor at a zero frequency.
         """
         if self.krylov and self.lin.n_r and omega_max > 0.0:
-            self.lin.flexibility
+            if flexibility:
+                self.lin.flexibility
             self.harmonic_blocks(float(omega_max), float(xi)).hierarchical
 
     # -- residual --------------------------------------------------------------

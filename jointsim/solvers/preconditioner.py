@@ -185,7 +185,7 @@ class HarmonicPreconditioner:
         # a loose solve whose low-rank stage needs few columns of P_h^-1: a stage applied
         # by solves (SOLVED_STAGE_COLUMNS), the flexibility's first, else the hierarchical
         loose = by_solves and jac.rtol >= SOLVED_STAGE_RTOL and shift is None
-        flex = jac.lin.flexibility if MODAL_STAGE and modal else None
+        flex = jac.lin.flexibility if MODAL_STAGE and modal and shift is None else None
         self.modal = flex is not None
         if self.modal and loose and nr >= FLEX_SOLVE_MIN_ROWS \
                 and self._few_columns(self._stuck_proj(flex)):
@@ -203,7 +203,7 @@ class HarmonicPreconditioner:
                 if self.proj[key] is not None])
             return
         if self.modal:
-            return self._modal_stage(flex, shift)
+            return self._modal_stage(flex)
         self.S = [jac.schur(i) for i in range(len(jac.basis.harmonics))]
         self.proj = proj()
         # assembled in one stacked (n_h, n_r, n_r) array (jac's read-only S_h copied once)
@@ -267,32 +267,18 @@ class HarmonicPreconditioner:
         sel = self._sel[1]
         return sel is None or min(sel.most, sel.sel.size) <= SOLVED_STAGE_COLUMNS * self.jac.n_r
 
-    def _modal_stage(self, flex, shift=None):
+    def _modal_stage(self, flex):
         """The harmonic stage from the stuck joint's flexibility (``MODAL_STAGE``): ``P_h =
         S_h + diag(k)`` with ``k`` the stuck contact stiffness, its inverses formed from
         the stuck modes (:class:`~jointsim.solvers.flexibility.StuckFlexibility`), no
         ``S_h`` formed; ``proj`` holds ``k`` for every harmonic, so the low-rank stage
-        corrects for every element whose tangent is not the stuck one.  With a
-        ``shift`` (the EPMC's bordered solves) its harmonic's block is formed (``S_h``,
-        its tangent's harmonic projection and the shift) and inverted, the one ``n_r^3``
-        of the stage: the stuck flexibility is singular there where the linear mode is
-        ``J``'s null vector."""
+        corrects for every element whose tangent is not the stuck one."""
         jac = self.jac
         self.S, self.Plu, self.Pinv_double = None, None, {}
         self.proj = self._stuck_proj(flex)
         # (read-only, kept by flex: the builds at one frequency share it)
         Pinv = flex.inverses(np.asarray(jac.basis.harmonics, dtype=float) * self.omega,
                              self.xi)
-        if shift is not None:
-            i, h = shift[0], jac.basis.harmonics[shift[0]]
-            for key, Jb in (("uu", jac.Juu), ("ug", jac.Jug), ("NN", jac.JNN)):
-                if Jb is not None:
-                    self.proj[key][i] = project_tangent(Jb, jac._ic[i], jac._is[i], h)
-            P = np.array(jac.schur(i), dtype=complex)
-            add_projected_tangent(P, jac, i, self.proj)
-            P += self._rank_one(P, i, shift[1], shift[2])
-            Pinv = Pinv.copy()
-            Pinv[i] = _inverse(P[None])[0]
         if jac.rtol >= SINGLE_LU_RTOL:       # a loose solve: single precision throughout
             self.Pinv = Pinv.astype(np.complex64)
             return
@@ -356,8 +342,7 @@ class HarmonicPreconditioner:
         elif self.Psolve is not None:
             build = self.Psolve.build_flops
         elif self.modal:             # the low modes' product (flexibility.StuckFlexibility)
-            build = 4.0 * nh * nr ** 2 * jac.lin.flexibility.n_summed \
-                + (8.0 * nr ** 3 if self.C2 is not None else 0.0)
+            build = 4.0 * nh * nr ** 2 * jac.lin.flexibility.n_summed
         else:
             build = 8.0 * nh * nr ** 3
         apply = 8.0 * nh * nr ** 2 if self.Psolve is None else self.Psolve.apply_flops
