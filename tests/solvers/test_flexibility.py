@@ -163,10 +163,10 @@ def test_modal_preconditioner_is_the_inverse_of_the_jacobian(law, normal, monkey
 def test_a_loose_solves_stage_is_the_flexibility_applied_by_solves(monkeypatch):
     """A loose solve (the error indicators' GMRES tolerance) whose low-rank stage keeps at
     most ``SOLVED_STAGE_COLUMNS n_r`` row blocks takes the flexibility applied by solves
-    (:class:`~jointsim.solvers.flexibility.FlexibilitySolve`, no inverse formed); with its
-    low-rank stage the preconditioner is the inverse of ``J`` (the dense solve; to single
-    precision with a low-rank stage, whose LU is in float32 for a loose solve).  A
-    state with more row blocks forms the inverses instead.  The choice is made from each
+    (:class:`~jointsim.solvers.flexibility.FlexibilitySolve`, no inverse formed).  At a
+    stuck state (no low-rank stage) the preconditioner is the inverse of ``J`` (the dense
+    solve, 1e-10); with a low-rank stage, to the single precision of its LU (a loose
+    solve's, ``SINGLE_LU_RTOL``).  A state with more row blocks forms the inverses instead.  The choice is made from each
     Jacobian alone: a state gets the same stage before and after another one."""
     model = build_model(four_dof("jenkins", "anchor", "coupled"))
     sd = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="direct")
