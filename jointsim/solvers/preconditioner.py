@@ -187,8 +187,8 @@ class HarmonicPreconditioner:
         loose = by_solves and jac.rtol >= SOLVED_STAGE_RTOL and shift is None
         flex = jac.lin.flexibility if MODAL_STAGE and modal and shift is None else None
         self.modal = flex is not None
-        if self.modal and loose and nr >= FLEX_SOLVE_MIN_ROWS \
-                and self._few_columns(self._stuck_proj(flex)):
+        stuck = self._stuck_proj(flex) if self.modal else None
+        if self.modal and loose and nr >= FLEX_SOLVE_MIN_ROWS and self._few_columns(stuck):
             self.S, self.Plu, self.Pinv, self.Pinv_double = None, None, None, {}
             self.Psolve = FlexibilitySolve(flex, np.asarray(jac.basis.harmonics, dtype=float)
                                            * self.omega, self.xi)
@@ -203,7 +203,7 @@ class HarmonicPreconditioner:
                 if self.proj[key] is not None])
             return
         if self.modal:
-            return self._modal_stage(flex)
+            return self._modal_stage(flex, stuck)
         self.S = [jac.schur(i) for i in range(len(jac.basis.harmonics))]
         self.proj = proj()
         # assembled in one stacked (n_h, n_r, n_r) array (jac's read-only S_h copied once)
@@ -267,15 +267,17 @@ class HarmonicPreconditioner:
         sel = self._sel[1]
         return sel is None or min(sel.most, sel.sel.size) <= SOLVED_STAGE_COLUMNS * self.jac.n_r
 
-    def _modal_stage(self, flex):
+    def _modal_stage(self, flex, stuck):
         """The harmonic stage from the stuck joint's flexibility (``MODAL_STAGE``): ``P_h =
         S_h + diag(k)`` with ``k`` the stuck contact stiffness, its inverses formed from
         the stuck modes (:class:`~jointsim.solvers.flexibility.StuckFlexibility`), no
         ``S_h`` formed; ``proj`` holds ``k`` for every harmonic, so the low-rank stage
-        corrects for every element whose tangent is not the stuck one."""
+        corrects for every element whose tangent is not the stuck one (``stuck``,
+        :meth:`_stuck_proj`: the low-rank stage's selection for it is reused when
+        :meth:`_few_columns` made it)."""
         jac = self.jac
         self.S, self.Plu, self.Pinv_double = None, None, {}
-        self.proj = self._stuck_proj(flex)
+        self.proj = stuck
         # (read-only, kept by flex: the builds at one frequency share it)
         Pinv = flex.inverses(np.asarray(jac.basis.harmonics, dtype=float) * self.omega,
                              self.xi)
