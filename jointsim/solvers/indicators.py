@@ -509,7 +509,9 @@ class ErrorEstimator:
         yx = np.concatenate([zh, [omega, xi, lam]])
         if not REUSE_ACROSS_POINTS:
             ext.preconditioner.forget()
-        ext.preconditioner.single_solve = False     # the extended Newton's steps share it
+        # the extended Newton's steps share it (a truncated low-rank stage is split by
+        # harmonics instead, preconditioner.LOOSE_SPLIT_MIN: its step's alone)
+        ext.preconditioner.single_solve = False
         R, J, ev = epx.fun(yx)
         n_rows = s.n_c * s.n_r
         nzx = ext.n_z

@@ -90,6 +90,11 @@ FLOOR_FACTOR = 1e3
 CAPACITANCE_REFINE = 6
 CAPACITANCE_MARGIN = 0.02
 CAPACITANCE_STEP = 0.03
+#: A bordered solve's capacitance steps (the EPMC indicators') solve ``M^-1`` of the
+#: border columns once, to this relative residual (or tighter), since every step's
+#: bordering uses them: the EPMC's frequency and damping directions are nearly singular,
+#: and at the steps' tolerance they left a step's error at 1e-2 on the four-DOF chain.
+BORDER_RTOL = 1e-6
 #: :meth:`HBMJacobian.solve_uncoupled` by the stuck flexibility: at most this many
 #: refinement steps against ``J`` (each gains about the flexibility's accuracy, 1e-8
 #: off a stuck resonance and 3e-6 at one, :mod:`~jointsim.solvers.flexibility`).
@@ -406,9 +411,16 @@ class HBMJacobian:
     def solve(self, b, rtol=None) -> np.ndarray:
         """``J^-1 b`` by preconditioned GMRES to ``rtol`` (default and least
         :attr:`rtol`; see :func:`krylov_solve`)."""
-        return krylov_solve(self, self.matvec, np.asarray(b, dtype=float),
-                            lambda P: (lambda v: P.apply(v, self)), rtol=rtol,
-                            capacitance=True)
+        b = np.asarray(b, dtype=float)
+        col = self.col[:, None] if b.ndim == 2 else self.col
+
+        def capacitance(P):     # J^-1 by the capacitance solves (not of a shifted P)
+            def step(r, tau):
+                dx, it = P.solve_capacitance(r, tau)
+                return dx / col, it
+            return step if P.C2 is None else None
+        return krylov_solve(self, self.matvec, b, lambda P: (lambda v: P.apply(v, self)),
+                            rtol=rtol, capacitance=capacitance)
 
 
 def fill_harmonic_blocks(J, S, basis) -> None:
@@ -454,7 +466,7 @@ def add_element_blocks(J, nr, nc, t_row, n_row, Juu, Jug, JNN):
 
 
 def krylov_solve(core: HBMJacobian, matvec, b, make_psolve, shift=None, rtol=None,
-                 capacitance: bool = False):
+                 capacitance=None):
     """GMRES for ``A x = b`` with the preconditioner of ``core`` (cached or rebuilt);
     ``b`` of shape (n,) or (n, k) (the columns in lockstep, :func:`gmres_columns`).
 
@@ -492,10 +504,12 @@ def krylov_solve(core: HBMJacobian, matvec, b, make_psolve, shift=None, rtol=Non
     # A v - B E^-1 (B' v)
     P, fresh = cache.get(core, shift)
     total, x = 0, None
-    if capacitance and fresh and P.capacitance_solves:
+    step = capacitance(P) if capacitance is not None and fresh and P.capacitance_solves \
+        else None
+    if step is not None:
         # a split low-rank stage: GMRES on its capacitance system, refined on the
         # system itself (its P^-1 and G are in single precision), then checked below
-        x, total = _capacitance_refined(P, core, matvec, b, rtol)
+        x, total = _capacitance_refined(step, matvec, b, rtol)
     while True:
         # a reused preconditioner gets a short budget before it is rebuilt, and so does
         # a partial one (the harmonic stage of an earlier build, SHARE_HARMONIC_STAGE)
@@ -524,14 +538,14 @@ def krylov_solve(core: HBMJacobian, matvec, b, make_psolve, shift=None, rtol=Non
     return x
 
 
-def _capacitance_refined(P, core: HBMJacobian, matvec, b, rtol: float):
+def _capacitance_refined(step, matvec, b, rtol: float):
     """``x`` with ``|b - A x| <= CAPACITANCE_MARGIN rtol |b|`` per column, or the last of
-    ``CAPACITANCE_REFINE`` steps: each solves the residual's equation by
+    ``CAPACITANCE_REFINE`` steps: each, ``step(r, tau) -> (dx, GMRES iterations)``,
+    solves the residual's equation by
     :meth:`~jointsim.solvers.preconditioner.HarmonicPreconditioner.solve_capacitance`
     (to ``CAPACITANCE_MARGIN rtol |b|``, or to ``CAPACITANCE_STEP`` of the residual when
     that is looser: a step's gain is limited by its single precision) and the
     residual is recomputed with ``matvec``.  Returns ``(x, GMRES iterations)``."""
-    col = core.col[:, None] if b.ndim == 2 else core.col
     bn = np.linalg.norm(b, axis=0)
     x, r, total = np.zeros_like(b), b, 0
     target = CAPACITANCE_MARGIN * rtol
@@ -540,9 +554,9 @@ def _capacitance_refined(P, core: HBMJacobian, matvec, b, rtol: float):
         if np.all(rn <= target * bn) or not np.all(np.isfinite(rn)):
             break       # done, or failed (GMRES on the system then starts from zero)
         tau = max(target * float(np.min(bn[rn > 0] / rn[rn > 0])), CAPACITANCE_STEP)
-        dx, it = P.solve_capacitance(r, tau)
+        dx, it = step(r, tau)
         total += it
-        x = x + dx / col
+        x = x + dx
         r = b - matvec(x)
     return x, total
 
@@ -642,30 +656,47 @@ class BorderedJacobian:
             u = c[J._ic[i]] - 1j * (c[J._is[i]] if not J._h0[i] else 0.0)
             shift = (i, u, ell)
 
+        def bordering(P):
+            """``C + C2 D_2`` and ``v -> v + C2 t_2`` for ``P``'s shift."""
+            C2 = getattr(P, "C2", None)
+            if C2 is None or R.shape[0] < 2:
+                return C, lambda v: v[:nz]
+            return C + C2 @ D[:2], lambda v: v[:nz] + C2 @ v[nz:nz + 2]
+
         def make_psolve(P):
             def pj(v):
                 return P.apply(v, J)
-            C2 = getattr(P, "C2", None)
-            if C2 is None or R.shape[0] < 2:
-                Ce = C
-                def lift(v):
-                    return v[:nz]
-            else:
-                Ce = C + C2 @ D[:2]
-
-                def lift(v):
-                    return v[:nz] + C2 @ v[nz:nz + 2]
+            Ce, lift = bordering(P)
             X = np.column_stack([pj(c) for c in Ce.T])
-            Sm = D - R @ X
-            Sinv = np.linalg.pinv(Sm)
+            Sinv = np.linalg.pinv(D - R @ X)
 
             def psolve(v):
                 w = pj(lift(v))
                 s = Sinv @ (v[nz:] - R @ w)
                 return np.concatenate([w - X @ s, s])
             return psolve
+
+        def capacitance(P):
+            """The bordering's steps with ``M^-1`` by the capacitance solves of a split
+            low-rank stage (``M`` holds the shift: the EPMC indicators' loose solves)."""
+            Ce, lift = bordering(P)
+            col = J.col[:, None]
+            got = {}
+
+            def step(r, tau):
+                r2 = r.reshape(r.shape[0], -1)
+                it = 0
+                if "X" not in got:      # M^-1 (C + C2 D_2), once (BORDER_RTOL)
+                    X, it = P.solve_capacitance(Ce, min(tau, BORDER_RTOL))
+                    got["X"] = X / col
+                    got["Sinv"] = np.linalg.pinv(D - R @ got["X"])
+                Y, more = P.solve_capacitance(lift(r2), tau)
+                Y = Y / col
+                s = got["Sinv"] @ (r2[nz:] - R @ Y)
+                return np.concatenate([Y - got["X"] @ s, s]).reshape(r.shape), it + more
+            return step
         return krylov_solve(J, self.matvec, np.asarray(b, dtype=float), make_psolve, shift,
-                            rtol=rtol)
+                            rtol=rtol, capacitance=capacitance)
 
 
 # --------------------------------------------------------------------------

@@ -61,6 +61,8 @@ SINGLE_LU_MIN = 1000
 #: capacitance system (:meth:`HarmonicPreconditioner.solve_capacitance`): GMRES on
 #: ``I + L_r G`` preconditioned by its blocks of one harmonic each (``G`` couples a
 #: harmonic with itself only), refined on the system itself; ``inf``: never (round 34).
+#: So does any other loose solve whose correction would be truncated (an EPMC point's
+#: extended Newton steps, bordered and shifted: round 40).
 LOOSE_SPLIT_MIN = 1000
 #: Elements whose harmonic coupling ``|L_e|`` is below this fraction of the largest
 #: tangent entry are left out of the low-rank stage (in the stuck range the AFT's
@@ -93,10 +95,13 @@ SOLVED_STAGE_COLUMNS = 0.1
 FLEX_SOLVE_MIN_ROWS = 400
 HIERARCHICAL_STAGE_MIN_ROWS = 800
 #: The harmonic stage from the stuck joint's flexibility where it applies
-#: (:class:`~jointsim.solvers.flexibility.StuckFlexibility`; not with a shift, and not
-#: where the low-rank stage would be truncated): ``P_h = S_h + diag(k)`` formed from the
-#: stuck modes, no ``S_h`` and no ``n_r^3`` inverse.
+#: (:class:`~jointsim.solvers.flexibility.StuckFlexibility`; not where the low-rank stage
+#: would be truncated): ``P_h = S_h + diag(k)`` formed from the stuck modes, no ``S_h``
+#: and no ``n_r^3`` inverse.  With a shift (the EPMC's bordered solves) only from
+#: ``SHIFTED_FLEX_MIN_ROWS`` rows and near the stuck joint (at most
+#: ``SOLVED_STAGE_COLUMNS n_r`` row blocks): docs/hbm.md, "Round 40".
 MODAL_STAGE = True
+SHIFTED_FLEX_MIN_ROWS = 400
 
 
 def _inverse(blocks) -> np.ndarray:
@@ -185,9 +190,11 @@ class HarmonicPreconditioner:
         # a loose solve whose low-rank stage needs few columns of P_h^-1: a stage applied
         # by solves (SOLVED_STAGE_COLUMNS), the flexibility's first, else the hierarchical
         loose = by_solves and jac.rtol >= SOLVED_STAGE_RTOL and shift is None
-        flex = jac.lin.flexibility if MODAL_STAGE and modal and shift is None else None
-        self.modal = flex is not None
-        stuck = self._stuck_proj(flex) if self.modal else None
+        flex = jac.lin.flexibility if MODAL_STAGE and modal else None
+        stuck = self._stuck_proj(flex) if flex is not None else None
+        # shifted (the EPMC's bordered solves): large, and near the stuck joint (few columns)
+        self.modal = flex is not None and (shift is None or (
+            nr >= SHIFTED_FLEX_MIN_ROWS and self._few_columns(stuck)))
         if self.modal and loose and nr >= FLEX_SOLVE_MIN_ROWS and self._few_columns(stuck):
             self.S, self.Plu, self.Pinv, self.Pinv_double = None, None, None, {}
             self.Psolve = FlexibilitySolve(flex, np.asarray(jac.basis.harmonics, dtype=float)
@@ -203,7 +210,7 @@ class HarmonicPreconditioner:
                 if self.proj[key] is not None])
             return
         if self.modal:
-            return self._modal_stage(flex, stuck)
+            return self._modal_stage(flex, stuck, shift)
         self.S = [jac.schur(i) for i in range(len(jac.basis.harmonics))]
         self.proj = proj()
         # assembled in one stacked (n_h, n_r, n_r) array (jac's read-only S_h copied once)
@@ -267,20 +274,29 @@ class HarmonicPreconditioner:
         sel = self._sel[1]
         return sel is None or min(sel.most, sel.sel.size) <= SOLVED_STAGE_COLUMNS * self.jac.n_r
 
-    def _modal_stage(self, flex, stuck):
+    def _modal_stage(self, flex, stuck, shift=None):
         """The harmonic stage from the stuck joint's flexibility (``MODAL_STAGE``): ``P_h =
         S_h + diag(k)`` with ``k`` the stuck contact stiffness, its inverses formed from
         the stuck modes (:class:`~jointsim.solvers.flexibility.StuckFlexibility`), no
         ``S_h`` formed; ``proj`` holds ``k`` for every harmonic, so the low-rank stage
         corrects for every element whose tangent is not the stuck one (``stuck``,
         :meth:`_stuck_proj`: the low-rank stage's selection for it is reused when
-        :meth:`_few_columns` made it)."""
+        :meth:`_few_columns` made it).  With a ``shift`` the shifted harmonic's block,
+        ``S_h + diag(k)`` plus the shift, is inverted (the flexibility is singular there,
+        where the linear mode is ``J``'s null vector)."""
         jac = self.jac
         self.S, self.Plu, self.Pinv_double = None, None, {}
         self.proj = stuck
         # (read-only, kept by flex: the builds at one frequency share it)
         Pinv = flex.inverses(np.asarray(jac.basis.harmonics, dtype=float) * self.omega,
                              self.xi)
+        if shift is not None:
+            i = shift[0]
+            P = np.array(jac.schur(i), dtype=complex)
+            add_projected_tangent(P, jac, i, stuck)
+            P += self._rank_one(P, i, shift[1], shift[2])
+            Pinv = Pinv.copy()
+            Pinv[i] = _inverse(P[None])[0]
         if jac.rtol >= SINGLE_LU_RTOL:       # a loose solve: single precision throughout
             self.Pinv = Pinv.astype(np.complex64)
             return
@@ -344,7 +360,8 @@ class HarmonicPreconditioner:
         elif self.Psolve is not None:
             build = self.Psolve.build_flops
         elif self.modal:             # the low modes' product (flexibility.StuckFlexibility)
-            build = 4.0 * nh * nr ** 2 * jac.lin.flexibility.n_summed
+            build = 4.0 * nh * nr ** 2 * jac.lin.flexibility.n_summed \
+                + (8.0 * nr ** 3 if self.C2 is not None else 0.0)
         else:
             build = 8.0 * nh * nr ** 3
         apply = 8.0 * nh * nr ** 2 if self.Psolve is None else self.Psolve.apply_flops
@@ -436,17 +453,15 @@ class HarmonicPreconditioner:
 
         def blocks(fraction):           # row blocks in a correction of that many coordinates
             return int(min(max(fraction * jac.n_z, LOWRANK_MIN), limit)) // nc
-        nh = len(jac.basis.harmonics)
-        n_groups = 1
+        # a raised limit truncates to itself, not to LOWRANK_MAX_FRACTION
+        most = sel.size if sel.size <= blocks(LOWRANK_EXACT_FRACTION) else \
+            blocks(LOWRANK_EXACT_FRACTION if limit > LOWRANK_MAX else LOWRANK_MAX_FRACTION)
         if jac.rtol >= SINGLE_LU_RTOL and sel.size * nc > LOOSE_SPLIT_MIN \
-                and jac.cache.single_solve:
-            # a loose solve: every row block, the correction split by harmonics
-            # (solve_capacitance)
-            n_groups, most = nh, sel.size
-        else:       # a raised limit truncates to itself, not to LOWRANK_MAX_FRACTION
-            most = sel.size if sel.size <= blocks(LOWRANK_EXACT_FRACTION) else \
-                blocks(LOWRANK_EXACT_FRACTION if limit > LOWRANK_MAX else LOWRANK_MAX_FRACTION)
-        return RowBlocks(rows, nb, Lb, norm, sel, most, n_groups)
+                and (jac.cache.single_solve or most < sel.size):
+            # a loose solve, one per preconditioner or else truncated: every row block,
+            # the correction split by harmonics (solve_capacitance)
+            return RowBlocks(rows, nb, Lb, norm, sel, sel.size, len(jac.basis.harmonics))
+        return RowBlocks(rows, nb, Lb, norm, sel, most, 1)
 
     def _lowrank(self):
         """Exact correction for the elements whose tangent couples harmonics.
@@ -726,13 +741,14 @@ class HarmonicPreconditioner:
     @property
     def capacitance_solves(self) -> bool:
         """Whether :meth:`solve_capacitance` applies: a low-rank stage split into
-        harmonic groups, neither truncated nor shifted."""
+        harmonic groups, not truncated (with a shift it solves ``J + C2 R2``)."""
         return self.lowrank is not None and self.lowrank.full is not None \
-            and self.Binv is None and self.C2 is None
+            and self.Binv is None
 
     def solve_capacitance(self, b, rtol: float):
-        """``J^-1 b`` for the unscaled ``J``, by GMRES on the low-rank stage's capacitance
-        system (:attr:`capacitance_solves`; the error indicators' extended solves).
+        """``J^-1 b`` for the unscaled ``J`` (``(J + C2 R2)^-1 b`` with a shift), by GMRES on
+        the low-rank stage's capacitance system (:attr:`capacitance_solves`; the error
+        indicators' extended solves).
 
         Woodbury with the whole ``L_r`` (the terms between harmonic groups included):
         ``x = y - P^-1 E_r s``, ``y = P^-1 b``, ``(I + L_r G) s = L_r E_c^T y``.  Then

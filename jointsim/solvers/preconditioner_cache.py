@@ -119,8 +119,8 @@ class PreconditionerCache:
         self.stage_iterations = None
         #: each preconditioner serves one solve (the FRC points' extended solves of the
         #: error indicators): a loose one may split its low-rank stage by harmonics
-        #: and be solved through its capacitance system (``LOOSE_SPLIT_MIN``); set by
-        #: the caller
+        #: and be solved through its capacitance system (``LOOSE_SPLIT_MIN``; a split
+        #: one is kept for its own Jacobian only); set by the caller
         self.single_solve = False
         #: the harmonic stage's inverses may be in single precision
         #: (``preconditioner.SINGLE_INVERSE_MIN``): an FRC branch's continuation sets it
@@ -242,7 +242,8 @@ class PreconditionerCache:
                              iterations, self.lowrank_max)
             if self.current is self.stage and self.stage_iterations is None:
                 self.stage_iterations = int(iterations)
-            if iterations > self.threshold():
+            # a split low-rank stage (its capacitance solves) is weak on another Jacobian
+            if iterations > self.threshold() or getattr(P, "capacitance_solves", False):
                 self.exclusive = True
         elif iterations > self.threshold():
             self.forget()

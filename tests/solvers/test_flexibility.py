@@ -137,8 +137,11 @@ def test_modal_preconditioner_is_the_inverse_of_the_jacobian(law, normal, monkey
     """At a state with stick, slip and separation the preconditioner from the stuck
     flexibility (its low-rank stage correcting every element whose tangent is not the
     stuck one) is the inverse of ``J``: the dense solve, GMRES in one iteration.  Where
-    its low-rank stage would be truncated, or with a shift (the EPMC's bordered
-    solves), the blocks are inverted instead."""
+    its low-rank stage would be truncated the blocks are inverted instead.  With a shift
+    (the EPMC's bordered solves) it is taken only from ``SHIFTED_FLEX_MIN_ROWS`` rows and
+    near the stuck joint (few elements off the stuck tangent), the shifted harmonic's
+    block inverted: there it is the same preconditioner of ``J + C2 R2`` as the
+    inverted blocks'."""
     model = build_model(four_dof(law, "anchor", normal))
     sd = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="direct")
     sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
@@ -152,8 +155,19 @@ def test_modal_preconditioner_is_the_inverse_of_the_jacobian(law, normal, monkey
     assert np.abs(P.solve(v) - xd).max() <= 1e-10 * np.abs(xd).max()
     x, it, _, _ = gmres(J.matvec, v, P.solve, rtol=1e-11)
     assert it == 1 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
-    u = np.ones(sk.n_r, dtype=complex)
-    assert not HarmonicPreconditioner(J, shift=(1, u, u)).modal
+    u = np.linspace(1.0, 2.0, sk.n_r) * np.exp(0.3j)
+    Jstuck = sk.evaluate(z * 1e-7, 1.1, F).J
+    assert not HarmonicPreconditioner(Jstuck, shift=(1, u, u.conj())).modal   # small
+    monkeypatch.setattr(pm, "SHIFTED_FLEX_MIN_ROWS", 0)
+    assert not HarmonicPreconditioner(J, shift=(1, u, u.conj())).modal
+    Ps = HarmonicPreconditioner(Jstuck, shift=(1, u, u.conj()))
+    monkeypatch.setattr(pm, "MODAL_STAGE", False)
+    Pd = HarmonicPreconditioner(Jstuck, shift=(1, u, u.conj()))
+    monkeypatch.setattr(pm, "MODAL_STAGE", True)
+    assert Ps.modal and not Pd.modal and Ps.lowrank is None
+    assert np.allclose(Ps.C2, Pd.C2, rtol=1e-12, atol=0.0)
+    xs, xd = Ps.solve(v), Pd.solve(v)
+    assert np.abs(xs - xd).max() <= 1e-10 * np.abs(xd).max()
     monkeypatch.setattr(pm, "LOWRANK_MIN", 0)
     monkeypatch.setattr(pm, "LOWRANK_MAX", sk.n_c)        # one row block: truncated
     Pt = HarmonicPreconditioner(J)

@@ -185,12 +185,10 @@ def test_the_pieces_shared_with_forked_workers_are_made_once(small_tree, coarse_
     """``HBMSystem.prepare_forks`` makes, before workers fork, the stuck flexibility and
     the hierarchical form for every harmonic up to ``omega_max`` (its quasi-static split
     at ``2 h_max omega_max``); a system on the same condensation (a worker's, an
-    indicator's) then uses that form at every lower frequency, none made again.  The
-    EPMC's workers (``flexibility=False``) get the form alone."""
+    indicator's) then uses that form at every lower frequency, none made again."""
     from jointsim.solvers.hbm import HBMSystem
     harmonics = tuple(range(8))
     system = HBMSystem(coarse_lap_coupled, harmonics, 32, linear_solver="krylov")
-    system.prepare_forks(400.0, flexibility=False)
     assert "flexibility" not in vars(system.lin)
     system.prepare_forks(400.0)
     assert vars(system.lin)["flexibility"] is not None

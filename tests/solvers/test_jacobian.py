@@ -493,8 +493,11 @@ def test_loose_lowrank_stage_split_by_harmonics_and_its_capacitance_solve(normal
     assert np.abs(P.solve(v) - xd).max() > 1e-3 * np.abs(xd).max()
     xc, it = P.solve_capacitance(v, 1e-10)
     assert it > 1 and np.abs(xc - xd).max() <= 1e-4 * np.abs(xd).max()
+    def step(r, tau):
+        dx, it = P.solve_capacitance(r, tau)
+        return dx / Jl.col, it
     for rtol in (1e-3, 1e-9):
-        x, _ = jm._capacitance_refined(P, Jl, Jl.matvec, v, rtol)
+        x, _ = jm._capacitance_refined(step, Jl.matvec, v, rtol)
         assert np.linalg.norm(Jl.matvec(x) - v) <= rtol * np.linalg.norm(v)
     assert np.abs(x - xd).max() <= 1e-7 * np.abs(xd).max()
     # and through the solve itself (two columns)
@@ -513,6 +516,57 @@ def test_loose_lowrank_stage_split_by_harmonics_and_its_capacitance_solve(normal
     assert np.linalg.norm(Jl.matvec(x) - v) <= 1e-3 * np.linalg.norm(v)
     monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", np.inf)                # off: one group
     assert len(HarmonicPreconditioner(Jl).lowrank.sizes) == 1
+
+
+def test_a_truncated_loose_bordered_solve_goes_through_the_capacitance_system(monkeypatch):
+    """An EPMC point's extended Newton step (loose, bordered, its preconditioner shifted)
+    whose low-rank correction would be truncated keeps every row block, split by
+    harmonics, and does the bordering with capacitance solves of ``M = J + C2 R2``: the
+    dense solution to the tolerance asked, two columns at once, GMRES on the system
+    finishing in a few iterations.  The split preconditioner is then kept for that
+    Jacobian only.  Four-DOF Jenkins chain with coupled N, a state with slip and
+    separation; the limits lowered so that the chain's correction would be truncated."""
+    import jointsim.solvers.jacobian as jm
+    import jointsim.solvers.preconditioner as pm
+    from jointsim.solvers.epmc import EPMCSystem
+    from jointsim.solvers.modes import elastic_mode
+    model = build_model(four_dof("jenkins", "anchor", "coupled"))
+    sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    sk.krylov_rtol = 1e-3
+    ep = EPMCSystem(sk, elastic_mode(model, 1).phi, sk.force_coefficients(0.0))
+    rng = np.random.default_rng(5)
+    y = np.concatenate([rng.normal(size=sk.n_z) * 0.4, [1.1, 0.01, 0.0]])
+    A = jm.drop_last_column(ep.fun(y)[1])
+    assert A.deflate is not None
+    b = rng.normal(size=(A.shape[0], 2))
+    xd = np.linalg.solve(A.to_dense(), b)
+    monkeypatch.setattr(pm, "LOWRANK_MIN", 0)
+    monkeypatch.setattr(pm, "LOWRANK_MAX", sk.n_c)        # one row block: truncated
+    monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
+    used, refine = [], jm._capacitance_refined
+    monkeypatch.setattr(jm, "_capacitance_refined", lambda *a: used.append(a) or refine(*a))
+    iterations = []
+    count = jm.gmres_columns
+    monkeypatch.setattr(jm, "gmres_columns",
+                        lambda *a, **kw: iterations.append(count(*a, **kw)) or iterations[-1])
+    x = A.solve(b)
+    P = sk.preconditioner.current
+    assert used and P.C2 is not None and P.capacitance_solves and not P.truncated
+    assert len(P.lowrank.sizes) == len(sk.basis.harmonics)
+    for k in range(2):
+        assert np.linalg.norm(A.matvec(x[:, k]) - b[:, k]) <= 1e-3 * np.linalg.norm(b[:, k])
+        assert np.abs(x[:, k] - xd[:, k]).max() <= 1e-2 * np.abs(xd[:, k]).max()
+    assert max(c.iterations for c in iterations[-1]) <= 3
+    # one step of the bordering, its capacitance solves to 1e-10: the dense solution to
+    # the single precision of the split stage
+    x1, _ = used[0][0](b, 1e-10)
+    assert np.abs(x1 - xd).max() <= 1e-4 * np.abs(xd).max()
+    assert sk.preconditioner.exclusive             # not offered to the next Jacobian
+    # without the lowered limits the chain's correction is whole: no split, one LU
+    monkeypatch.undo()
+    sk.preconditioner.forget()
+    A.solve(b)
+    assert not sk.preconditioner.current.capacitance_solves
 
 
 def test_lowrank_stage_is_exact_up_to_its_fraction_and_truncated_beyond(monkeypatch):
