@@ -480,7 +480,10 @@ def krylov_solve(core: HBMJacobian, matvec, b, make_psolve, shift=None, rtol=Non
     :mod:`jointsim.solvers.newton`) or when a restart cycle stagnates
     (:func:`gmres`).  Raises ``RuntimeError`` when GMRES does not reach
     ``KRYLOV_RTOL`` and reduces the residual by less than ``1e-6`` (Newton treats
-    that as a singular Jacobian).
+    that as a singular Jacobian).  ``capacitance(P)``, for a fresh preconditioner
+    whose low-rank stage is split (:attr:`~.preconditioner.HarmonicPreconditioner.
+    capacitance_solves`), gives the step of :func:`_capacitance_refined` (or None),
+    which solves first.
     """
     cache, stats = core.cache, core.stats
     rtol = core.rtol if rtol is None else max(core.rtol, float(rtol))
