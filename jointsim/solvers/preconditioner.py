@@ -290,22 +290,24 @@ class HarmonicPreconditioner:
         # (read-only, kept by flex: the builds at one frequency share it)
         Pinv = flex.inverses(np.asarray(jac.basis.harmonics, dtype=float) * self.omega,
                              self.xi)
+        shifted = None
         if shift is not None:
             i = shift[0]
             P = np.array(jac.schur(i), dtype=complex)
             add_projected_tangent(P, jac, i, stuck)
             P += self._rank_one(P, i, shift[1], shift[2])
-            Pinv = Pinv.copy()
-            Pinv[i] = _inverse(P[None])[0]
-        if jac.rtol >= SINGLE_LU_RTOL:       # a loose solve: single precision throughout
+            shifted = (i, _inverse(P[None])[0])
+        single = None if jac.rtol >= SINGLE_LU_RTOL else self._single_harmonics()
+        if single is None or single.any():     # single precision (all for a loose solve)
             self.Pinv = Pinv.astype(np.complex64)
-            return
-        single = self._single_harmonics()
-        if single.any():
-            self.Pinv = Pinv.astype(np.complex64)
-            self.Pinv_double = {i: Pinv[i] for i in np.flatnonzero(~single).tolist()}
-        else:
-            self.Pinv = Pinv
+            if single is not None:
+                self.Pinv_double = {h: Pinv[h] for h in np.flatnonzero(~single).tolist()}
+        else:       # (flex's array is read-only: copied where a block is replaced)
+            self.Pinv = Pinv if shifted is None else Pinv.copy()
+        if shifted is not None:
+            self.Pinv[shifted[0]] = shifted[1]
+            if shifted[0] in self.Pinv_double:
+                self.Pinv_double[shifted[0]] = shifted[1]
 
     def _inverse_times(self, X) -> np.ndarray:
         """``P_h^-1 X[h]`` for every harmonic; ``X`` (n_h, n_r, k) complex."""
