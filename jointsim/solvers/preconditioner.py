@@ -190,11 +190,11 @@ class HarmonicPreconditioner:
         # a loose solve whose low-rank stage needs few columns of P_h^-1: a stage applied
         # by solves (SOLVED_STAGE_COLUMNS), the flexibility's first, else the hierarchical
         loose = by_solves and jac.rtol >= SOLVED_STAGE_RTOL and shift is None
-        flex = jac.lin.flexibility if MODAL_STAGE and modal else None
-        stuck = self._stuck_proj(flex) if flex is not None else None
         # shifted (the EPMC's bordered solves): large, and near the stuck joint (few columns)
-        self.modal = flex is not None and (shift is None or (
-            nr >= SHIFTED_FLEX_MIN_ROWS and self._few_columns(stuck)))
+        flex = jac.lin.flexibility if MODAL_STAGE and modal and (
+            shift is None or nr >= SHIFTED_FLEX_MIN_ROWS) else None
+        stuck = self._stuck_proj(flex) if flex is not None else None
+        self.modal = flex is not None and (shift is None or self._few_columns(stuck))
         if self.modal and loose and nr >= FLEX_SOLVE_MIN_ROWS and self._few_columns(stuck):
             self.S, self.Plu, self.Pinv, self.Pinv_double = None, None, None, {}
             self.Psolve = FlexibilitySolve(flex, np.asarray(jac.basis.harmonics, dtype=float)
