@@ -59,6 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._masing_kernels import references
+from .contact._kernels import march_manifold_periodic
 
 #: Relative closeness to ``mu N`` that counts as slipping.
 SLIP_RTOL = 1e-9
@@ -266,6 +267,8 @@ class ControlReport:
         control is on it; off it while the control is off too (the control
         loop did not close within the replayed periods, so nothing can be
         attributed); unloaded (N <= 0 over the period).
+    periods : int
+        Most periods any element's control marched.
     """
 
     f: np.ndarray
@@ -291,9 +294,11 @@ def replay_control(u, f, N, law, physical, tol: float = 0.01, max_periods: int =
     """Replay steady loops through the manifold law and attribute the physical departures.
 
     Both laws start from rest at ``u = 0`` (where the AFT kernels start) and
-    march whole periods of the stored samples, in blocks of ``block`` periods,
-    until the control force repeats to ``periodic_tol`` (relative to max
-    ``mu N``) or ``max_periods`` were marched; the last period is kept.  The
+    march whole periods of the stored samples.  Each element's control is
+    checked every ``block`` periods and stops once its force repeats to
+    ``periodic_tol`` (relative to its max ``mu N``) or ``max_periods`` were
+    marched (:func:`jointsim.contact._kernels.march_manifold_periodic`); its
+    last period is kept.  The
     control need not close quickly: under a varying N an element that does
     not slip has no closed loop on its manifold inside ``+-mu N`` (its scaled
     reference force drifts by about ``kt (max u - min u) (N_max / N_min - 1)``
@@ -339,16 +344,9 @@ def replay_control(u, f, N, law, physical, tol: float = 0.01, max_periods: int =
     norm = np.where(norm > 0.0, norm, 1.0)
     # the physical law: one period more than the AFT's periodic state needs is plenty
     fp = law.march(np.tile(u, 3), np.tile(N, 3), law.rest_state(N[:, 0]))[0][:, -n:]
-    uu, NN = np.tile(u, block), np.tile(N, block)
-    state = ctrl.rest_state(N[:, 0])
-    marched = 0
-    while True:
-        fc, _, _, state = ctrl.march(uu, NN, state)
-        marched += block
-        last, prev = fc[:, -n:], fc[:, -2 * n:-n]
-        change = np.abs(last - prev).max(axis=1) / norm
-        if change.max() <= periodic_tol or marched >= max_periods:
-            break
+    last, change, marched, _ = march_manifold_periodic(
+        u, N, ctrl.k, ctrl.g, ctrl.rest_state(N[:, 0]), norm, block, max_periods,
+        periodic_tol)
     rep = check_loops(u, last, N, ctrl, tol)
     excess = rep.manifold_excess
     loaded = (N > 0.0).any(axis=1)
@@ -367,4 +365,4 @@ def replay_control(u, f, N, law, physical, tol: float = 0.01, max_periods: int =
     cause[~loaded] = CAUSE_UNLOADED
     return ControlReport(f=last, report=rep, excess=excess, periodicity=change,
                          replay_error=np.abs(fp - f).max(axis=1) / norm, cause=cause,
-                         periods=marched)
+                         periods=int(marched.max(initial=0)))

@@ -73,3 +73,32 @@ def test_law_without_slip_has_no_control():
     u, N = np.cos(T)[None], (5.0 + 0 * T)[None]
     f = law.march(u, N, law.rest_state([5.0]))[0]
     assert replay_control(u, f, N, law, check_loops(u, f, N, law)) is None
+
+
+def test_periodic_manifold_march_stops_each_element_on_its_own():
+    """Two elements, one that closes at once (constant N) and one that drifts for about
+    14 periods (the stuck element above, with N = 5 + 0.3 cos t): each stops at its own check and its last period
+    is bit for bit the tiled march's of as many periods; a cap ends the drifting one."""
+    from jointsim.contact._kernels import march_manifold_periodic
+    n = 256
+    t = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    u = np.stack([np.sin(t), 0.1 * np.cos(t)])
+    N = np.stack([5.0 + 0 * t, 5.0 + 0.3 * np.cos(t)])
+    law = tangential_law("jenkins", "manifold", Joint(reversal="manifold", mu=0.1, kt=1.0),
+                         [1.0, 1.0])
+    s0 = law.rest_state(N[:, 0])
+    scale = law.slip_force(N).max(axis=1)
+    for block, cap in ((5, 400), (3, 7)):
+        f, change, periods, _ = march_manifold_periodic(u, N, law.k, law.g, s0, scale,
+                                                        block, cap, 1e-12)
+        assert periods[0] == block                       # closed at its first check
+        for e in range(2):
+            p = periods[e]
+            ref = law.march(np.tile(u[e:e + 1], p), np.tile(N[e:e + 1], p), s0[e:e + 1])[0]
+            np.testing.assert_array_equal(f[e], ref[0, -n:])
+            before = np.abs(ref[0, -n:] - ref[0, -2 * n:-n]).max() / scale[e]
+            assert change[e] == before
+        if cap == 7:
+            assert periods[1] == 7 and change[1] > 1e-6  # stopped by the cap, not closed
+        else:
+            assert block < periods[1] < cap and change[1] <= 1e-12

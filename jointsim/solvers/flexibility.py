@@ -88,7 +88,8 @@ class StuckFlexibility:
         self.Psi_d = np.ascontiguousarray(self.Psi[:, self.damped])
         self.n_r = self.Psi.shape[0]
         self._series = None        # (nu_max, undamped low modes' Psi and lam, C (P, n_r, n_r))
-        self._last = None          # ((nus, xi), inverses) of the last call of inverses
+        self._scaled = {}          # the series' nu_max^(2p) C_p as (P, n_r^2), per real dtype
+        self._last = {}            # precision -> ((nus, xi), inverses) of its last call
 
     @property
     def n_summed(self) -> int:
@@ -174,12 +175,22 @@ class StuckFlexibility:
         low = ~high & free
         sr = (nu_max, np.ascontiguousarray(self.Psi[:, low]), self.lam[low], C)
         self._series = sr
+        self._scaled = {}
         log.debug("stuck flexibility: %d damped modes, %d undamped summed, %d quasi-static, "
                   "up to %g rad/s", self.damped.size, int(low.sum()), int(high.sum()), nu_max)
         return sr
 
-    def inverses(self, nus, xi: float = 0.0) -> np.ndarray:
+    def inverses(self, nus, xi: float = 0.0, single: bool = False) -> np.ndarray:
         """``(S_h + diag(k))^-1`` at each frequency.
+
+        The quasi-static series of every harmonic is one real product
+        ``(n_h, P) x (P, n_r^2)`` over ``nu_max^(2p) C_p`` (scaled so that single
+        precision neither overflows nor underflows), written once into the result; the
+        low and the damped modes are added per harmonic, ``A_h B^T`` with ``B = [Psi_L,
+        Psi_d]`` (``n_r x (n_L + n_d)``).  No temporary of the result's size but the
+        series' (round 41, 480 Gauss points, 16 harmonics: 0.13 to 1.0 s -> 0.09 s, and
+        0.05 s in single precision, where the old one's 236 MB of temporaries had to be
+        paged in).
 
         Parameters
         ----------
@@ -187,49 +198,56 @@ class StuckFlexibility:
             Angular frequencies of the harmonics [rad/s] (``h omega``).
         xi : float
             Self-excitation (damping ``C - xi M``) [1/s].
+        single : bool
+            Form them in single precision (complex64; a loose solve's preconditioner,
+            about 1e-6 relative as an operator) instead of double.
 
         Returns
         -------
-        ndarray, shape (n_h, n_r, n_r), complex [m/N]
-            Read-only: the last call's array is kept and returned again for the same
-            ``nus`` and ``xi`` (the solves at one frequency, e.g. a Newton solve's
-            preconditioners, share it).  A zero frequency's block is real.
+        ndarray, shape (n_h, n_r, n_r), complex128 or complex64 [m/N]
+            Read-only: the last call's array of each precision is kept and returned
+            again for the same ``nus`` and ``xi`` (the solves at one frequency, e.g. a
+            Newton solve's preconditioners, share it).  A zero frequency's block is real.
         """
         nus = np.asarray(nus, dtype=float)
         key = (nus.tobytes(), float(xi))
-        last = self._last
+        last = self._last.get(bool(single))
         if last is not None and last[0] == key:
             return last[1]
-        _, PsiL, lamL, C = self._made_for(float(np.abs(nus).max(initial=0.0)))
+        nu_max, PsiL, lamL, C = self._made_for(float(np.abs(nus).max(initial=0.0)))
+        real, cplx = (np.float32, np.complex64) if single else (np.float64, np.complex128)
+        sigma = nu_max ** 2
+        Cs = self._scaled.get(real)
+        if Cs is None:
+            Cs = (C * (sigma ** np.arange(FLEX_ORDER))[:, None, None]).reshape(
+                FLEX_ORDER, -1).astype(real)
+            self._scaled[real] = Cs
         s = nus ** 2 + 1j * nus * xi
-        d = 1.0 / (lamL[None, :] - s[:, None])
-        n_h, n_r, n_l = nus.size, self.n_r, lamL.size
-        out = np.zeros((n_h, n_r, n_r), dtype=complex)
-        if n_l:
-            # the low modes of every harmonic as one real product (n_r, n_L) x (n_L, 2 n_h n_r)
-            right = np.empty((n_l, n_h, 2, n_r))
-            right[:, :, 0, :] = d.real.T[:, :, None] * PsiL.T[:, None, :]
-            right[:, :, 1, :] = d.imag.T[:, :, None] * PsiL.T[:, None, :]
-            prod = (PsiL @ right.reshape(n_l, -1)).reshape(n_r, n_h, 2, n_r)
-            out.real = prod[:, :, 0, :].transpose(1, 0, 2)
-            out.imag = prod[:, :, 1, :].transpose(1, 0, 2)
-        # the quasi-static modes: sum_p s^p C_p
-        powers = s[:, None] ** np.arange(FLEX_ORDER)[None, :]
-        series = np.tensordot(powers.real, C, axes=(1, 0))
-        out.real += series
+        n_h, n_r = nus.size, self.n_r
+        # the quasi-static modes: sum_p (s / sigma)^p (sigma^p C_p)
+        powers = (s / sigma)[:, None] ** np.arange(FLEX_ORDER)[None, :]
+        out = np.empty((n_h, n_r, n_r), dtype=cplx)
+        out.real = (powers.real.astype(real) @ Cs).reshape(n_h, n_r, n_r)
         if xi:
-            out.imag += np.tensordot(powers.imag, C, axes=(1, 0))
-        # the damped modes: Psi_d (diag(lam_d - s) + i nu C_d)^-1 Psi_d^T
-        if self.damped.size:
+            out.imag = (powers.imag.astype(real) @ Cs).reshape(n_h, n_r, n_r)
+        else:
+            out.imag = 0.0
+        # the low modes, Psi_L diag(1 / (lam_L - s)) Psi_L^T, and the damped ones,
+        # Psi_d (diag(lam_d - s) + i nu C_d)^-1 Psi_d^T
+        B = np.hstack([PsiL, self.Psi_d]).astype(real)
+        if B.shape[1]:
             lamd = self.lam[self.damped]
             for i, (nu, si) in enumerate(zip(nus, s)):
-                G = np.linalg.inv(np.diag(lamd - si) + (1j * nu) * self.Cd)
-                A = self.Psi_d @ G                          # (n_r, n_d) complex
-                out[i].real += A.real @ self.Psi_d.T
-                out[i].imag += A.imag @ self.Psi_d.T
+                A = np.empty((n_r, B.shape[1]), dtype=complex)
+                A[:, :lamL.size] = PsiL / (lamL - si)
+                if self.damped.size:
+                    A[:, lamL.size:] = self.Psi_d @ np.linalg.inv(
+                        np.diag(lamd - si) + (1j * nu) * self.Cd)
+                out[i].real += A.real.astype(real) @ B.T
+                out[i].imag += A.imag.astype(real) @ B.T
         out[nus == 0.0] = out[nus == 0.0].real
         out.flags.writeable = False
-        self._last = (key, out)
+        self._last[bool(single)] = (key, out)
         return out
 
     def solve(self, nus, B, xi: float = 0.0) -> np.ndarray:

@@ -287,9 +287,7 @@ class HarmonicPreconditioner:
         jac = self.jac
         self.S, self.Plu, self.Pinv_double = None, None, {}
         self.proj = stuck
-        # (read-only, kept by flex: the builds at one frequency share it)
-        Pinv = flex.inverses(np.asarray(jac.basis.harmonics, dtype=float) * self.omega,
-                             self.xi)
+        nus = np.asarray(jac.basis.harmonics, dtype=float) * self.omega
         shifted = None
         if shift is not None:
             i = shift[0]
@@ -298,13 +296,15 @@ class HarmonicPreconditioner:
             P += self._rank_one(P, i, shift[1], shift[2])
             shifted = (i, _inverse(P[None])[0])
         single = None if jac.rtol >= SINGLE_LU_RTOL else self._single_harmonics()
-        if single is None or single.any():     # single precision (all for a loose solve)
-            self.Pinv = Pinv.astype(np.complex64)
-            if single is not None:
-                self.Pinv_double = {h: Pinv[h] for h in np.flatnonzero(~single).tolist()}
-        else:       # (flex's array is read-only: copied where a block is replaced)
-            self.Pinv = Pinv if shifted is None else Pinv.copy()
+        # (flex keeps them, read-only, for the builds at one frequency: copied if replaced)
+        self.Pinv = flex.inverses(nus, self.xi, single=single is None or bool(single.any()))
+        if single is not None and single.any():      # the others' blocks in double
+            dbl = np.flatnonzero(~single)
+            if dbl.size:
+                Pd = flex.inverses(nus[dbl], self.xi)
+                self.Pinv_double = dict(zip(dbl.tolist(), Pd))
         if shifted is not None:
+            self.Pinv = self.Pinv.copy()
             self.Pinv[shifted[0]] = shifted[1]
             if shifted[0] in self.Pinv_double:
                 self.Pinv_double[shifted[0]] = shifted[1]

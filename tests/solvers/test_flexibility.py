@@ -247,6 +247,17 @@ def test_solve_is_the_inverses_applied(coarse_model):
         assert X1.shape == (4, fl.n_r)
         assert np.abs(X1 - ref[:, :, 0]).max() <= 1e-10 * np.abs(ref[:, :, 0]).max()
     assert fl.inverses(nus[:2]) is not fl.inverses(nus)
+    # in single precision: the same operator to about its round-off, kept beside the
+    # double one (a build in both precisions at one frequency forms each once)
+    for xi in (0.0, 0.8):
+        Y, Ys = fl.inverses(nus, xi), fl.inverses(nus, xi, single=True)
+        assert Ys.dtype == np.complex64 and not Ys.flags.writeable
+        assert fl.inverses(nus, xi, single=True) is Ys and fl.inverses(nus, xi) is Y
+        assert not np.any(Ys[0].imag)
+        B = rng.normal(size=(4, fl.n_r, 3)) + 1j * rng.normal(size=(4, fl.n_r, 3))
+        for h in range(4):
+            ref = Y[h] @ B[h]
+            assert np.abs(Ys[h] @ B[h] - ref).max() <= 1e-5 * np.abs(ref).max()
 
 
 def test_stuck_solve_by_the_flexibility_is_the_lu_solve(coarse_model, monkeypatch):
