@@ -77,8 +77,9 @@ def test_law_without_slip_has_no_control():
 
 def test_periodic_manifold_march_stops_each_element_on_its_own():
     """Two elements, one that closes at once (constant N) and one that drifts for about
-    14 periods (the stuck element above, with N = 5 + 0.3 cos t): each stops at its own check and its last period
-    is bit for bit the tiled march's of as many periods; a cap ends the drifting one."""
+    14 periods (the stuck element above, with N = 5 + 0.3 cos t): each stops at its own
+    check, its last period is bit for bit the tiled march's of as many periods and its
+    change that march's; a cap ends the drifting one."""
     from jointsim.contact._kernels import march_manifold_periodic
     n = 256
     t = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
