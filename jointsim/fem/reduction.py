@@ -90,9 +90,16 @@ CONSTRAINT_BLOCKS = 2
 #: columns of an ``n_dof``-row array are formed at once.  Measured (round 27) at 240
 #: Gauss points (136,884 DOFs, 1,004 reduced): the model's peak memory 6,086 MB whole
 #: -> 3,959 MB (256 right-hand sides) -> 2,955 MB (128), the reduction 68 -> 62 -> 58 s;
-#: at 120 Gauss points 8.2 to 9.1 s either way, 725 MB.
-PROJECT_COLUMNS = 256
-SOLVE_COLUMNS = 128
+#: at 120 Gauss points 8.2 to 9.1 s either way, 725 MB.  Round 42 (480 Gauss points,
+#: 65,084 DOFs, 1,964 reduced, one BLAS thread): the constraint modes' solve on two
+#: threads 5.3 s with 128 right-hand sides, 5.0 s with 64 (5.8 and 4.9 s with 32); the
+#: projections of :meth:`CraigBampton.project`, formed on one side of the diagonal,
+#: save more with narrower blocks (192 Gauss points: 1.16 s with 256 columns, 0.86 s
+#: with 128, against 1.22 s for the whole products).
+PROJECT_COLUMNS = 128
+SOLVE_COLUMNS = 64
+#: Threads of each projection (:meth:`CraigBampton.project`) of the reduction.
+PROJECT_THREADS = 2
 
 
 @dataclass(frozen=True)
@@ -132,18 +139,36 @@ class CraigBampton:
         idx[self.retained] = np.arange(self.n_retained)
         return idx
 
-    def project(self, A) -> np.ndarray:
-        """``T^T A T`` of a full sparse matrix, dense (n_r, n_r), symmetrised.
+    def project(self, A, threads: int = 1) -> np.ndarray:
+        """``T^T A T`` of a full sparse symmetric matrix, dense (n_r, n_r), symmetric.
 
-        ``A T`` by blocks of :data:`PROJECT_COLUMNS` columns: one ``n_dof x n_r`` array
-        less (1.1 GB at 240 Gauss points).
+        By blocks of :data:`PROJECT_COLUMNS` columns (one ``n_dof x n_r`` array less,
+        1.1 GB at 240 Gauss points), each formed only on and above the diagonal,
+        ``out[:e, j:e] = T[:, :e]^T (A T[:, j:e])``, and mirrored: half the product's
+        flops.  The diagonal blocks are symmetrised.  On ``threads`` threads the blocks
+        are independent (products release the GIL), and the result does not depend on
+        how many there are.  Measured (round 42, ``python benchmarks/fe_build.py
+        --projection``, one BLAS thread): ``K`` and ``M`` 0.43 -> 0.19 s at 96 Gauss
+        points, 1.45 -> 0.86 s at 192, 10.0 -> 6.3 s at 480 (65,084 DOFs, 1,964
+        reduced), against the whole products side by side on two threads.
         """
         nr = self.T.shape[1]
         out = np.empty((nr, nr))
-        for j in range(0, nr, PROJECT_COLUMNS):
-            cols = slice(j, min(j + PROJECT_COLUMNS, nr))
-            out[:, cols] = self.T.T @ (A @ self.T[:, cols])
-        return 0.5 * (out + out.T)
+
+        def block(j):
+            e = min(j + PROJECT_COLUMNS, nr)
+            out[:e, j:e] = self.T[:, :e].T @ (A @ self.T[:, j:e])
+            d = out[j:e, j:e]
+            d[...] = 0.5 * (d + d.T)
+            out[j:e, :j] = out[:j, j:e].T
+        starts = range(0, nr, PROJECT_COLUMNS)
+        if threads > 1 and len(starts) > 1:
+            with ThreadPoolExecutor(max_workers=threads) as pool:
+                list(pool.map(block, starts[::-1]))       # the largest blocks first
+        else:
+            for j in starts:
+                block(j)
+        return out
 
 
 def with_fixed_signs(Phi) -> np.ndarray:
@@ -213,11 +238,10 @@ def craig_bampton(K, M, retained, n_modes: int) -> CraigBampton:
     T[I, B.size:] = Phi
     cb = CraigBampton(T=T, retained=B, frequency_hz=np.sqrt(np.maximum(w2, 0)) / (2 * np.pi),
                       K=np.zeros(0), M=np.zeros(0))
-    # the two projections side by side (sparse and dense products release the GIL):
-    # 0.70 -> 0.38 s at 96 Gauss points, the same arrays bit for bit (round 22)
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        Kr, Mr = pool.submit(cb.project, K), pool.submit(cb.project, M)
-        return dataclasses.replace(cb, K=Kr.result(), M=Mr.result())
+    # each product on two threads over its column blocks (about half the flops of the
+    # whole product; the two whole products side by side on two threads before round 42)
+    return dataclasses.replace(cb, K=cb.project(K, threads=PROJECT_THREADS),
+                               M=cb.project(M, threads=PROJECT_THREADS))
 
 
 def _constraint_modes(lu, K_IB, cols, T, I) -> None:

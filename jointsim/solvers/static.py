@@ -110,14 +110,16 @@ class _Problem:
         self.dense = K.shape[0] <= DENSE_MAX_DOF
         if self.dense:
             self.K = K.toarray() if sp.issparse(K) else np.asarray(K, dtype=float)
-            self.Tt = contacts.Tt.toarray()
-            self.Tn = contacts.Tn.toarray()
         else:
             self.K = sp.csr_matrix(K)
-            self.Tt = sp.csr_matrix(contacts.Tt)
-            self.Tn = sp.csr_matrix(contacts.Tn)
-        self.TtT = self.Tt.T
-        self.TnT = self.Tn.T
+        # the contact matrices stay sparse: each element's row has a few entries, and
+        # the contact Jacobian ``Tt^T diag(.) Tt`` formed dense cost 131 ms per
+        # evaluation at 480 Gauss points (1,964 DOFs), 4.5 ms sparse (0.6 ms against
+        # 1.3 ms at 96; round 42)
+        self.Tt = sp.csr_matrix(contacts.Tt)
+        self.Tn = sp.csr_matrix(contacts.Tn)
+        self.TtT = self.Tt.T.tocsr()
+        self.TnT = self.Tn.T.tocsr()
         self.c = contacts
         self.normal = normal
         self.tangential = tangential
@@ -163,13 +165,13 @@ class _Problem:
         out = dict(R=R, scale=scale, N=N, g=g, u=u, ft=ft, state=new_state)
         if jacobian:
             Tt, Tn, TtT, TnT = self.Tt, self.Tn, self.TtT, self.TnT
+            Jc = (TtT @ sp.diags(dfdu) @ Tt + TtT @ sp.diags(dfdN * dNdg) @ Tn
+                  - TnT @ sp.diags(dNdg) @ Tn)
             if self.dense:
-                J = (self.K + TtT @ (dfdu[:, None] * Tt + (dfdN * dNdg)[:, None] * Tn)
-                     - TnT @ (dNdg[:, None] * Tn))
+                J = Jc.toarray()
+                J += self.K
             else:
-                J = sp.csr_matrix(self.K + TtT @ sp.diags(dfdu) @ Tt
-                                  + TtT @ sp.diags(dfdN * dNdg) @ Tn
-                                  - TnT @ sp.diags(dNdg) @ Tn)
+                J = sp.csr_matrix(self.K + Jc)
             out["J"] = J
         return out
 

@@ -177,8 +177,13 @@ def test_scales_from_the_stuck_flexibility_equal_the_modes_and_lu_ones(monkeypat
     """Where the Krylov path's preconditioners make the stuck flexibility, ``frc_scales``
     takes the stuck resonances from its modes and the stuck responses from its solves
     (refined against ``J``) instead of ``stuck_modes`` and the blocks' LU: on the default
-    lap joint (96 Gauss points) at force scale 2 the scales agree to 1e-8, the
-    resonances in the range to 1e-7, and the stuck responses form no ``S_h``."""
+    lap joint (96 Gauss points) at force scale 2 the scales agree to 3e-8, the
+    resonances in the range to 1e-7, and the stuck responses form no ``S_h``.
+
+    The scales' difference is the eigen-decomposition's round-off on a structure whose
+    soft suspension makes its stiffness's condition number about 1e11: 8.5e-9 with round
+    41's reduced matrices, 9.9e-9 with round 42's (the same products, formed on one side
+    of the diagonal, and the preload's Jacobian formed sparse)."""
     import jointsim.solvers.preconditioner as pm
     scene = load_scene(MODELS / "lap_joint.toml")
     a = scene.analysis.hbm
@@ -201,4 +206,4 @@ def test_scales_from_the_stuck_flexibility_equal_the_modes_and_lu_ones(monkeypat
     monkeypatch.setattr(pm, "MODAL_STAGE", False)
     lu = H.frc_scales(system, F, a.omega_start, a.omega_end)[0][0]
     assert formed
-    assert flex == pytest.approx(lu, rel=1e-8)
+    assert flex == pytest.approx(lu, rel=3e-8)
