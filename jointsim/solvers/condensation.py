@@ -38,6 +38,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+
 def _real_times(A, Z) -> np.ndarray:
     """``A Z`` of a real ``A`` (m, n) and a C-contiguous complex ``Z`` (n, k), as one real
     product with the view of ``Z`` as (n, 2 k) reals: no complex copy of ``A`` (a real
