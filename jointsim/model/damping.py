@@ -4,6 +4,14 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+#: Modal damping takes every mode of the (reduced) model by a dense generalised
+#: eigen-decomposition; above this many DOFs it is refused.  Round 42: the limit was
+#: 2,000, and the default scene refined to 504 Gauss points (2,064 reduced DOFs) failed
+#: after its 30 s build; a dense ``eigh`` of 1,964 DOFs takes 1.2 to 1.6 s, of 6,000
+#: about 40 s (``n^3``), the condensation's own dense limit
+#: (:data:`jointsim.solvers.condensation.MAX_DENSE_DOF`).
+MODAL_DAMPING_MAX_DOF = 6000
+
 
 def damping_matrix(M, K, damping, C0=None):
     """Linear damping matrix from a scene's ``[damping]`` table.
@@ -18,6 +26,11 @@ def damping_matrix(M, K, damping, C0=None):
     Returns
     -------
     scipy.sparse.csr_matrix, shape (n, n) [N s/m]
+
+    Raises
+    ------
+    NotImplementedError
+        Modal damping of a model above :data:`MODAL_DAMPING_MAX_DOF` DOFs.
     """
     n = M.shape[0]
     C = sp.csr_matrix((n, n)) if C0 is None else sp.csr_matrix(C0)
@@ -27,9 +40,10 @@ def damping_matrix(M, K, damping, C0=None):
         zeta = np.asarray(damping.zeta, dtype=float)
         if zeta.size == 0:
             raise ValueError("damping.zeta must list at least one modal damping ratio")
-        if n > 2000:
-            raise NotImplementedError("modal damping of a model with more than 2000 DOFs: "
-                                      "reduce it first (Craig-Bampton) or use Rayleigh damping")
+        if n > MODAL_DAMPING_MAX_DOF:
+            raise NotImplementedError(f"modal damping of a model with more than "
+                                      f"{MODAL_DAMPING_MAX_DOF} DOFs ({n}): reduce it "
+                                      f"further (Craig-Bampton) or use Rayleigh damping")
         import scipy.linalg as sla
         w2, phi = sla.eigh(K.toarray(), M.toarray())
         m = min(zeta.size, n)

@@ -101,13 +101,19 @@ class StaticResult:
 #: are small and dense algebra has no per-call sparse bookkeeping (a sparse
 #: Jacobian assembly cost ~4 ms even for one DOF).
 DENSE_MAX_DOF = 2000
+#: ... and so are larger ones whose stiffness has at least this share of its entries:
+#: a reduced model's stiffness is dense at any size (round 42: the default scene at 504
+#: Gauss points, 2,060 DOFs, solved its preload through a sparse LU of a dense matrix).
+DENSE_MIN_FILL = 0.25
 
 
 class _Problem:
     """Residual and Jacobian of the static equations (one load increment)."""
 
     def __init__(self, K, contacts, normal, tangential, state):
-        self.dense = K.shape[0] <= DENSE_MAX_DOF
+        n = K.shape[0]
+        nnz = K.nnz if sp.issparse(K) else np.count_nonzero(K)
+        self.dense = n <= DENSE_MAX_DOF or nnz >= DENSE_MIN_FILL * n * n
         if self.dense:
             self.K = K.toarray() if sp.issparse(K) else np.asarray(K, dtype=float)
         else:

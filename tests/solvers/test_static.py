@@ -187,14 +187,21 @@ def test_failed_solve_reports_and_keeps_its_state(coarse_parts, coarse_model):
 
 
 def test_sparse_and_dense_assembly_agree(monkeypatch):
-    """Large models assemble the Jacobian sparse, small ones dense: same numbers."""
+    """Large sparse models assemble the Jacobian sparse, small ones and those whose
+    stiffness is dense (a reduced model of any size) dense: same numbers."""
     import jointsim.solvers.static as static
     m = build_model(load_scene(SCENE, COARSE))
     x = m.preload.x0 * 1.3
     state = m.contacts.law.rest_state(m.contacts.N0)
-    dense = static._Problem(m.K, m.contacts, UnilateralPenalty(m.contacts.kn), "law", state).evaluate(x, m.f_static)
+
+    def problem():
+        return static._Problem(m.K, m.contacts, UnilateralPenalty(m.contacts.kn), "law",
+                               state)
+    dense = problem().evaluate(x, m.f_static)
     monkeypatch.setattr(static, "DENSE_MAX_DOF", 0)
-    sparse = static._Problem(m.K, m.contacts, UnilateralPenalty(m.contacts.kn), "law", state).evaluate(x, m.f_static)
+    assert problem().dense                    # the reduced stiffness is dense
+    monkeypatch.setattr(static, "DENSE_MIN_FILL", 2.0)
+    sparse = problem().evaluate(x, m.f_static)
     assert sp.issparse(sparse["J"]) and not sp.issparse(dense["J"])
     np.testing.assert_allclose(sparse["J"].toarray(), dense["J"], rtol=1e-12,
                                atol=1e-12 * np.abs(dense["J"]).max())
