@@ -6,10 +6,10 @@ import scipy.sparse as sp
 
 #: Modal damping takes every mode of the (reduced) model by a dense generalised
 #: eigen-decomposition; above this many DOFs it is refused.  Round 42: the limit was
-#: 2,000, and the default scene refined to 504 Gauss points (2,064 reduced DOFs) failed
-#: after its 30 s build; a dense ``eigh`` of 1,964 DOFs takes 1.2 to 1.6 s, of 6,000
-#: about 40 s (``n^3``), the condensation's own dense limit
-#: (:data:`jointsim.solvers.condensation.MAX_DENSE_DOF`).
+#: 2,000, and the default scene refined to 504 Gauss points (2,060 reduced DOFs) failed
+#: after its 30 s build.  A dense ``eigh`` of 1,964 DOFs takes 1.2 to 1.6 s; of 6,000, the
+#: condensation's own dense limit (:data:`jointsim.solvers.condensation.MAX_DENSE_DOF`),
+#: about 40 s by ``n^3`` (estimated, not measured).
 MODAL_DAMPING_MAX_DOF = 6000
 
 
