@@ -112,8 +112,8 @@ class _Problem:
 
     def __init__(self, K, contacts, normal, tangential, state):
         n = K.shape[0]
-        nnz = K.nnz if sp.issparse(K) else np.count_nonzero(K)
-        self.dense = n <= DENSE_MAX_DOF or nnz >= DENSE_MIN_FILL * n * n
+        self.dense = n <= DENSE_MAX_DOF or (
+            K.nnz if sp.issparse(K) else np.count_nonzero(K)) >= DENSE_MIN_FILL * n * n
         if self.dense:
             self.K = K.toarray() if sp.issparse(K) else np.asarray(K, dtype=float)
         else:
