@@ -38,6 +38,8 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from .welded import low_rank_factors, orthonormal_factors, welded_coordinates
+
 
 def _real_times(A, Z) -> np.ndarray:
     """``A Z`` of a real ``A`` (m, n) and a C-contiguous complex ``Z`` (n, k), as one real
@@ -89,12 +91,28 @@ class ReducedLinear:
     positions : ndarray, shape (n_r, d), optional
         Position of every contact coordinate [m]: orders them for the hierarchical
         form of ``S_h`` (:mod:`jointsim.solvers.hierarchical`).
+    modal_basis : jointsim.model.damping.ModalBasis, optional
+        Every mode of ``(K_stuck, M)``, checked by the caller
+        (:meth:`~jointsim.model.damping.ModalBasis.hold_for`): :attr:`flexibility` then
+        takes them instead of an eigen-decomposition of its own.
+
+    Attributes
+    ----------
+    T_sparse : scipy.sparse.csr_matrix, shape (n_r, n)
+        ``T``.
+    damping_low_rank : tuple (W, c) or None
+        ``C = W diag(c) W^T`` (``W`` (n, r), ``c`` (r,) [N s/m]) when ``C`` is symmetric
+        and of rank ``r < 64`` (modal damping of a few modes, or none) and the structure
+        has both kinds of coordinates; the modal and low-rank kinds make C's blocks from
+        them (``O(n^2 r)``, not ``n^3``: 0.7 s less at 480 Gauss points, round 43).
 
     See the module docstring for the formulation.
     """
 
-    def __init__(self, M, K, C, T, K_stuck=None, positions=None):
+    def __init__(self, M, K, C, T, K_stuck=None, positions=None, modal_basis=None):
         self.positions = positions
+        self.modal_basis = modal_basis
+        self.T_sparse = sp.csr_matrix(T)
         M, K, C, T = dense_array(M), dense_array(K), dense_array(C), dense_array(T)
         # what the stuck joint adds to K (sparse: its contact DOFs)
         self._dK = None if K_stuck is None else sp.csr_matrix(dense_array(K_stuck) - K)
@@ -107,70 +125,12 @@ class ReducedLinear:
                 f"DOFs (> {MAX_DENSE_DOF}); reduce it first (Craig-Bampton)")
         n_r = T.shape[0]
         self.n, self.n_r, self.n_y = n, n_r, n - n_r
-        if n_r:
-            sv = np.linalg.svd(T, compute_uv=False)
-            if n_r > n or sv.min() <= 1e-10 * sv.max():
-                raise ValueError(
-                    "the contact coordinates are linearly dependent (two contact elements "
-                    "measure the same relative motion, or an element's slip and gap coincide); "
-                    "merge such elements or give them distinct DOFs")
-            Psi = np.linalg.solve(T @ T.T, T).T
-            Qf, _ = np.linalg.qr(T.T, mode="complete")
-            Z0 = Qf[:, n_r:]
-        else:
-            Psi = np.zeros((n, 0))
-            Z0 = np.eye(n)
-        self.kind = "direct"
-        Z = Z0
-        lowrank = None
-        yy = None                # the yy blocks of K, M, C in the welded modes
-        if self.n_y:
-            Kyy = Z0.T @ K @ Z0
-            Myy = Z0.T @ M @ Z0
-            try:
-                lam, Phi = sla.eigh(0.5 * (Kyy + Kyy.T), 0.5 * (Myy + Myy.T))
-                Zm = Z0 @ Phi
-                Cyy = Zm.T @ C @ Zm
-                off = Cyy - np.diag(np.diag(Cyy))
-                ref = max(np.abs(Cyy).max(), 1e-300)
-                sym = (np.allclose(K, K.T, rtol=0, atol=1e-12 * np.abs(K).max())
-                       and np.allclose(M, M.T, rtol=0, atol=1e-12 * np.abs(M).max()))
-                csym = np.allclose(C, C.T, rtol=0, atol=1e-12 * max(np.abs(C).max(), 1e-300))
-                if sym and np.abs(off).max() <= 1e-11 * ref:
-                    Z = Zm
-                    self.kind = "modal"
-                    yy = (np.diag(lam), np.eye(self.n_y), Cyy)
-                elif sym and csym:
-                    # modal damping of a few modes is a low-rank C: E is then a
-                    # diagonal plus a rank-r term, inverted by Woodbury's formula
-                    c, U = np.linalg.eigh(0.5 * (Cyy + Cyy.T))
-                    keep = np.abs(c) > 1e-12 * max(np.abs(c).max(), 1e-300)
-                    if keep.sum() <= self.n_y // 3:
-                        Z = Zm
-                        self.kind = "lowrank"
-                        lowrank = (U[:, keep], c[keep])
-                        yy = (np.diag(lam), np.eye(self.n_y), Cyy)
-            except (np.linalg.LinAlgError, ValueError):
-                pass
+        wc = welded_coordinates(M, K, C, T)
+        self.kind, self.Psi, self.Z = wc.kind, wc.Psi, wc.Z
+        self.K, self.M, self.C = wc.K, wc.M, wc.C
+        self.damping_low_rank = wc.damping_low_rank
         self.modal = self.kind == "modal"
-        self.Psi, self.Z = Psi, Z
-        if yy is not None:
-            # symmetric K, M, C with their yy blocks known in the welded modes (diag(lam),
-            # the identity, Cyy): only A Psi is formed, 2 n^2 n_r flops of the 4 n^3 of
-            # V' A V (480 Gauss points, n = 1964, n_r = 960: the condensation 2.80 -> 2.22 s)
-            def transformed(A, Ayy):
-                AP = A @ Psi
-                yq = Z.T @ AP
-                return {"qq": Psi.T @ AP, "qy": np.ascontiguousarray(yq.T), "yq": yq,
-                        "yy": Ayy}
-            self.K, self.M, self.C = (transformed(A, Ayy) for A, Ayy in zip((K, M, C), yy))
-        else:
-            V = np.hstack([Psi, Z])
-            r, y = slice(0, n_r), slice(n_r, n)
-            # contiguous copies: the blocks per frequency read them (memory-bound)
-            self.K, self.M, self.C = (
-                {b: np.ascontiguousarray(At[i, j]) for b, (i, j) in _blocks(r, y).items()}
-                for At in (V.T @ A @ V for A in (K, M, C)))
+        lowrank = wc.lowrank
         if self.kind in ("modal", "lowrank"):
             self.lam = np.diag(self.K["yy"]).copy()
             self.myy = np.diag(self.M["yy"]).copy()
@@ -244,12 +204,16 @@ class ReducedLinear:
     def damping_factors(self):
         """``(W_q, W_y, c)`` with ``C = W diag(c) W^T`` in the coordinates ``(q, y)``
         (``W = [W_q; W_y]``, ``c`` (r,)) for a low-rank condensation with both kinds of
-        coordinates, else None (:func:`_low_rank_factors`; found on first use: only a
+        coordinates, else None (:func:`~.welded.low_rank_factors`; found on first use: only a
         forced response's :meth:`schur_low_rank_damping` needs them)."""
         if self.kind != "lowrank" or not self.n_r or not self.n_y:
             return None
+        if self.damping_low_rank is not None:
+            W, c = self.damping_low_rank
+            Wv, c = orthonormal_factors(np.vstack([self.Psi.T @ W, self.Z.T @ W]), c)
+            return np.ascontiguousarray(Wv[:self.n_r]), np.ascontiguousarray(Wv[self.n_r:]), c
         C = self.C
-        return _low_rank_factors(np.block([[C["qq"], C["qy"]], [C["yq"], C["yy"]]]), self.n_r)
+        return low_rank_factors(np.block([[C["qq"], C["qy"]], [C["yq"], C["yy"]]]), self.n_r)
 
     def schur_low_rank_damping(self, nu: float, xi: float = 0.0) -> np.ndarray:
         """``S_h = A - B E^-1 B'`` at ``nu`` for a damping of low rank
@@ -709,32 +673,3 @@ def _dD_coefficients(wrt: str, h, nu, xi: float):
     return -1j * nu, 0.0 * nu
 
 
-def _low_rank_factors(C, n_r: int, seed: int = 0):
-    """``(W_q, W_y, c)`` with ``C = W diag(c) W^T`` (``W`` (n, r) split after its first
-    ``n_r`` rows) for a symmetric ``C`` of rank ``r <= n / 3``, or None when ``C`` is
-    not of such a rank to round-off.
-
-    The range of ``C`` from its product with a random block of 64 columns, else of
-    ``n / 3`` (a randomised range finder, exact for a rank below the block's), then the
-    eigen-decomposition of ``C`` on it: ``O(n^2)`` per column instead of an ``n x n``
-    eigen-problem; the reconstruction is checked to ``1e-11`` of ``max |C|``.
-    """
-    n = C.shape[0]
-    ref = float(np.abs(C).max(initial=0.0))
-    if ref == 0.0:
-        return None
-    rng = np.random.default_rng(seed)
-    for k in sorted({min(64, max(n // 3, 1)), max(n // 3, 1)}):
-        Q, _ = np.linalg.qr(C @ rng.standard_normal((n, k)))
-        c, V = np.linalg.eigh(Q.T @ C @ Q)
-        keep = np.abs(c) > 1e-12 * max(float(np.abs(c).max()), 1e-300)
-        if keep.sum() < k:
-            W, c = Q @ V[:, keep], c[keep]
-            if float(np.abs((W * c) @ W.T - C).max()) > 1e-11 * ref:
-                return None
-            return np.ascontiguousarray(W[:n_r]), np.ascontiguousarray(W[n_r:]), c
-    return None
-
-
-def _blocks(r, y):
-    return {"qq": (r, r), "qy": (r, y), "yq": (y, r), "yy": (y, y)}

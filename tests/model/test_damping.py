@@ -40,3 +40,42 @@ def test_modal_damping_refuses_a_model_above_its_limit_naming_its_size(monkeypat
     monkeypatch.setattr(dm, "MODAL_DAMPING_MAX_DOF", 10)
     with pytest.raises(NotImplementedError, match=r"more than 10 DOFs \(12\)"):
         dm.damping_matrix(M, K, Damping(kind="modal", zeta=(0.01,)))
+
+
+def test_modal_damping_keeps_the_modes_it_is_defined_on():
+    """``damping_and_modes``: the modes are M-orthonormal eigenvectors of ``(K, M)`` and
+    ``C = M phi_m diag(2 zeta w) phi_m^T M`` on the first ones; ``hold_for`` accepts their
+    own pencil and refuses a stiffness or a mass changed by 1e-6 in one entry (the
+    probe of a model changed after its build).  Rayleigh damping keeps none."""
+    K, M = _chain(12)
+    zeta = (0.01, 0.02)
+    C, basis = dm.damping_and_modes(M, K, Damping(kind="modal", zeta=zeta))
+    phi, lam = basis.phi, basis.lam
+    Kd, Md = K.toarray(), M.toarray()
+    assert np.abs(phi.T @ Md @ phi - np.eye(12)).max() <= 1e-12
+    assert np.abs(Kd @ phi - (Md @ phi) * lam).max() <= 1e-10 * np.abs(Kd).max()
+    W = Md @ phi[:, :2]
+    expected = (W * (2 * np.asarray(zeta) * np.sqrt(lam[:2]))) @ W.T
+    assert np.abs(C.toarray() - expected).max() <= 1e-14 * np.abs(expected).max()
+    assert basis.hold_for(K, M)
+    for dK, dM in ((1e-6 * 1e4, 0.0), (0.0, 1e-6)):
+        K2, M2 = K.tolil(), M.tolil()
+        K2[3, 3] += dK
+        M2[5, 5] += dM
+        assert not basis.hold_for(K2.tocsr(), M2.tocsr())
+    assert not basis.hold_for(K[:11, :11], M[:11, :11])
+    assert dm.damping_and_modes(M, K, Damping(kind="rayleigh", alpha=0.1, beta=1e-4))[1] \
+        is None
+
+
+def test_the_lap_joints_modal_basis_holds_and_a_changed_model_drops_it(coarse_model):
+    """The built lap joint carries the modes of its modal damping, which hold for its
+    stuck linearisation (the preload's tangent, the same pencil); with ``K`` changed
+    after the build (``dataclasses.replace``, the linearisation made again) they no longer
+    do, and ``held_modal_basis`` gives None."""
+    import dataclasses
+    assert coarse_model.modal_basis is not None
+    assert dm.held_modal_basis(coarse_model) is coarse_model.modal_basis
+    changed = dataclasses.replace(coarse_model, K=coarse_model.K * (1 + 1e-6),
+                                  linearisation=None)
+    assert dm.held_modal_basis(changed) is None

@@ -5,8 +5,8 @@ differences, and ``E^-1`` against a dense solve."""
 import numpy as np
 import pytest
 
-from jointsim.solvers.condensation import (DynamicProducts, ReducedLinear, _LowRankE,
-                                          _low_rank_factors)
+from jointsim.solvers.condensation import DynamicProducts, ReducedLinear, _LowRankE
+from jointsim.solvers.welded import low_rank_factors
 from jointsim.solvers.frequency_blocks import FrequencyBlocks
 
 
@@ -204,34 +204,73 @@ def test_quasi_static_modes_enter_s_h_by_their_expansion(coarse_lap_coupled):
         cm.QUASI_STATIC_RATIO = cm_ratio
 
 
-def test_low_rank_factors_reproduce_a_low_rank_matrix_and_refuse_a_full_one():
-    """``_low_rank_factors``: a symmetric indefinite matrix of rank 5 (n = 90) is
+def testlow_rank_factors_reproduce_a_low_rank_matrix_and_refuse_a_full_one():
+    """``low_rank_factors``: a symmetric indefinite matrix of rank 5 (n = 90) is
     rebuilt from its factors to round-off, split after ``n_r`` rows; one of full rank
     and one of rank 40 (above n / 3 = 30) give None, as does a zero matrix."""
     rng = np.random.default_rng(7)
     n, n_r = 90, 20
     U = rng.normal(size=(n, 5))
     C = U @ np.diag([3.0, -1.0, 0.5, 2.0, -0.2]) @ U.T
-    Wq, Wy, c = _low_rank_factors(C, n_r)
+    Wq, Wy, c = low_rank_factors(C, n_r)
     assert c.size == 5 and Wq.shape == (n_r, 5) and Wy.shape == (n - n_r, 5)
     W = np.vstack([Wq, Wy])
     assert np.abs((W * c) @ W.T - C).max() <= 1e-12 * np.abs(C).max()
     A = rng.normal(size=(n, n))
     V = rng.normal(size=(n, 40))
     for full in (A + A.T, V @ V.T, np.zeros((n, n))):
-        assert _low_rank_factors(full, n_r) is None
+        assert low_rank_factors(full, n_r) is None
 
 
-@pytest.mark.parametrize("kind", ["modal", "lowrank", "direct"])
+@pytest.mark.parametrize("kind", ["modal", "lowrank", "direct", "undamped"])
 def test_transformed_blocks_are_the_congruence(kind):
-    """The blocks of ``K``, ``M``, ``C`` in the coordinates ``(q, y)`` (for the modal and
-    low-rank kinds from ``A Psi`` and the known welded-mode blocks ``diag(lam)``, ``I``,
-    ``Z' C Z``) equal ``V' A V``, ``V = [Psi, Z]``, formed in full."""
-    M, K, C, T = _structure(kind)
+    """The blocks of ``K``, ``M``, ``C`` in the coordinates ``(q, y)`` (``K`` and ``M`` by
+    symmetric congruences on two threads and turned by the welded modes, the yy blocks
+    known, ``diag(lam)``, ``I``, ``Z' C Z``; a damping of low rank from its factors,
+    round 43) equal ``V' A V``, ``V = [Psi, Z]``, formed in full.  The low-rank damping
+    is found as its two factors (none for a Rayleigh or a full damping; rank 0 for no
+    damping, whose condensation is modal), and the condensation's ``damping_factors``
+    rebuild ``V' C V``."""
+    M, K, C, T = _structure("modal" if kind == "undamped" else kind)
+    if kind == "undamped":
+        C = np.zeros_like(C)
     lin = ReducedLinear(M, K, C, T)
+    assert lin.kind == ("modal" if kind == "undamped" else kind)
+    rank = {"lowrank": 2, "undamped": 0}.get(kind)
+    if rank is None:
+        assert lin.damping_low_rank is None
+    else:
+        assert lin.damping_low_rank[0].shape == (lin.n, rank)
     V = np.hstack([lin.Psi, lin.Z])
     r, y = slice(0, lin.n_r), slice(lin.n_r, lin.n)
     for A, blocks in ((K, lin.K), (M, lin.M), (C, lin.C)):
         At = V.T @ A @ V
         for b, (i, j) in {"qq": (r, r), "qy": (r, y), "yq": (y, r), "yy": (y, y)}.items():
-            assert np.abs(blocks[b] - At[i, j]).max() <= 1e-12 * np.abs(At).max(), b
+            assert np.abs(blocks[b] - At[i, j]).max() <= 1e-12 * max(np.abs(At).max(),
+                                                                       1e-300), b
+    if kind == "lowrank":
+        Wq, Wy, c = lin.damping_factors
+        W = np.vstack([Wq, Wy])
+        Ct = V.T @ C @ V
+        assert np.abs((W * c) @ W.T - Ct).max() <= 1e-12 * np.abs(Ct).max()
+        assert np.abs(W.T @ W - np.eye(c.size)).max() <= 1e-13
+
+
+def test_symmetric_congruence_is_the_product_on_any_threads():
+    """``jointsim.linalg.symmetric_congruence``: ``V' A V`` of a symmetric ``A`` (dense and
+    sparse) by blocks on one side of the diagonal equals the whole product to round-off,
+    is symmetric, and is the same on one thread and on three (blocks of 7 columns)."""
+    import scipy.sparse as sp
+
+    from jointsim.linalg import symmetric_congruence
+    rng = np.random.default_rng(11)
+    n, m = 40, 30
+    B = rng.normal(size=(n, n))
+    V = rng.normal(size=(n, m))
+    for A in (B + B.T, sp.random(n, n, density=0.2, random_state=3)):
+        A = A + A.T if sp.issparse(A) else A
+        ref = V.T @ (A @ V)
+        one = symmetric_congruence(V, A, threads=1, columns=7)
+        three = symmetric_congruence(V, A, threads=3, columns=7)
+        assert np.abs(one - ref).max() <= 1e-13 * np.abs(ref).max()
+        assert np.array_equal(one, one.T) and np.array_equal(one, three)

@@ -1,0 +1,56 @@
+"""Dense products shared by the FE reduction and the condensation.
+
+:func:`symmetric_congruence` forms ``V^T A V`` of a symmetric ``A`` by blocks of columns
+on one side of the diagonal, on threads of their own (each product releases the GIL and
+runs on the one BLAS thread the entry points set, :mod:`jointsim.blas`): the
+Craig-Bampton projections (:meth:`jointsim.fem.reduction.CraigBampton.project`) and the
+blocks of ``K`` and ``M`` in the condensation's coordinates
+(:func:`jointsim.solvers.welded.welded_coordinates`).
+"""
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+
+def symmetric_congruence(V, A, threads: int = 1, columns: int = 128) -> np.ndarray:
+    """``V^T A V`` of a symmetric ``A``, dense and symmetric.
+
+    By blocks of ``columns`` columns, each formed only on and above the diagonal,
+    ``out[:e, j:e] = V[:, :e]^T (A V[:, j:e])``, and mirrored: half the flops of the
+    whole product, and no ``n x m`` temporary.  The diagonal blocks are symmetrised.
+    On ``threads`` threads the blocks are independent, and the result does not depend
+    on how many there are.
+
+    Parameters
+    ----------
+    V : ndarray, shape (n, m)
+    A : ndarray or scipy.sparse matrix, shape (n, n)
+        Symmetric (only ``A V`` is formed).
+    threads : int
+        Threads the blocks are shared among (largest first).
+    columns : int
+        Columns of each block.
+
+    Returns
+    -------
+    ndarray, shape (m, m)
+    """
+    m = V.shape[1]
+    out = np.empty((m, m))
+
+    def block(j):
+        e = min(j + columns, m)
+        out[:e, j:e] = V[:, :e].T @ (A @ V[:, j:e])
+        d = out[j:e, j:e]
+        d[...] = 0.5 * (d + d.T)
+        out[j:e, :j] = out[:j, j:e].T
+    starts = range(0, m, columns)
+    if threads > 1 and len(starts) > 1:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            list(pool.map(block, starts[::-1]))       # the largest blocks first
+    else:
+        for j in starts:
+            block(j)
+    return out
