@@ -113,11 +113,14 @@ class ReducedLinear:
         self.positions = positions
         self.modal_basis = modal_basis
         self.T_sparse = sp.csr_matrix(T)
-        M, K, C, T = dense_array(M), dense_array(K), dense_array(C), dense_array(T)
-        # what the stuck joint adds to K (sparse: its contact DOFs)
-        self._dK = None if K_stuck is None else sp.csr_matrix(dense_array(K_stuck) - K)
-        if self._dK is not None:
+        # what the stuck joint adds to K (sparse: its contact DOFs; from sparse inputs
+        # without a dense copy of K_stuck)
+        self._dK = None
+        if K_stuck is not None:
+            self._dK = (sp.csr_matrix(K_stuck) - sp.csr_matrix(K)) if sp.issparse(K_stuck) \
+                and sp.issparse(K) else sp.csr_matrix(dense_array(K_stuck) - dense_array(K))
             self._dK.eliminate_zeros()
+        M, K, C, T = dense_array(M), dense_array(K), dense_array(C), dense_array(T)
         n = M.shape[0]
         if n > MAX_DENSE_DOF:
             raise NotImplementedError(
