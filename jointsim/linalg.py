@@ -23,12 +23,12 @@ def symmetric_congruence(V, A, threads: int = 1, columns: int = 128,
     whole product, and no ``n x m`` temporary.  The diagonal blocks are symmetrised.
     With ``both_sides``, every block column is formed whole, ``out[:, j:e] = V^T (A
     V[:, j:e])``, and the result is ``(out + out^T) / 2``: the whole product's flops, and
-    each pair of entries the mean of its two roundings.  An eigenvalue sees only the
-    symmetric part of the rounding errors, which the mean halves and the mirror doubles:
-    the condensation's stuck frequencies of the lap joint (cancellations of condition
-    number about 1e11) came 10 to 25 times nearer the shift-invert ones with it (round
-    43, :mod:`jointsim.solvers.welded`).  On ``threads`` threads the blocks are
-    independent, and the result does not depend on how many there are.
+    each pair of entries the mean of its two roundings.  An eigenvalue ``phi^T (V^T A V)
+    phi`` sees the rounding errors of both triangles; the mirror counts the upper one
+    twice, the mean each once: a standard deviation smaller by about ``sqrt(2)``
+    (:mod:`jointsim.solvers.welded`, whose cancellations have a condition number of about
+    1e11).  On ``threads`` threads the blocks are independent, and the result does not
+    depend on how many there are.
 
     Parameters
     ----------

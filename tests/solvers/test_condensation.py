@@ -274,3 +274,48 @@ def test_symmetric_congruence_is_the_product_on_any_threads():
         three = symmetric_congruence(V, A, threads=3, columns=7)
         assert np.abs(one - ref).max() <= 1e-13 * np.abs(ref).max()
         assert np.array_equal(one, one.T) and np.array_equal(one, three)
+        both = symmetric_congruence(V, A, threads=1, columns=7, both_sides=True)
+        assert np.array_equal(both, 0.5 * (ref + ref.T))
+        assert np.array_equal(both, symmetric_congruence(V, A, threads=3, columns=7,
+                                                         both_sides=True))
+
+
+def test_the_condensations_stuck_frequencies_are_the_shift_invert_ones():
+    """On the default lap joint (96 Gauss points, 428 reduced DOFs) the stuck joint's
+    first elastic frequencies seen from the condensation (where ``S(nu^2) + diag(k)`` is
+    singular, undamped, ``S`` from the blocks of ``K`` and ``M`` in the coordinates
+    ``(q, y)``) equal the shift-invert modes of ``(K_stuck, M)`` (Lanczos on SuperLU's
+    pivoted factors) to 1e-8: the round-off of a structure of condition number about
+    1e11 (measured on the first 2.5e-9 on OpenBLAS's threads, 6.6e-11 on one;
+    ``stuck_modes``, on the unpivoted factors of :func:`~jointsim.fem.reduction.spd_lu`,
+    is 1.3e-8 from that reference)."""
+    from pathlib import Path
+
+    import scipy.sparse.linalg as spla
+
+    from jointsim.model import build_model
+    from jointsim.scene import load_scene
+    from jointsim.solvers.hbm import HBMSystem
+    from jointsim.solvers.modes import stuck_modes
+    model = build_model(load_scene(Path(__file__).parents[2] / "models" / "lap_joint.toml"))
+    lin = HBMSystem(model, (0, 1), 16, linear_solver="krylov").lin
+    k = lin.flexibility.k
+    lam, myy = np.diag(lin.K["yy"]), np.diag(lin.M["yy"])
+
+    def mu(s):                   # the eigenvalue of S(s) + diag(k) nearest 0
+        B0 = lin.K["qy"] - s * lin.M["qy"]
+        S = lin.K["qq"] - s * lin.M["qq"] - (B0 / (lam - s * myy)) @ B0.T + np.diag(k)
+        w = np.linalg.eigvalsh(0.5 * (S + S.T))
+        return w[np.argmin(np.abs(w))]
+    modes = stuck_modes(model, 8)
+    w2 = np.sort(spla.eigsh(model.linearisation.K.tocsc(), k=8, M=model.M.tocsc(), sigma=0.0,
+                            which="LM", tol=1e-15)[0])
+    for f in (np.sqrt(w2) / (2 * np.pi))[modes.elastic][:4]:
+        s0, s1 = (2 * np.pi * f) ** 2 * (1 - 1e-7), (2 * np.pi * f) ** 2 * (1 + 1e-7)
+        m0, m1 = mu(s0), mu(s1)
+        for _ in range(8):                        # secant on mu(s) = 0
+            if m1 == m0:
+                break
+            s0, m0, s1 = s1, m1, s1 - m1 * (s1 - s0) / (m1 - m0)
+            m1 = mu(s1)
+        assert abs(np.sqrt(s1) / (2 * np.pi) / f - 1) <= 1e-8
