@@ -28,7 +28,9 @@ harmonic.  ``E`` is singular only at an undamped resonance of the structure
 with the contacts *welded* (``q = 0``); with damping it is not, and the
 formulation is exact (the linear FRF is reproduced to round-off).
 
-The harmonic balance built on it is :mod:`jointsim.solvers.hbm`.
+The coordinates and the blocks of ``K``, ``M`` and ``C`` in them are made once per
+model by :mod:`jointsim.solvers.welded`.  The harmonic balance built on it is
+:mod:`jointsim.solvers.hbm`.
 """
 from __future__ import annotations
 

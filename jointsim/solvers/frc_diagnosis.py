@@ -12,11 +12,14 @@ and what the user can change (:func:`explain_branch_failure`).  Used by
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..results import Convergence
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -83,8 +86,14 @@ class UndampedResonance:
                 f"lower analysis.hbm.step_min to resolve it")
 
 
+#: :func:`explain_branch_failure` looks for undamped resonances (two dense
+#: eigen-decompositions of the structure) up to this many DOFs; above, it says so in the
+#: log (round 43; it was silent).
+UNDAMPED_MAX_DOF = 2000
+
+
 def undamped_resonances(model, basis, F, omega_lo: float, omega_hi: float, zeta_tol: float = 1e-9,
-                        max_dof: int = 2000) -> list:
+                        max_dof: int = UNDAMPED_MAX_DOF) -> list:
     """Resonances in ``[omega_lo, omega_hi]`` of the linearised stuck and slipping joint
     systems that carry no viscous damping.
 
@@ -194,7 +203,12 @@ def explain_branch_failure(conv, system, F, omega_lo: float, omega_hi: float, la
     """
     if conv.success:
         return conv
-    res = undamped_resonances(system.model, system.basis, F, omega_lo, omega_hi)
+    if system.model.n_dof > UNDAMPED_MAX_DOF:
+        log.info("the branch's failure is not checked against undamped resonances: the "
+                 "model has %d DOFs (two dense eigen-decompositions are made up to %d)",
+                 system.model.n_dof, UNDAMPED_MAX_DOF)
+    res = undamped_resonances(system.model, system.basis, F, omega_lo, omega_hi,
+                              max_dof=UNDAMPED_MAX_DOF)
     if "grows without bound" in conv.message:
         r = diagnose_failure(res, lam)
         if r is not None and r.unbounded:   # the linearised systems say why

@@ -87,6 +87,29 @@ def test_undamped_resonances_of_the_chain_are_analytic():
                                system.force_coefficients(0.3), 0.8, 1.3) == []
 
 
+def test_a_failure_above_the_undamped_search_limit_says_so(monkeypatch, caplog):
+    """``explain_branch_failure`` on a model above ``UNDAMPED_MAX_DOF`` (here the chain,
+    the limit set to 1): the failure keeps its message, and the log says that no
+    undamped resonance was looked for and why (round 43: it was silent); at the limit
+    the explanation names the chain's unbounded slipping resonance."""
+    import logging
+
+    import jointsim.solvers.frc_diagnosis as fd
+    from jointsim.results import Convergence
+    model = build_model(load_scene(CHAIN2, [C0]))
+    a = load_scene(CHAIN2, [C0]).analysis.hbm
+    system = _system(model, a, parallel=False)
+    F = system.force_coefficients(0.26)
+    failed = Convergence(False, 3, "step shrunk below step_min", 10)
+    found = fd.explain_branch_failure(failed, system, F, a.omega_start, a.omega_end, 1.0)
+    assert "slipping joint" in found.message and found.message != failed.message
+    monkeypatch.setattr(fd, "UNDAMPED_MAX_DOF", 1)
+    with caplog.at_level(logging.INFO, logger="jointsim.solvers.frc_diagnosis"):
+        kept = fd.explain_branch_failure(failed, system, F, a.omega_start, a.omega_end, 1.0)
+    assert kept.message == failed.message
+    assert "not checked against undamped resonances: the model has 2 DOFs" in caplog.text
+
+
 def test_zero_damping_friction_only_peak_completes(tmp_path):
     """C = 0, F = 0.01: the response grows to the slip limit and friction bounds it (Den
     Hartog: 0.0222 < 0.566); the sharp corner at the slip onset is passed (it used to stop
