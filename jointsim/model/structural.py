@@ -29,7 +29,6 @@ from ..contact import NormalLaw, TangentialLaw
 from ..fem.assembly import FEStructure
 from ..fem.reduced import ReducedModel
 from ..fem.reduction import CraigBampton
-from .damping import ModalBasis
 from ..solvers.static import StaticResult, StuckLinearisation, stuck_linearisation
 
 log = logging.getLogger(__name__)
@@ -181,11 +180,6 @@ class StructuralModel:
         Computed once, when the model is constructed (leave it out, or pass
         None, to have it computed; pass None again to ``dataclasses.replace``
         when changing ``K``, the contacts or the loads).
-    modal_basis : jointsim.model.damping.ModalBasis or None
-        Every mode of ``(linearisation.K, M)`` when the builder made them (the modal
-        damping of an FE or ROM model is defined on the first ones); None otherwise.
-        Solvers check that they still hold (:meth:`~jointsim.model.damping.ModalBasis.hold_for`)
-        before they use them.
     """
 
     M: sp.csr_matrix
@@ -203,7 +197,6 @@ class StructuralModel:
     rom: ReducedModel | None = None
     source: str | None = None
     linearisation: StuckLinearisation | None = None
-    modal_basis: ModalBasis | None = None
 
     def __post_init__(self):
         if self.linearisation is None:

@@ -93,10 +93,6 @@ class ReducedLinear:
     positions : ndarray, shape (n_r, d), optional
         Position of every contact coordinate [m]: orders them for the hierarchical
         form of ``S_h`` (:mod:`jointsim.solvers.hierarchical`).
-    modal_basis : jointsim.model.damping.ModalBasis, optional
-        Every mode of ``(K_stuck, M)``, checked by the caller
-        (:meth:`~jointsim.model.damping.ModalBasis.hold_for`): :attr:`flexibility` then
-        takes them instead of an eigen-decomposition of its own.
 
     Attributes
     ----------
@@ -111,9 +107,8 @@ class ReducedLinear:
     See the module docstring for the formulation.
     """
 
-    def __init__(self, M, K, C, T, K_stuck=None, positions=None, modal_basis=None):
+    def __init__(self, M, K, C, T, K_stuck=None, positions=None):
         self.positions = positions
-        self.modal_basis = modal_basis
         self.T_sparse = sp.csr_matrix(T)
         # what the stuck joint adds to K (sparse: its contact DOFs; from sparse inputs
         # without a dense copy of K_stuck)

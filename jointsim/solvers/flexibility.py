@@ -21,10 +21,7 @@ summed once (``C_p = sum_j psi_j psi_j' / lam_j^(p + 1)``), so that forming the 
 of every harmonic costs about ``4 n_r^2 n_L`` flops (``n_L`` the modes below
 ``FLEX_RATIO`` times the highest harmonic frequency: 19 to 33 at 240 Gauss points) and
 no ``n_r^3`` inverse and no ``S_h`` (``n_r^2 n_y``).  The modes and the sums are made
-once per run: the modes are those the model's modal damping was defined on
-(``StructuralModel.modal_basis``, :func:`jointsim.model.damping.damping_and_modes`) where
-they hold, else one eigen-decomposition of the reduced structure (``n^3``; 1.5 s at 480
-Gauss points, round 43).
+once per run (one eigen-decomposition of the reduced structure, ``n^3``).
 
 Its accuracy is that of the stuck modes of a structure with stiff contact springs: their
 eigenvalues are known to about ``eps lam_max`` absolutely, so it agrees with the
@@ -111,10 +108,8 @@ class StuckFlexibility:
         dK : scipy.sparse matrix, shape (n, n)
             ``K_s - K``: what the stuck joint adds to the stiffness [N/m].
 
-        The stuck modes are ``lin.modal_basis`` (the model's, in its own coordinates:
-        ``T phi`` on the contact coordinates) where it is given and the damping is of low
-        rank (``lin.damping_low_rank``), else the eigen-decomposition of ``(K + dK, M)`` in
-        the coordinates ``(q, y)``.
+        The stuck modes are the eigen-decomposition of ``(K + dK, M)`` in the
+        coordinates ``(q, y)``.
 
         Returns None (logged) when ``dK`` is not a stiffness on each contact coordinate
         alone (``dK = T' diag(k) T`` to ``FLEX_DIAGONAL_RTOL`` of its largest entry), when
@@ -139,32 +134,23 @@ class StuckFlexibility:
                 float(np.abs(fit.data).max(initial=0.0)), 1e-300):
             log.debug("stuck flexibility: the stuck joint's stiffness couples coordinates")
             return None
-        basis, lowc = lin.modal_basis, lin.damping_low_rank
-        if basis is not None and lowc is not None:
-            # the modes the model's modal damping was defined on (x coordinates, the same
-            # pencil K_s, M): their contact coordinates T phi; no eigen-decomposition here
-            lam, Phi_q = basis.lam, np.asarray(T @ basis.phi)
-            PW = basis.phi.T @ lowc[0]
-            Cm = (PW * lowc[1]) @ PW.T
+
+        def whole(X):
+            return np.block([[X["qq"], X["qy"]], [X["yq"], X["yy"]]]) if lin.n_y else X["qq"]
+        Ks = np.array(whole(lin.K))                  # (a copy: whole() may return a block)
+        Ks[np.arange(n_r), np.arange(n_r)] += k
+        M = whole(lin.M)
+        try:
+            lam, Phi = sla.eigh(0.5 * (Ks + Ks.T), 0.5 * (M + M.T), check_finite=False)
+        except (np.linalg.LinAlgError, ValueError):
+            return None
+        factors = lin.damping_factors
+        if factors is not None:                           # C = W diag(c) W^T
+            Wq, Wy, cw = factors
+            PW = Phi.T @ np.vstack([Wq, Wy])
+            Cm = (PW * cw) @ PW.T
         else:
-            def whole(X):
-                return np.block([[X["qq"], X["qy"]], [X["yq"], X["yy"]]]) if lin.n_y \
-                    else X["qq"]
-            Ks = np.array(whole(lin.K))              # (a copy: whole() may return a block)
-            Ks[np.arange(n_r), np.arange(n_r)] += k
-            M = whole(lin.M)
-            try:
-                lam, Phi = sla.eigh(0.5 * (Ks + Ks.T), 0.5 * (M + M.T), check_finite=False)
-            except (np.linalg.LinAlgError, ValueError):
-                return None
-            Phi_q = Phi[:n_r]
-            factors = lin.damping_factors
-            if factors is not None:                           # C = W diag(c) W^T
-                Wq, Wy, cw = factors
-                PW = Phi.T @ np.vstack([Wq, Wy])
-                Cm = (PW * cw) @ PW.T
-            else:
-                Cm = Phi.T @ whole(lin.C) @ Phi
+            Cm = Phi.T @ whole(lin.C) @ Phi
         if not lam.min(initial=1.0) > 0.0:
             log.debug("stuck flexibility: the stuck structure is not positive definite")
             return None
@@ -177,7 +163,7 @@ class StuckFlexibility:
         if damped.size > FLEX_DAMPED_MAX:
             log.debug("stuck flexibility: the damping reaches %d stuck modes", damped.size)
             return None
-        return cls(lam, Phi_q, k, damped, Cm[np.ix_(damped, damped)])
+        return cls(lam, Phi[:n_r], k, damped, Cm[np.ix_(damped, damped)])
 
     def _made_for(self, nu: float):
         """The series valid up to ``nu`` (made when the kept one is not)."""

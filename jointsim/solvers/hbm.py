@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..harmonics import HarmonicBasis
-from ..model.damping import held_modal_basis
 from .aft import AFT, AFTResult
 from .condensation import STACKED_MAX_DOF, WELDED_SINGULAR, ReducedLinear, dense_array
 from .frequency_blocks import FrequencyBlocks
@@ -122,8 +121,7 @@ class HBMSystem:
         self.lin = lin if lin is not None else ReducedLinear(
             model.M, model.K, model.C, T, K_stuck=model.linearisation.K
             if model.linearisation is not None else None,
-            positions=np.vstack([c.position] * (nr // ne)) if nr else None,
-            modal_basis=held_modal_basis(model))
+            positions=np.vstack([c.position] * (nr // ne)) if nr else None)
         self.n_r = nr
         self.n_c = self.basis.n_coeff
         self.n_z = self.n_c * nr

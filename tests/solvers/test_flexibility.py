@@ -111,30 +111,6 @@ def test_flexibility_of_the_coarse_lap_joint(coarse_model):
     assert np.abs(fl.k - _stuck_tangent(system)).max() <= 1e-12 * np.abs(fl.k).max()
 
 
-def test_the_models_modal_basis_gives_the_flexibility_without_an_eigh(coarse_model,
-                                                                     monkeypatch):
-    """The lap joint's flexibility is made from the modes its modal damping was defined
-    on (``model.modal_basis``, round 43): no eigen-decomposition of its own (one would
-    raise here), the same inverses as one made without the basis (its own ``eigh`` in the
-    coordinates ``(q, y)``) to the accuracy of the stuck modes, and the same ``k``."""
-    import dataclasses
-    own = HBMSystem(dataclasses.replace(coarse_model, modal_basis=None), (0, 1, 2, 3), 64,
-                    linear_solver="krylov").lin.flexibility
-    assert own is not None
-    system = HBMSystem(coarse_model, (0, 1, 2, 3), 64, linear_solver="krylov")
-    assert system.lin.modal_basis is coarse_model.modal_basis
-
-    def no_eigh(*args, **kw):
-        raise AssertionError("an eigen-decomposition was made")
-    monkeypatch.setattr(fx.sla, "eigh", no_eigh)          # (scipy.linalg's own)
-    fl = _check_inverses(system, [0.0, 900.0, 2700.0, 6300.0], 0.0, 1e-6)
-    assert fl.damped.size == 12
-    assert np.abs(fl.k - own.k).max() <= 1e-14 * np.abs(own.k).max()
-    nus = [900.0, 2700.0, 6300.0]
-    for a, b in zip(fl.inverses(nus, 0.3), own.inverses(nus, 0.3)):
-        assert np.abs(a - b).max() <= 1e-6 * np.abs(b).max()
-
-
 def test_series_is_made_again_for_higher_frequencies(coarse_model, monkeypatch):
     """A series made for one frequency serves below ``FLEX_MARGIN`` times it; a higher
     one makes it again (more modes summed exactly), and either equals the sum over all
