@@ -1,8 +1,9 @@
 """Dense products shared by the FE reduction and the condensation.
 
 :func:`symmetric_congruence` forms ``V^T A V`` of a symmetric ``A`` by blocks of columns
-on one side of the diagonal, on threads of their own (each product releases the GIL and
-runs on the one BLAS thread the entry points set, :mod:`jointsim.blas`): the
+(on one side of the diagonal, or on both and averaged), on threads of their own (each
+product releases the GIL and runs on the one BLAS thread the entry points set,
+:mod:`jointsim.blas`): the
 Craig-Bampton projections (:meth:`jointsim.fem.reduction.CraigBampton.project`) and the
 blocks of ``K`` and ``M`` in the condensation's coordinates
 (:func:`jointsim.solvers.welded.welded_coordinates`).

@@ -28,10 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
-
-from ..linalg import symmetric_congruence
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+from ..linalg import symmetric_congruence
 
 log = logging.getLogger(__name__)
 
