@@ -1,4 +1,4 @@
-"""Dense products shared by the FE reduction and the condensation.
+"""Dense products shared by the FE reduction and the condensation; stacked inverses.
 
 :func:`symmetric_congruence` forms ``V^T A V`` of a symmetric ``A`` by blocks of columns
 (on one side of the diagonal, or on both and averaged), on threads of their own (each
@@ -6,13 +6,27 @@ product releases the GIL and runs on the one BLAS thread the entry points set,
 :mod:`jointsim.blas`): the
 Craig-Bampton projections (:meth:`jointsim.fem.reduction.CraigBampton.project`) and the
 blocks of ``K`` and ``M`` in the condensation's coordinates
-(:func:`jointsim.solvers.welded.welded_coordinates`).
+(:func:`jointsim.solvers.welded.welded_coordinates`).  :func:`stacked_inverse` inverts
+the harmonic preconditioner's blocks (:mod:`jointsim.solvers.preconditioner`).
 """
 from __future__ import annotations
 
+import logging
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def stacked_inverse(blocks) -> np.ndarray:
+    """The inverses of the stacked ``blocks`` (n, m, m), in their precision; a singular
+    block's pseudo-inverse (a preconditioner's: GMRES then has to cope)."""
+    try:
+        return np.linalg.inv(blocks)
+    except np.linalg.LinAlgError:
+        log.debug("a singular block: its pseudo-inverse is used")
+        return np.linalg.pinv(blocks)
 
 
 def symmetric_congruence(V, A, threads: int = 1, columns: int = 128,

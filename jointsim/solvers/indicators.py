@@ -379,11 +379,12 @@ class ErrorEstimator:
                                    curve=0.0, curve_truncation=0.0, curve_aliasing=0.0,
                                    curve_frequency=0.0)
         if not REUSE_ACROSS_POINTS:
-            ext.preconditioner.forget()
+            ext.preconditioner.forget(stage=True)
         # one solve (three columns) per preconditioner: a large low-rank stage is split
         # by harmonics and solved through its capacitance system
         # (preconditioner.LOOSE_SPLIT_MIN)
         ext.preconditioner.single_solve = not REUSE_ACROSS_POINTS
+        ext.preconditioner.share_within_point = False
         ze = self._embed(np.asarray(z, dtype=float).reshape(s.n_c, s.n_r)).ravel()
         across = np.isfinite(self.curve_above) and xi == 0.0
         ev = ext.evaluate(ze, omega, self._embed(F), xi=xi,
@@ -507,11 +508,15 @@ class ErrorEstimator:
         epx = EPMCSystem(ext, ep.phi, self._embed(ep.F))
         zh = self._embed(y[:nz].reshape(s.n_c, s.n_r)).ravel()
         yx = np.concatenate([zh, [omega, xi, lam]])
+        cache = ext.preconditioner
         if not REUSE_ACROSS_POINTS:
-            ext.preconditioner.forget()
+            cache.forget(stage=True)
         # the extended Newton's steps share it (a truncated low-rank stage is split by
-        # harmonics instead, preconditioner.LOOSE_SPLIT_MIN: its step's alone)
-        ext.preconditioner.single_solve = False
+        # harmonics instead, preconditioner.LOOSE_SPLIT_MIN: its step's alone), and the
+        # first build's harmonic stage in any case (their frequencies differ by the
+        # estimated errors): their builds are low-rank stages (docs/hbm.md, "Round 44")
+        cache.single_solve = False
+        cache.share_within_point = True
         R, J, ev = epx.fun(yx)
         n_rows = s.n_c * s.n_r
         nzx = ext.n_z

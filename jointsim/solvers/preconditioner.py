@@ -19,6 +19,7 @@ import logging
 import numpy as np
 import scipy.linalg as sla
 
+from ..linalg import stacked_inverse
 from .gmres import gmres_columns
 from .flexibility import FlexibilitySolve
 from .hierarchical import HierarchicalInverse, schur_entries
@@ -104,16 +105,6 @@ MODAL_STAGE = True
 SHIFTED_FLEX_MIN_ROWS = 400
 
 
-def _inverse(blocks) -> np.ndarray:
-    """The inverses of the stacked ``blocks`` (n, m, m), in their precision; a singular
-    block's pseudo-inverse (GMRES then has to cope)."""
-    try:
-        return np.linalg.inv(blocks)
-    except np.linalg.LinAlgError:
-        log.debug("harmonic preconditioner: a singular block, pseudo-inverse used")
-        return np.linalg.pinv(blocks)
-
-
 class HarmonicPreconditioner:
     """Per harmonic, the inverse of ``S_h`` plus the harmonic-``h`` element tangent, with an
     exact low-rank correction for the elements whose tangent couples harmonics
@@ -133,11 +124,12 @@ class HarmonicPreconditioner:
         the mode is its null vector), see :class:`~jointsim.solvers.jacobian.BorderedJacobian`.
     base : HarmonicPreconditioner, optional
         Share its harmonic stage (``Pinv`` or ``Plu``, the tangent projections
-        ``proj``, ``S``, built at its ``omega`` and ``xi``; not with a shift): ``J`` is
-        then ``P + L`` with ``L`` the whole difference of ``jac``'s tangent from
-        ``base``'s projection plus the change of ``S_h`` with the frequency.  The
-        low-rank stage corrects for the first exactly; GMRES does the rest
-        (``partial``, ``preconditioner_cache.SHARE_HARMONIC_STAGE``).
+        ``proj``, ``S``, built at its ``omega`` and ``xi``): ``J`` is then ``P + L``
+        with ``L`` the whole difference of ``jac``'s tangent from ``base``'s
+        projection plus the change of ``S_h`` with the frequency.  The low-rank stage
+        corrects for the first exactly; GMRES does the rest (``partial``,
+        ``preconditioner_cache.SHARE_HARMONIC_STAGE``).  A shifted stage is shared with
+        its shift ``C2`` (:meth:`shares_shift`; the bordering is exact for any ``C2``).
     """
 
     def __init__(self, jac, shift=None, base=None):
@@ -147,12 +139,14 @@ class HarmonicPreconditioner:
         if base is not None:
             # the harmonic stage of ``base`` (S_h at its frequency, the harmonic
             # projection of its tangent): only the low-rank stage is new
-            if shift is not None or base.C2 is not None:
-                raise ValueError("a shifted harmonic stage is not shared")
+            if not base.shares_shift(shift):
+                raise ValueError("a harmonic stage is shared only by builds shifted on "
+                                 "the same harmonic as it, or by unshifted ones")
             self.Pinv, self.Plu, self.Psolve = base.Pinv, base.Plu, base.Psolve
             self.proj, self.S, self.Pinv_double = base.proj, base.S, base.Pinv_double
             self.omega, self.xi = base.omega, base.xi
             self.modal = base.modal
+            self.C2, shift = base.C2, base._shift
             self.partial = True
         else:
             self._harmonic_stage(shift)
@@ -170,6 +164,12 @@ class HarmonicPreconditioner:
         else:
             self.Binv = None
         self._count_flops()
+
+    def shares_shift(self, shift) -> bool:
+        """Whether a build with ``shift`` (None or ``(i, u, ell)``) may share this
+        harmonic stage: both unshifted, or both shifted on the same harmonic."""
+        mine = self._shift
+        return (shift is None) == (mine is None) and (shift is None or shift[0] == mine[0])
 
     def _harmonic_stage(self, shift, modal: bool = True, by_solves: bool = True):
         """Per harmonic, the inverse of ``S_h`` plus the harmonic projection of every
@@ -237,12 +237,12 @@ class HarmonicPreconditioner:
         single = self._single_harmonics()
         if single.any():
             self.Pinv = np.empty(blocks.shape, dtype=np.complex64)
-            self.Pinv[single] = _inverse(blocks[single].astype(np.complex64))
-            exact = _inverse(blocks[~single])
+            self.Pinv[single] = stacked_inverse(blocks[single].astype(np.complex64))
+            exact = stacked_inverse(blocks[~single])
             self.Pinv[~single] = exact           # (applied from Pinv_double)
             self.Pinv_double = dict(zip(np.flatnonzero(~single).tolist(), exact))
         else:
-            self.Pinv = _inverse(blocks)
+            self.Pinv = stacked_inverse(blocks)
         self.Pinv[jac._h0] = self.Pinv[jac._h0].real
 
     def _single_harmonics(self) -> np.ndarray:
@@ -294,7 +294,7 @@ class HarmonicPreconditioner:
             P = np.array(jac.schur(i), dtype=complex)
             add_projected_tangent(P, jac, i, stuck)
             P += self._rank_one(P, i, shift[1], shift[2])
-            shifted = (i, _inverse(P[None])[0])
+            shifted = (i, stacked_inverse(P[None])[0])
         single = None if jac.rtol >= SINGLE_LU_RTOL else self._single_harmonics()
         # (flex keeps them, read-only, for the builds at one frequency: copied if replaced)
         self.Pinv = flex.inverses(nus, self.xi, single=single is None or bool(single.any()))
@@ -546,7 +546,7 @@ class HarmonicPreconditioner:
             lus, inverses, groups, Q = (sla.lu_factor(caps[0], check_finite=False),), \
                 None, (slice(None),), None
         else:       # small blocks (one harmonic's rows), applied many times: inverses
-            lus, inverses = (), tuple(_inverse(Mk) for Mk in caps)
+            lus, inverses = (), tuple(stacked_inverse(Mk) for Mk in caps)
             groups = tuple((np.arange(nrb)[:, None] * nc + c[None, :]).ravel() for c in coefs)
             Q = np.ascontiguousarray(self.PinvR[:, R].astype(np.complex64))
         self.lowrank = LowRankStage(R, Rrow, blk_el, Lr, groups, lus, nb, full, Q, inverses)

@@ -51,15 +51,19 @@ TRUNCATED_REUSE = 0.0
 #: build's harmonic stage (``S_h`` and the ``H + 1`` inverses, at the old frequency
 #: and with the old harmonic projection of the tangent) and builds only its low-rank
 #: stage, which then corrects for the whole change of the tangent (``partial``).
-#: 0: every build is full.  Not with a shift (the EPMC's bordered solves), and not
-#: for Jacobians solved to a loose tolerance (``SINGLE_LU_RTOL``: the error
-#: indicators' extended systems): there the low-rank LU dominates the build, and the
-#: old projection adds the elements that stuck in one state and slipped in the other
-#: to it.  Measured on 120 Gauss points, force-20 branch, one thread: a main system's
-#: build 133 ms full, 42 ms partial; an extended system's 0.41 s full, 0.47 s partial.
+#: 0: every build is full.  A shifted stage (the EPMC's bordered solves) is shared by
+#: builds shifted on the same harmonic, with its own shift (round 44).  Not for
+#: Jacobians solved to a loose tolerance (``SINGLE_LU_RTOL``: the error indicators'
+#: extended systems) unless the cache says so (:attr:`PreconditionerCache.
+#: share_within_point`): for an FRC point's extended solve the low-rank LU dominates
+#: the build, and the old projection adds the elements that stuck in one state and
+#: slipped in the other to it.  Measured on 120 Gauss points, force-20 branch, one
+#: thread: a main system's build 133 ms full, 42 ms partial; an extended system's 0.41 s full, 0.47 s partial.
 #: The branch (error indicators off) on 240 Gauss points: 145.6 s without sharing,
 #: 117.8 s at 1e-3, 112.2 s at 5e-3 (Newton iterations and points unchanged, GMRES
-#: iterations 2,949 / 3,105 / 3,257, X equal to 2.4e-12).
+#: iterations 2,949 / 3,105 / 3,257, X equal to 2.4e-12).  The shifted stages of the
+#: EPMC on 480 Gauss points (error indicators off, round 44): 272.1 -> 212.2 s, the same
+#: 34 points, GMRES iterations 2,904 -> 3,101.
 SHARE_HARMONIC_STAGE = 5e-3
 
 #: A truncated low-rank stage that fails: after ``RAISE_AFTER`` solves in which a
@@ -122,6 +126,11 @@ class PreconditionerCache:
         #: and be solved through its capacitance system (``LOOSE_SPLIT_MIN``; a split
         #: one is kept for its own Jacobian only); set by the caller
         self.single_solve = False
+        #: the builds share the kept harmonic stage whatever their frequency and
+        #: tolerance (an EPMC point's extended Newton steps, whose frequencies differ
+        #: by the estimated errors; the caller drops the stage at each point,
+        #: :meth:`forget`): set by the caller
+        self.share_within_point = False
         #: the harmonic stage's inverses may be in single precision
         #: (``preconditioner.SINGLE_INVERSE_MIN``): an FRC branch's continuation sets it
         #: (:func:`jointsim.analyses.hbm._run_branch`), where it pays; off elsewhere
@@ -174,14 +183,17 @@ class PreconditionerCache:
     def _stage_for(self, jac, shift) -> "HarmonicPreconditioner | None":
         """The kept harmonic stage when ``jac`` may share it, else None."""
         P = self.stage
-        if not (self.reuse and SHARE_HARMONIC_STAGE > 0) or P is None or shift is not None \
-                or P.C2 is not None or jac.rtol >= SINGLE_LU_RTOL \
-                or P.modal:      # loose: see the constant; a modal stage is cheap to make
+        if P is None or not P.shares_shift(shift):
             return None
         o = P.jac
         if o.basis is not jac.basis or o.lin is not jac.lin \
                 or any((a is None) != (b is None) for a, b in
                        ((o.Juu, jac.Juu), (o.Jug, jac.Jug), (o.JNN, jac.JNN))):
+            return None
+        if self.share_within_point:
+            return P
+        if not (self.reuse and SHARE_HARMONIC_STAGE > 0) or jac.rtol >= SINGLE_LU_RTOL \
+                or P.modal:      # loose: see the constant; a modal stage is cheap to make
             return None
         change = abs(jac.freq.omega - P.omega) + abs(jac.freq.xi - P.xi)
         return P if change <= SHARE_HARMONIC_STAGE * abs(P.omega) else None
@@ -248,9 +260,13 @@ class PreconditionerCache:
         elif iterations > self.threshold():
             self.forget()
 
-    def forget(self) -> None:
+    def forget(self, stage: bool = False) -> None:
         """Drop the current preconditioner: the next Jacobian builds its own (the error
-        indicators do this at every point, ``indicators.REUSE_ACROSS_POINTS``)."""
+        indicators do this at every point, ``indicators.REUSE_ACROSS_POINTS``), and with
+        ``stage`` the kept harmonic stage too (the next build is full)."""
         self.current = None
         self.owner = None
         self.exclusive = False
+        if stage:
+            self.stage = None
+            self.stage_iterations = None

@@ -357,6 +357,51 @@ def test_a_point_builds_its_own_extended_preconditioner(points):
     np.testing.assert_array_equal(astuple(after), astuple(alone))     # NaN == NaN here
 
 
+def test_an_epmc_points_newton_steps_share_its_harmonic_stage(monkeypatch):
+    """The extended EPMC Newton steps of one point that build a preconditioner each (the
+    refresh threshold forced to 0 here; on the 480-point lap joint three of a point's
+    four builds) keep the first build's harmonic stage, with its shift, and build only
+    their low-rank stages (``PreconditionerCache.share_within_point``).  The indicators
+    equal those of the dense path to the GMRES tolerance's effect, and the next point
+    starts with a full build of its own.  SDOF Jenkins EPMC at a = 2 (H = 0..7)."""
+    import jointsim.solvers.indicators as ind
+    import jointsim.solvers.preconditioner as pm
+    # Newton steps past the first here too (the lumped case's first step is in the
+    # quadratic region, where one residual evaluation ends it)
+    monkeypatch.setattr(ind, "EPMC_CHANGE_TOL", 1e-6)
+    m = build_model(load_scene(MODELS / "hbm" / "sdof_jenkins_epmc.toml"))
+    s, ep, y1 = _mode_point(m, 7, 64, 1.5)
+    y2 = _mode_point(m, 7, 64, 2.0, y1[:-1])[2]
+    d = ErrorEstimator(s).epmc(ep, y2)
+    sk = HBMSystem(m, s.basis.harmonics, 64, linear_solver="krylov")
+    epk = EPMCSystem(sk, ep.phi, ep.F)
+    built = []
+    init = pm.HarmonicPreconditioner.__init__
+
+    def spy(self, jac, shift=None, base=None):
+        init(self, jac, shift, base)
+        built.append(self)
+    monkeypatch.setattr(pm.HarmonicPreconditioner, "__init__", spy)
+    est = ErrorEstimator(sk)
+    est.ext.preconditioner.refresh_iterations = 0
+    k = est.epmc(epk, y2)
+    assert len(built) >= 3 and not built[0].partial and built[0].C2 is not None
+    def same_stage(P, Q):
+        return all(a is b for a, b in ((P.Pinv, Q.Pinv), (P.Plu, Q.Plu), (P.Psolve, Q.Psolve)))
+    for P in built[1:]:
+        assert P.partial and same_stage(P, built[0]) and P.C2 is built[0].C2
+    assert d.estimate > 1e-6 and d.damping > 1e-4
+    for name in ("truncation", "aliasing", "estimate", "frequency", "damping"):
+        assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-3), name
+    first = built[0]
+    built.clear()
+    est.epmc(epk, y1)
+    assert not built[0].partial and all(P.partial for P in built[1:])
+    assert not same_stage(built[0], first)
+    with pytest.raises(ValueError, match="shared only"):
+        pm.HarmonicPreconditioner(first.jac, None, base=first)
+
+
 W_NEAR_FOLD = 1.415
 
 

@@ -230,6 +230,40 @@ def test_a_shared_harmonic_stage_is_exact_at_its_frequency(law, normal, monkeypa
     assert not cache.refresh(J2).partial
 
 
+def test_a_shifted_harmonic_stage_is_shared_with_its_shift(monkeypatch):
+    """The EPMC's bordered solves precondition ``J + C2 R2`` (a shift on the
+    fundamental's block).  A build at a frequency within ``SHARE_HARMONIC_STAGE`` of the
+    last full shifted one keeps that stage and its shift ``C2``, builds only its low-rank
+    stage, and the bordered solve with it still equals the dense solve to 1e-8.  An
+    unshifted build does not share a shifted stage.  Four-DOF Jenkins chain, coupled N,
+    a state with slip and separation, omega 1.1 and 1.1 (1 + 1e-3)."""
+    import jointsim.solvers.jacobian as jm
+    import jointsim.solvers.preconditioner as pm
+    from jointsim.solvers.epmc import EPMCSystem
+    from jointsim.solvers.modes import elastic_mode
+    monkeypatch.setattr(pm, "MODAL_STAGE", False)     # a stage of inverted blocks
+    model = build_model(four_dof("jenkins", "anchor", "coupled"))
+    sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    ep = EPMCSystem(sk, elastic_mode(model, 1).phi, sk.force_coefficients(0.0))
+    rng = np.random.default_rng(5)
+    z = rng.normal(size=sk.n_z) * 0.4
+    cache = sk.preconditioner
+    b = rng.normal(size=sk.n_z + 2)
+    stages = []
+    for w in (1.1, 1.1 * (1.0 + 1e-3)):
+        A = jm.drop_last_column(ep.fun(np.concatenate([z, [w, 0.01, 0.0]]))[1])
+        cache.forget()                              # a build for each (the stage kept)
+        x = A.solve(b)
+        xd = np.linalg.solve(A.to_dense(), b)
+        assert np.abs(x - xd).max() <= 1e-8 * np.abs(xd).max()
+        stages.append(cache.current)
+    full, partial = stages
+    assert not full.partial and full.C2 is not None and cache.stage is full
+    assert partial.partial and partial.Pinv is full.Pinv and partial.C2 is full.C2
+    assert partial.omega == 1.1
+    assert not cache.refresh(sk.evaluate(z, 1.1, sk.force_coefficients(0.0)).J).partial
+
+
 def test_single_precision_harmonic_inverses_but_the_fundamental(monkeypatch):
     """From ``SINGLE_INVERSE_MIN`` rows (forced down to 1 here), where the cache allows it
     (``single_inverses``: an FRC branch's continuation), the harmonic stage's
