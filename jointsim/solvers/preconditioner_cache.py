@@ -58,7 +58,8 @@ TRUNCATED_REUSE = 0.0
 #: share_within_point`): for an FRC point's extended solve the low-rank LU dominates
 #: the build, and the old projection adds the elements that stuck in one state and
 #: slipped in the other to it.  Measured on 120 Gauss points, force-20 branch, one
-#: thread: a main system's build 133 ms full, 42 ms partial; an extended system's 0.41 s full, 0.47 s partial.
+#: thread: a main system's build 133 ms full, 42 ms partial; an extended system's
+#: 0.41 s full, 0.47 s partial.
 #: The branch (error indicators off) on 240 Gauss points: 145.6 s without sharing,
 #: 117.8 s at 1e-3, 112.2 s at 5e-3 (Newton iterations and points unchanged, GMRES
 #: iterations 2,949 / 3,105 / 3,257, X equal to 2.4e-12).  The shifted stages of the

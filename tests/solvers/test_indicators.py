@@ -382,12 +382,12 @@ def test_an_epmc_points_newton_steps_share_its_harmonic_stage(monkeypatch):
         init(self, jac, shift, base)
         built.append(self)
     monkeypatch.setattr(pm.HarmonicPreconditioner, "__init__", spy)
+    def same_stage(P, Q):
+        return all(a is b for a, b in ((P.Pinv, Q.Pinv), (P.Plu, Q.Plu), (P.Psolve, Q.Psolve)))
     est = ErrorEstimator(sk)
     est.ext.preconditioner.refresh_iterations = 0
     k = est.epmc(epk, y2)
     assert len(built) >= 3 and not built[0].partial and built[0].C2 is not None
-    def same_stage(P, Q):
-        return all(a is b for a, b in ((P.Pinv, Q.Pinv), (P.Plu, Q.Plu), (P.Psolve, Q.Psolve)))
     for P in built[1:]:
         assert P.partial and same_stage(P, built[0]) and P.C2 is built[0].C2
     assert d.estimate > 1e-6 and d.damping > 1e-4
