@@ -49,7 +49,8 @@ self-excitation and state (one or two digits of the estimate; typically 4 to 6
 steps); the changes are the estimates, the state's split into truncation and
 aliasing keeps the proportion of the first step.  When the iteration does not
 settle (it oscillates, e.g. the coupled joint at H = 0..5 and 0..11 at that
-amplitude) the first step is reported, as before.  On the SDOF Jenkins
+amplitude, or its residual stops falling, :data:`EPMC_STALL`) the first step is
+reported, as before.  On the SDOF Jenkins
 oscillator the first step is already in the quadratic region: frequency and
 damping estimates are unchanged to four digits, and the state estimate is the
 norm of the whole change rather than the sum of the norms of its two parts
@@ -139,6 +140,11 @@ EPMC_MAX_ITER = 8
 #: the extended EPMC solve has settled when its last step is at most this share of
 #: the total change of frequency, self-excitation and state
 EPMC_CHANGE_TOL = 0.05
+#: ... and has failed when the largest structural residual has not fallen by 10 % below
+#: its best in this many steps (it grows where the iteration diverges or wanders: at two
+#: points of the 480-Gauss-point EPMC it grew for every one of the eight steps, which
+#: took 103 s of the point's 103 s; round 45, docs/hbm.md)
+EPMC_STALL = 2
 #: GMRES tolerance (relative residual) of the extended solves on the Krylov path.  An
 #: estimate needs a digit or two (the EPMC's extended Newton stops at EPMC_CHANGE_TOL):
 #: 1e-3 instead of 1e-6 (round 12) changed the indicators of the 96-Gauss-point FRC's
@@ -581,7 +587,9 @@ class ErrorEstimator:
 
         Settled: the last step changes frequency, self-excitation and the state
         by at most :data:`EPMC_CHANGE_TOL` of their total change from ``x0`` (an
-        estimate needs a digit or two, not a converged solve).  When the first
+        estimate needs a digit or two, not a converged solve).  Failed: the largest
+        structural residual has not fallen by 10 % below its best (from ``x1`` on) in
+        :data:`EPMC_STALL` steps, or ``max_iter`` steps are made.  When the first
         step has already cut the structural residual to :data:`EPMC_CHANGE_TOL`
         of ``r0`` (the quadratic region: the lumped cases), ``x1`` is returned
         after that one residual evaluation (no Jacobian, no solve); the
@@ -595,8 +603,13 @@ class ErrorEstimator:
         if np.all(np.isfinite(r1)) and np.abs(r1).max(initial=0.0) <= EPMC_CHANGE_TOL * r0:
             return x
         R, J, _ = epx.fun(np.append(x, lam))
+        best, since = np.inf, 0
         for _ in range(max_iter - 1):
             if not np.all(np.isfinite(R)):
+                return None
+            r = float(np.abs(R[:nzx]).max(initial=0.0))
+            best, since = (r, 0) if r < 0.9 * best else (best, since + 1)
+            if since >= EPMC_STALL:
                 return None
             d = -solve(drop_last_column(J), R)
             x = x + d

@@ -672,13 +672,15 @@ class BorderedJacobian:
             def pj(v):
                 return P.apply(v, J)
             Ce, lift = bordering(P)
-            X = np.column_stack([pj(c) for c in Ce.T])
-            Sinv = np.linalg.pinv(D - R @ X)
+            got = {}
 
             def psolve(v):
+                if not got:     # P^-1 (C + C2 D_2), on the first use (a GMRES run from
+                    X = np.column_stack([pj(c) for c in Ce.T])  # a solution makes none)
+                    got.update(X=X, Sinv=np.linalg.pinv(D - R @ X))
                 w = pj(lift(v))
-                s = Sinv @ (v[nz:] - R @ w)
-                return np.concatenate([w - X @ s, s])
+                s = got["Sinv"] @ (v[nz:] - R @ w)
+                return np.concatenate([w - got["X"] @ s, s])
             return psolve
 
         def capacitance(P):

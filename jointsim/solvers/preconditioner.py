@@ -23,7 +23,7 @@ from ..linalg import stacked_inverse
 from .gmres import gmres_columns
 from .flexibility import FlexibilitySolve
 from .hierarchical import HierarchicalInverse, schur_entries
-from .lowrank_stage import LowRankStage, RowBlocks
+from .lowrank_stage import LowRankStage, RowBlocks, capacitance_blocks
 from .tangent_projection import add_projected_tangent, project_tangent
 
 log = logging.getLogger(__name__)
@@ -143,6 +143,7 @@ class HarmonicPreconditioner:
                 raise ValueError("a harmonic stage is shared only by builds shifted on "
                                  "the same harmonic as it, or by unshifted ones")
             self.Pinv, self.Plu, self.Psolve = base.Pinv, base.Plu, base.Psolve
+            self._columns = base._columns        # the columns of P_h^-1 made so far
             self.proj, self.S, self.Pinv_double = base.proj, base.S, base.Pinv_double
             self.omega, self.xi = base.omega, base.xi
             self.modal = base.modal
@@ -181,6 +182,7 @@ class HarmonicPreconditioner:
         flexibility instead where it applies (:meth:`_modal_stage`)."""
         jac, nr = self.jac, self.jac.n_r
         self.omega, self.xi, self.Psolve = jac.freq.omega, jac.freq.xi, None
+        self._columns = None
 
         def proj():     # the complex-form projections of the (h, h) blocks, (n_h, n_e)
             return {key: None if Jb is None else np.array(
@@ -338,9 +340,23 @@ class HarmonicPreconditioner:
                     C[i] = Pd[:, cols]
             return C
         nh, nr = len(self.jac.basis.harmonics), self.jac.n_r
-        E = np.zeros((nh, nr, len(cols)), dtype=complex)
-        E[:, cols, np.arange(len(cols))] = 1.0
-        return self._inverse_times(E)
+        if self.Psolve is not None:
+            E = np.zeros((nh, nr, len(cols)), dtype=complex)
+            E[:, cols, np.arange(len(cols))] = 1.0
+            return self._inverse_times(E)
+        # single-precision LU factors: the columns solved so far are kept on the stage
+        # (complex64, as solved), shared by the partial builds on it (an EPMC point's
+        # extended Newton steps select nearly the same rows; docs/hbm.md, "Round 45")
+        if self._columns is None:
+            self._columns = (np.zeros(nr, dtype=bool), np.empty((nh, nr, nr), np.complex64))
+        done, C = self._columns
+        new = np.unique(cols[~done[cols]])
+        if new.size:
+            E = np.zeros((nh, nr, new.size), dtype=complex)
+            E[:, new, np.arange(new.size)] = 1.0
+            C[:, :, new] = self._inverse_times(E)
+            done[new] = True
+        return C[:, :, cols].astype(complex)
 
     def _count_flops(self):
         """The cost model of the chord policy (:class:`.PreconditionerCache`).
@@ -490,7 +506,8 @@ class HarmonicPreconditioner:
         with the largest ``|L|`` are kept, ``LOWRANK_MAX_FRACTION n_z`` coordinates
         (``self.truncated``; GMRES and the element-block stage handle the rest).  An FRC
         point's extended solve keeps every row block instead and splits the correction
-        by harmonics (``LOOSE_SPLIT_MIN``, :meth:`_lr_g`, :meth:`solve_capacitance`).
+        by harmonics (``LOOSE_SPLIT_MIN``, :func:`.lowrank_stage.capacitance_blocks`,
+        :meth:`solve_capacitance`).
         """
         jac = self.jac
         nc = jac.n_c
@@ -538,8 +555,8 @@ class HarmonicPreconditioner:
         # rows; G is their R rows
         self.PinvR = self._inverse_columns(Rrow)
         single = jac.rtol >= SINGLE_LU_RTOL or m >= SINGLE_LU_MIN   # the LU in float32
-        caps = self._lr_g(Lr.reshape(nrb, nc, nb, nc), R, blk_el,
-                          np.float32 if single else float, coefs)
+        caps = capacitance_blocks(jac, self.PinvR, Lr.reshape(nrb, nc, nb, nc), R, blk_el,
+                                  np.float32 if single else float, coefs)
         for Mk in caps:
             Mk[np.diag_indices_from(Mk)] += 1.0
         if coefs is None:
@@ -560,66 +577,6 @@ class HarmonicPreconditioner:
                                        + [np.atleast_1d(jac._is[i]) for i in part
                                           if jac.basis.harmonics[i]]).astype(np.intp))
                 for part in np.array_split(order, n_groups)]
-
-    def _lr_g(self, Lr4, R, blk_el, dtype, coefs=None) -> list:
-        """``L_r G`` (``m x m``, :meth:`_lowrank`) by harmonics, one block per harmonic group.
-
-        ``G = E_c^T P^-1 E_r`` couples the coefficients of one harmonic only: per
-        harmonic ``h`` and column element ``l`` it is the complex ``(R, Rrow)`` part
-        ``Q_h`` of ``P_h^-1`` (the ``R`` rows of :attr:`PinvR`) in real 2 x 2 form.  So the rows ``(j, r)`` and the columns
-        (row block ``j'``, cosine / sine of ``h``) of ``L_r G`` are, with ``L_c`` and ``L_s``
-        the cosine and sine columns of ``L_r`` of harmonic ``h``, the real and imaginary
-        parts of ``(L_c + i L_s) Q_h``: ``4 (H + 1) / n_c^2`` (about ``1 / (H + 1)``) of the
-        flops of the product with the dense ``G`` (``m^2 d``), which is never formed.  Measured on 120
-        Gauss points, FRC at force scale 20 (error indicators on, one thread): the
-        dense ``G`` and product took about 5 of the 15 s of the low-rank stages.
-        With several harmonic groups (``L_r`` without the terms between them) only the
-        diagonal blocks, (rows of a group) x (columns of that group), are nonzero:
-        only they are formed.
-
-        Parameters
-        ----------
-        Lr4 : ndarray, shape (nrb, n_c, nb, n_c)
-            ``L_r`` by (row block, its coefficient, column kind, column coefficient) [N/m].
-        R, blk_el : ndarray of int
-            As in :class:`LowRankStage` (``PinvR`` holds the ``Rrow`` columns).
-        dtype : numpy dtype
-            Of the result (float32 for a single-precision LU).
-        coefs : list of ndarray of int, optional
-            Each group's coefficients (sorted; :meth:`_harmonic_groups`); default one
-            group of all.
-
-        Returns
-        -------
-        list of ndarray, shape (nrb n_g, nrb n_g)
-            Per group of ``n_g`` coefficients, its rows and columns ``(j, k)`` of
-            ``L_r G``, index ``j n_g + k`` (the whole ``L_r G`` for one group).
-        """
-        jac = self.jac
-        nrb, nc, nb, _ = Lr4.shape
-        nl = R.size // nb
-        if coefs is None:
-            coefs = [np.arange(nc)]
-        group = np.empty(nc, dtype=np.intp)
-        place = np.empty(nc, dtype=np.intp)          # a coefficient's place in its group
-        for g, c in enumerate(coefs):
-            group[c], place[c] = g, np.arange(c.size)
-        out = [np.empty((nrb, c.size, nrb, c.size), dtype=dtype) for c in coefs]
-        rows = [Lr4[:, c] if len(coefs) > 1 else Lr4 for c in coefs]
-        for i, h in enumerate(jac.basis.harmonics):
-            # (R, Rrow) part of P_h^-1, R index b nl + l -> (l, b, j'), then per row block
-            Q = self.PinvR[i][R].reshape(nb, nl, nrb).transpose(1, 0, 2)
-            Qj = Q[blk_el]                                    # (nrb, nb, nrb)
-            ic, is_ = jac._ic[i], jac._is[i]
-            g = group[ic]
-            Lg, Mk = rows[g], out[g]
-            if h:
-                W = np.matmul(Lg[:, :, :, ic] + 1j * Lg[:, :, :, is_], Qj)
-                Mk[:, :, :, place[ic]] = W.real
-                Mk[:, :, :, place[is_]] = W.imag
-            else:
-                Mk[:, :, :, place[ic]] = np.matmul(Lg[:, :, :, ic], Qj.real)
-        return [Mk.reshape(nrb * c.size, nrb * c.size) for Mk, c in zip(out, coefs)]
 
     def _harmonic_solve(self, V):
         """``P^-1`` of the harmonic stage; ``V`` (n_c, n_r, k) real, returns its shape."""

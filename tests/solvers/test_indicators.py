@@ -658,3 +658,45 @@ def test_runs_store_show_mark_and_warn(tmp_path, caplog):
             assert g[k].shape == g["omega"].shape and g[k].attrs["doc"]
         assert plot_epmc(h5, tmp_path)
     assert "backbone: error estimate up to" in info_text(out)
+
+
+class _ScalarEPMC:
+    """An extended EPMC system of one structural row, ``atan(z - c)``, and two linear rows
+    (frequency and self-excitation follow ``z``): Newton's method on ``atan`` converges
+    from ``|z - c| < 1.39`` and diverges, alternating, beyond.  Counts its Jacobians."""
+
+    def __init__(self, c):
+        self.c, self.jacobians = c, 0
+        self.s = type("S", (), {"n_z": 1})()
+
+    def residual(self, y):
+        z, w, xi, _ = y
+        return np.array([np.arctan(z - self.c), w - 1.0 - 0.1 * z, xi - 0.2 - 0.05 * z])
+
+    def fun(self, y):
+        self.jacobians += 1
+        J = np.array([[1.0 / (1.0 + (y[0] - self.c) ** 2), 0, 0, 0],
+                      [-0.1, 1, 0, 0], [-0.05, 0, 1, 0]])
+        return self.residual(y), J, None
+
+
+@pytest.mark.parametrize("start, settles", [(0.9, True), (1.6, False)])
+def test_extended_epmc_newton_gives_up_when_its_residual_stops_falling(start, settles):
+    """The extended EPMC Newton of the error indicators settles where Newton converges
+    (``atan`` from 0.9: its change from the point is the root's to ``EPMC_CHANGE_TOL``),
+    and where it diverges (from 1.6, the residual growing at every step) it gives up
+    after ``EPMC_STALL`` steps without a 10 % fall of its best residual, not after
+    ``EPMC_MAX_ITER``: the first step is then reported."""
+    c = 2.0
+    epx = _ScalarEPMC(c)
+    x0 = np.array([c - 3.0, 1.0 + 0.1 * (c - 3.0), 0.2 + 0.05 * (c - 3.0)])  # the point
+    z1 = c - start
+    x1 = np.array([z1, 1.0 + 0.1 * z1, 0.2 + 0.05 * z1])                       # its first step
+    sol = ErrorEstimator._epmc_newton(epx, x0, x1, 0.0, indicators.EPMC_MAX_ITER, 1.0)
+    if settles:
+        assert sol is not None
+        assert abs(sol[0] - c) <= indicators.EPMC_CHANGE_TOL * abs(c - x0[0])
+        assert abs(sol[1] - (1.0 + 0.1 * sol[0])) <= 1e-12       # the linear rows hold
+    else:
+        assert sol is None
+        assert epx.jacobians == 1 + indicators.EPMC_STALL < indicators.EPMC_MAX_ITER

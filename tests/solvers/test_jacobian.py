@@ -11,6 +11,7 @@ from jointsim.scene import load_scene
 from jointsim.solvers.hbm import HBMSystem, solve_point
 from jointsim.solvers.gmres import KRYLOV_RTOL
 from jointsim.solvers.jacobian import BorderedJacobian, gmres, gmres_columns
+from jointsim.solvers.lowrank_stage import capacitance_blocks
 from jointsim.solvers.preconditioner import HarmonicPreconditioner
 
 from .._scenes import ROOT, four_dof, lap_scene
@@ -348,8 +349,9 @@ def test_a_partial_preconditioner_that_misses_its_budget_is_rebuilt_in_full(monk
 
 @pytest.mark.parametrize("normal", ["coupled", "fixed"])
 def test_lowrank_product_by_harmonics_equals_the_dense_one(normal):
-    """``L_r G`` formed by harmonics (``_lr_g``) equals ``L_r`` times the dense ``G =
-    E_c^T P^-1 E_r`` in real coefficients, built here from the harmonic inverses."""
+    """``L_r G`` formed by harmonics (``capacitance_blocks``) equals ``L_r`` times the
+    dense ``G = E_c^T P^-1 E_r`` in real coefficients, built here from the harmonic
+    inverses."""
     _, sk = _pair(build_model(four_dof("jenkins", "anchor", normal)))
     F = sk.force_coefficients(0.3)
     z = np.random.default_rng(5).normal(size=sk.n_z) * 0.4
@@ -370,7 +372,8 @@ def test_lowrank_product_by_harmonics_equals_the_dense_one(normal):
     G = Pr[:, lr.R][:, :, :, lr.Rrow]                     # (k, b nl + l, k', j)
     G = G.reshape(nc, nb, nl, nc, nrb).transpose(2, 1, 0, 4, 3).reshape(nl, nb * nc, -1)
     dense = np.concatenate([lr.Lr[j] @ G[lr.block_element[j]] for j in range(nrb)])
-    fast, = P._lr_g(lr.Lr.reshape(nrb, nc, nb, nc), lr.R, lr.block_element, float)
+    fast, = capacitance_blocks(P.jac, P.PinvR, lr.Lr.reshape(nrb, nc, nb, nc), lr.R,
+                               lr.block_element, float)
     assert fast.shape == dense.shape == (nrb * nc, nrb * nc)
     assert np.abs(fast - dense).max() <= 1e-13 * np.abs(dense).max()
     # by harmonic groups (a loose solve's: one per harmonic, LOOSE_SPLIT_MIN): L_r
@@ -384,7 +387,8 @@ def test_lowrank_product_by_harmonics_equals_the_dense_one(normal):
     Lz = lr.Lr.copy()
     Lz[:, group[:, None] != np.tile(group, nb)[None, :]] = 0.0
     dense = np.concatenate([Lz[j] @ G[lr.block_element[j]] for j in range(nrb)])
-    blocks = P._lr_g(Lz.reshape(nrb, nc, nb, nc), lr.R, lr.block_element, float, coefs)
+    blocks = capacitance_blocks(P.jac, P.PinvR, Lz.reshape(nrb, nc, nb, nc), lr.R,
+                                lr.block_element, float, coefs)
     rows = [(np.arange(nrb)[:, None] * nc + c[None, :]).ravel() for c in coefs]
     for r, B in zip(rows, blocks):
         assert np.abs(B - dense[np.ix_(r, r)]).max() <= 1e-13 * np.abs(dense).max()
@@ -417,6 +421,38 @@ def test_loose_solves_keep_single_precision_factors_of_the_harmonic_stage(normal
     xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, b)
     for P in (tight, loose):
         assert np.abs(P.solve(b) - xd).max() <= 1e-5 * np.abs(xd).max()
+
+
+def test_a_factored_stage_keeps_the_columns_it_solved(monkeypatch):
+    """A harmonic stage of single-precision LU factors (a loose solve) keeps the columns
+    of ``P_h^-1`` its low-rank stages solved for, and the partial builds on that stage
+    (an EPMC point's extended Newton steps) read them instead of solving them again:
+    only the columns not yet kept are solved, and what is read equals a fresh solve of
+    every column to single precision.  A new stage starts empty."""
+    import jointsim.solvers.preconditioner as pm
+    monkeypatch.setattr(pm, "MODAL_STAGE", False)
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
+    F = sd.force_coefficients(0.3)
+    z = np.random.default_rng(5).normal(size=sd.n_z) * 0.4
+    sk.krylov_rtol = 1e-3
+    P = HarmonicPreconditioner(sk.evaluate(z, 1.1, F).J)
+    Q = HarmonicPreconditioner(sk.evaluate(1.01 * z, 1.1, F).J, base=P)
+    assert P.Plu is not None and Q.partial and Q._columns is P._columns
+    nh, nr = len(sk.basis.harmonics), sk.n_r
+    E = np.broadcast_to(np.eye(nr, dtype=complex), (nh, nr, nr)).copy()
+    ref = P._inverse_times(E)                       # every column, solved afresh
+    solved = []
+    inner = pm.HarmonicPreconditioner._inverse_times
+    monkeypatch.setattr(pm.HarmonicPreconditioner, "_inverse_times",
+                        lambda self, X: solved.append(X.shape[2]) or inner(self, X))
+    kept = np.flatnonzero(P._columns[0])
+    assert kept.size > 0                            # the low-rank stage's rows
+    cols = np.unique(np.concatenate([kept, [0, nr - 1]]))
+    got = Q._inverse_columns(cols)
+    assert solved == [np.setdiff1d(cols, kept).size] or (solved == [] and cols.size == kept.size)
+    assert np.abs(got - ref[:, :, cols]).max() <= 1e-6 * np.abs(ref).max()
+    assert np.array_equal(Q._inverse_columns(cols[::-1]), got[:, :, ::-1]) and len(solved) <= 1
+    assert HarmonicPreconditioner(sk.evaluate(z, 1.2, F).J)._columns is not P._columns
 
 
 def test_lowrank_stage_keeps_only_the_rows_that_couple_harmonics():
