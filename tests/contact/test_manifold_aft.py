@@ -181,7 +181,12 @@ def _anchor_and_manifold_runs(scene_file, tmp_path, read) -> dict:
 
 @pytest.mark.slow
 def test_constant_n_frc_with_the_manifold_law_is_the_anchor_frc(tmp_path):
-    """models/hbm/chain2_jenkins.toml, three force levels: the same FRC to 1e-10."""
+    """models/hbm/chain2_jenkins.toml, three force levels: the same FRC to 1e-10, and the
+    same refined peaks to the peak search's own tolerance (``frc.PEAK_XTOL``: Brent's
+    search takes other steps on residuals 1e-10 apart; on an Intel Xeon the gross-slip
+    level's peak amplitudes differ by 2.3e-8, round 45)."""
+    from jointsim.solvers.frc import PEAK_XTOL
+
     def read(h5):
         br = h5["hbm/branch"][()]
         # rows of the branches interleave when they run in parallel
@@ -193,8 +198,9 @@ def test_constant_n_frc_with_the_manifold_law_is_the_anchor_frc(tmp_path):
     data = _anchor_and_manifold_runs("models/hbm/chain2_jenkins.toml", tmp_path, read)
     a, m = data["anchor"], data["manifold"]
     np.testing.assert_array_equal(a["branch"], m["branch"])
-    for k in ("omega", "X", "peaks"):
+    for k in ("omega", "X"):
         np.testing.assert_allclose(m[k], a[k], rtol=0, atol=1e-10 * np.abs(a[k]).max())
+    np.testing.assert_allclose(m["peaks"], a["peaks"], rtol=PEAK_XTOL, atol=0)
 
 
 @pytest.mark.slow
