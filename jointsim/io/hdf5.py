@@ -283,10 +283,16 @@ def torn_groups(h5) -> dict[str, int]:
 
 def _trim(h5, torn: dict[str, int]) -> None:
     """Cut torn rows; the datasets (and their group, where its datasets agree) then
-    record their committed count, also when it is 0 (a first point that was torn)."""
+    record their committed count, also when it is 0 (a first point that was torn).  A
+    dataset that the torn point created (never committed) is removed: a point's
+    datasets are all there or none (a SIGINT between two of a first loop set's Masing
+    datasets left ``eq4_ok`` without ``eq6_ok``, and ``jointsim info`` failed)."""
     groups = set()
     for name, n in torn.items():
         d = h5[name]
+        if n == 0 and COMMITTED not in d.attrs:
+            del h5[name]
+            continue
         d.resize(n, axis=0)
         d.attrs[COMMITTED] = n
         groups.add(d.parent.name)

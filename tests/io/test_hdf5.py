@@ -201,6 +201,36 @@ def test_a_signal_while_the_file_is_opened_marks_it_interrupted(tmp_path, monkey
     assert not [w for w in hdf5._OPEN_WRITERS.values() if w.path == path]
 
 
+def test_a_first_point_interrupted_between_its_datasets_leaves_none_of_them(tmp_path):
+    """SIGINT inside the first point's commit, between two of its new datasets (a loop
+    set's Masing checks): the file, closed as interrupted, holds none of that point's
+    datasets (before, ``eq4_ok`` without ``eq6_ok`` made ``jointsim info`` fail); a
+    dataset committed before keeps its rows, and a resumed writer appends them anew."""
+    scene = load_scene(SEED / "const.toml")
+    path = tmp_path / "first.h5"
+    with pytest.raises(KeyboardInterrupt):
+        with ResultWriter(path, scene) as w:
+            with w.commit():
+                w.append("epmc/omega", 1.0, "rad/s")
+            with w.commit():
+                w.append("epmc/omega", 2.0, "rad/s")
+                w.append("epmc/masing/eq4_ok", np.ones(3, dtype=bool), "1")
+                raise KeyboardInterrupt("stopped by SIGINT")
+    with open_result(path) as h5:
+        assert h5.attrs["status"] == "interrupted"
+        assert h5["epmc/omega"][()].tolist() == [1.0]
+        assert "epmc/masing/eq4_ok" not in h5
+    w = ResultWriter(path, scene, resume=True)
+    with w.commit():
+        w.append("epmc/omega", 2.0, "rad/s")
+        w.append("epmc/masing/eq4_ok", np.ones(3, dtype=bool), "1")
+        w.append("epmc/masing/eq6_ok", np.zeros(3, dtype=bool), "1")
+    w.finish("complete", "done")
+    with open_result(path) as h5:
+        assert h5["epmc/omega"][()].tolist() == [1.0, 2.0]
+        assert h5["epmc/masing/eq6_ok"].shape == (1, 3)
+
+
 def test_a_group_written_whole_is_all_old_or_all_new_whatever_stops_it(tmp_path):
     """``whole_group``: a group read as a whole (``/epmc/control``) is replaced in one
     link move.  An interrupt between two of its datasets leaves the old group and no
