@@ -345,18 +345,19 @@ class HarmonicPreconditioner:
             E[:, cols, np.arange(len(cols))] = 1.0
             return self._inverse_times(E)
         # single-precision LU factors: the columns solved so far are kept on the stage
-        # (complex64, as solved), shared by the partial builds on it (an EPMC point's
-        # extended Newton steps select nearly the same rows; docs/hbm.md, "Round 45")
+        # (complex64, as solved; each column contiguous, so only the solved ones take
+        # memory), shared by the partial builds on it (an EPMC point's extended Newton
+        # steps select nearly the same rows; docs/hbm.md, "Round 45")
         if self._columns is None:
             self._columns = (np.zeros(nr, dtype=bool), np.empty((nh, nr, nr), np.complex64))
-        done, C = self._columns
+        done, Ct = self._columns                                   # Ct[:, j]: column j
         new = np.unique(cols[~done[cols]])
         if new.size:
             E = np.zeros((nh, nr, new.size), dtype=complex)
             E[:, new, np.arange(new.size)] = 1.0
-            C[:, :, new] = self._inverse_times(E)
+            Ct[:, new] = self._inverse_times(E).transpose(0, 2, 1)
             done[new] = True
-        return C[:, :, cols].astype(complex)
+        return Ct[:, cols].transpose(0, 2, 1).astype(complex, order="C")
 
     def _count_flops(self):
         """The cost model of the chord policy (:class:`.PreconditionerCache`).
