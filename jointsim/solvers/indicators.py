@@ -142,8 +142,9 @@ EPMC_MAX_ITER = 8
 EPMC_CHANGE_TOL = 0.05
 #: ... and has failed when the largest structural residual has not fallen by 10 % below
 #: its best in this many steps (it grows where the iteration diverges or wanders: at two
-#: points of the 480-Gauss-point EPMC it grew for every one of the eight steps, which
-#: took 103 s of the point's 103 s; round 45, docs/hbm.md)
+#: points of the 480-Gauss-point EPMC it grew at nearly every one of the eight steps,
+#: 103 and 31 s for the first step that is then reported; 39.8 and 21.4 s with the test,
+#: the same indicators; round 45, docs/hbm.md)
 EPMC_STALL = 2
 #: GMRES tolerance (relative residual) of the extended solves on the Krylov path.  An
 #: estimate needs a digit or two (the EPMC's extended Newton stops at EPMC_CHANGE_TOL):
