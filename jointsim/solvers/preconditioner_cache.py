@@ -68,7 +68,7 @@ TRUNCATED_REUSE = 0.0
 SHARE_HARMONIC_STAGE = 5e-3
 
 #: A truncated low-rank stage that fails: after ``RAISE_AFTER`` solves in which a
-#: fresh, full, truncated preconditioner needed more than ``RAISE_ITERATIONS`` GMRES
+#: fresh, truncated preconditioner needed more than ``RAISE_ITERATIONS`` GMRES
 #: iterations in one run, the cache raises its low-rank limit from
 #: ``preconditioner.LOWRANK_MAX`` to ``LOWRANK_MAX_RAISED`` coordinates for the rest of
 #: its life (:attr:`PreconditionerCache.lowrank_max`; the correction is then exact up to
@@ -79,7 +79,12 @@ SHARE_HARMONIC_STAGE = 5e-3
 #: builds, about 6 s a point.  At 240 points, where a fresh truncated stage needs at
 #: most 20 iterations but once (225), a limit of 8000 throughout made the whole FRC
 #: slower (80.7 against 75.3 s, round 36): the limit is raised only where truncation is
-#: seen to fail, and at 240 points never.
+#: seen to fail, and at 240 points never.  A partial preconditioner (on a shared
+#: harmonic stage) counts as a full one: at 480 points the branch's stage first wants
+#: 4,650 coordinates, and after its first full truncated build (148 iterations) 8
+#: partial ones needed 79 to 229 each; a second full one raised the limit at the 16th
+#: truncated build.  Counting the partial ones, it is raised at the second, and the
+#: branch (error indicators off) took 178.3 s instead of 251.3 s (round 46).
 RAISE_ITERATIONS = 100
 RAISE_AFTER = 2
 LOWRANK_MAX_RAISED = 8000
@@ -136,7 +141,7 @@ class PreconditionerCache:
         #: (``preconditioner.SINGLE_INVERSE_MIN``): an FRC branch's continuation sets it
         #: (:func:`jointsim.analyses.hbm._run_branch`), where it pays; off elsewhere
         self.single_inverses = False
-        #: fresh, full, truncated preconditioners that needed more than
+        #: fresh truncated preconditioners (full or partial) that needed more than
         #: ``RAISE_ITERATIONS`` GMRES iterations (``RAISE_AFTER`` raise the limit)
         self.failed_truncations = 0
 
@@ -247,7 +252,7 @@ class PreconditionerCache:
             self.fresh_iterations = max(self.fresh_iterations, int(iterations))
             P = self.current
             if iterations > RAISE_ITERATIONS and getattr(P, "truncated", False) \
-                    and not P.partial and self.failed_truncations < RAISE_AFTER:
+                    and self.failed_truncations < RAISE_AFTER:
                 self.failed_truncations += 1
                 if self.failed_truncations == RAISE_AFTER:
                     log.info("a truncated preconditioner needed %d GMRES iterations: "

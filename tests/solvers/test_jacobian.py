@@ -155,10 +155,10 @@ def test_a_stuck_joint_has_no_lowrank_stage(normal):
 
 
 def test_the_cache_raises_the_lowrank_limit_after_failed_truncations(monkeypatch):
-    """Two fresh, full, truncated preconditioners whose GMRES needed more than
-    RAISE_ITERATIONS iterations raise the cache's low-rank limit (a partial one does
-    not count); the next build is then exact: GMRES in one iteration, to the dense
-    solution."""
+    """Two fresh truncated preconditioners whose GMRES needed more than
+    RAISE_ITERATIONS iterations raise the cache's low-rank limit (a partial one counts:
+    its low-rank stage is truncated as a full one's); the next build is then exact:
+    GMRES in one iteration, to the dense solution."""
     import jointsim.solvers.preconditioner as pm
     import jointsim.solvers.preconditioner_cache as pc
     sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
@@ -178,12 +178,12 @@ def test_the_cache_raises_the_lowrank_limit_after_failed_truncations(monkeypatch
     monkeypatch.setattr(pc, "RAISE_ITERATIONS", it - 1)
     cache.after_solve(it, fresh=True)
     cache.after_solve(it - 1, fresh=True)                    # not more than the limit
-    cache.current.partial = True
-    cache.after_solve(it, fresh=True)                        # a partial one
+    cache.after_solve(it, fresh=False)                       # a reused one
     assert cache.failed_truncations == 1 and cache.lowrank_max == 2 * sk.n_c
-    cache.refresh(J, full=True)
+    P = cache.refresh(J)                                     # a partial one
+    assert P.partial and P.truncated
     cache.after_solve(it, fresh=True)
-    assert cache.lowrank_max == sk.n_z
+    assert cache.failed_truncations == 2 and cache.lowrank_max == sk.n_z
     P = cache.refresh(J, full=True)
     assert not P.truncated
     x, it, rel, _ = gmres(J.matvec, v, lambda u: P.apply(u, J), rtol=1e-12)
