@@ -43,6 +43,10 @@ class LowRankStage(NamedTuple):
     inverses : tuple of ndarray, or None
         With several groups, the inverse of each group's block of ``I + L_r G``
         (single precision); else None.
+    Q_double : dict, or None
+        With several groups, ``Q`` of the harmonics whose stage is in double
+        (``preconditioner.LOOSE_DOUBLE_HARMONICS``), index -> (nb n_l, n_rb) complex128;
+        ``Q`` holds them in single precision too, unused.
     """
 
     R: np.ndarray
@@ -55,6 +59,7 @@ class LowRankStage(NamedTuple):
     full: np.ndarray | None = None
     Q: np.ndarray | None = None
     inverses: tuple | None = None
+    Q_double: dict | None = None
 
     @property
     def sizes(self) -> list[int]:

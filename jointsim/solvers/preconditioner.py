@@ -75,6 +75,16 @@ LOWRANK_NEGLIGIBLE = 1e-9
 #: stage needs and each application are triangular solves (round 31: 16 blocks of 480 x
 #: 480, the inverses 217 ms, the single LUs 52 ms plus 20 ms of column solves).
 FACTORED_LOOSE_STAGE = True
+#: A loose solve's harmonic stage (single precision: ``FACTORED_LOOSE_STAGE``, or the
+#: stuck flexibility's inverses) keeps the blocks of these harmonics in double, and so
+#: does ``G`` of its capacitance system (:meth:`HarmonicPreconditioner.solve_capacitance`):
+#: the fundamental's, nearly singular next to a resonance, and the static one, nearly
+#: singular where the joint slips (the beams' static position is then held by the soft
+#: suspension springs alone).  In single precision the capacitance solves' refinement
+#: diverged: at 480 Gauss points in the resonance solve of ``frc_scales`` (force 2) from
+#: a relative residual 1 to 2.4e2 in six steps, after which GMRES on the system needed
+#: 1.8 s; in double each step gains the 0.03 it is asked for (docs/hbm.md, "Round 46").
+LOOSE_DOUBLE_HARMONICS = (0, 1)
 #: From this many rows ``n_r`` the harmonic stage's explicit inverses are formed and
 #: applied in single precision (complex64: half the flops and memory traffic), except
 #: the fundamental's, which is nearly singular near a resonance of an FRC and in the
@@ -176,8 +186,8 @@ class HarmonicPreconditioner:
         """Per harmonic, the inverse of ``S_h`` plus the harmonic projection of every
         element's tangent (``self.Pinv``, complex64 from ``SINGLE_INVERSE_MIN`` rows where
         the cache allows it, with the fundamental's in double in ``self.Pinv_double``;
-        or for a loose solve single-precision LU factors ``self.Plu``:
-        ``FACTORED_LOOSE_STAGE``, or a stage applied by solves ``self.Psolve``:
+        or for a loose solve single-precision LU factors ``self.Plu`` (but for
+        ``LOOSE_DOUBLE_HARMONICS``): ``FACTORED_LOOSE_STAGE``, or a stage applied by solves ``self.Psolve``:
         ``SOLVED_STAGE_RTOL``; ``self.proj``; ``S_h`` kept as ``self.S``); from the stuck
         flexibility instead where it applies (:meth:`_modal_stage`)."""
         jac, nr = self.jac, self.jac.n_r
@@ -227,8 +237,9 @@ class HarmonicPreconditioner:
         self.Pinv_double = {}
         if FACTORED_LOOSE_STAGE and jac.rtol >= SINGLE_LU_RTOL:
             # a loose solve: single-precision LU factors (FACTORED_LOOSE_STAGE)
-            lus = [sla.lu_factor(b, check_finite=False)
-                   for b in blocks.astype(np.complex64)]
+            dbl = self._loose_double()
+            lus = [sla.lu_factor(b if i in dbl else b.astype(np.complex64),
+                                 check_finite=False) for i, b in enumerate(blocks)]
             if all(np.all(np.isfinite(lu)) and np.all(np.diag(lu) != 0) for lu, _ in lus):
                 self.Plu = lus
                 return
@@ -254,6 +265,17 @@ class HarmonicPreconditioner:
         if jac.n_r >= SINGLE_INVERSE_MIN and jac.cache.single_inverses:
             return np.array([h != 1 for h in jac.basis.harmonics])
         return np.zeros(len(jac.basis.harmonics), dtype=bool)
+
+    def _loose_double(self) -> np.ndarray:
+        """The harmonics (indices) whose blocks a loose solve's single-precision stage
+        keeps in double (``LOOSE_DOUBLE_HARMONICS``)."""
+        return np.flatnonzero(np.isin(self.jac.basis.harmonics, LOOSE_DOUBLE_HARMONICS))
+
+    def _double_harmonics(self) -> list:
+        """The harmonics (indices) of a single-precision stage that are in double."""
+        if self.Plu is not None:
+            return [i for i, (lu, _) in enumerate(self.Plu) if lu.dtype == np.complex128]
+        return list(self.Pinv_double) if self.Psolve is None else []
 
     def _stuck_proj(self, flex) -> dict:
         """``proj`` of the stuck stiffness ``k`` (:meth:`_modal_stage`) for every harmonic."""
@@ -297,14 +319,15 @@ class HarmonicPreconditioner:
             add_projected_tangent(P, jac, i, stuck)
             P += self._rank_one(P, i, shift[1], shift[2])
             shifted = (i, stacked_inverse(P[None])[0])
-        single = None if jac.rtol >= SINGLE_LU_RTOL else self._single_harmonics()
+        loose = jac.rtol >= SINGLE_LU_RTOL       # single precision, LOOSE_DOUBLE_HARMONICS
+        single = None if loose else self._single_harmonics()
         # (flex keeps them, read-only, for the builds at one frequency: copied if replaced)
-        self.Pinv = flex.inverses(nus, self.xi, single=single is None or bool(single.any()))
-        if single is not None and single.any():      # the others' blocks in double
-            dbl = np.flatnonzero(~single)
-            if dbl.size:
-                Pd = flex.inverses(nus[dbl], self.xi)
-                self.Pinv_double = dict(zip(dbl.tolist(), Pd))
+        self.Pinv = flex.inverses(nus, self.xi, single=loose or bool(single.any()))
+        dbl = self._loose_double() if loose else \
+            np.flatnonzero(~single) if single.any() else np.zeros(0, dtype=np.intp)
+        if dbl.size:                                 # these blocks in double
+            Pd = flex.inverses(nus[dbl], self.xi)
+            self.Pinv_double = dict(zip(dbl.tolist(), Pd))
         if shifted is not None:
             self.Pinv = self.Pinv.copy()
             self.Pinv[shifted[0]] = shifted[1]
@@ -325,7 +348,7 @@ class HarmonicPreconditioner:
             return Y
         Y = np.empty(X.shape, dtype=complex)
         for i, f in enumerate(self.Plu):
-            Y[i] = sla.lu_solve(f, X[i].astype(np.complex64), check_finite=False)
+            Y[i] = sla.lu_solve(f, X[i].astype(f[0].dtype, copy=False), check_finite=False)
         h0 = self.jac._h0
         Y[h0] = Y[h0].real
         return Y
@@ -348,16 +371,24 @@ class HarmonicPreconditioner:
         # (complex64, as solved; each column contiguous, so only the solved ones take
         # memory), shared by the partial builds on it (an EPMC point's extended Newton
         # steps select nearly the same rows; docs/hbm.md, "Round 45")
+        # (the blocks in double, LOOSE_DOUBLE_HARMONICS, keep theirs in double)
         if self._columns is None:
-            self._columns = (np.zeros(nr, dtype=bool), np.empty((nh, nr, nr), np.complex64))
-        done, Ct = self._columns                                   # Ct[:, j]: column j
+            self._columns = (np.zeros(nr, dtype=bool), np.empty((nh, nr, nr), np.complex64),
+                             {i: np.empty((nr, nr), complex) for i in self._double_harmonics()})
+        done, Ct, Cd = self._columns                               # Ct[:, j]: column j
         new = np.unique(cols[~done[cols]])
         if new.size:
             E = np.zeros((nh, nr, new.size), dtype=complex)
             E[:, new, np.arange(new.size)] = 1.0
-            Ct[:, new] = self._inverse_times(E).transpose(0, 2, 1)
+            Y = self._inverse_times(E)
+            Ct[:, new] = Y.transpose(0, 2, 1)
+            for i, C in Cd.items():
+                C[new] = Y[i].T
             done[new] = True
-        return Ct[:, cols].transpose(0, 2, 1).astype(complex, order="C")
+        out = Ct[:, cols].transpose(0, 2, 1).astype(complex, order="C")
+        for i, C in Cd.items():
+            out[i] = C[cols].T
+        return out
 
     def _count_flops(self):
         """The cost model of the chord policy (:class:`.PreconditionerCache`).
@@ -567,7 +598,10 @@ class HarmonicPreconditioner:
             lus, inverses = (), tuple(stacked_inverse(Mk) for Mk in caps)
             groups = tuple((np.arange(nrb)[:, None] * nc + c[None, :]).ravel() for c in coefs)
             Q = np.ascontiguousarray(self.PinvR[:, R].astype(np.complex64))
-        self.lowrank = LowRankStage(R, Rrow, blk_el, Lr, groups, lus, nb, full, Q, inverses)
+            Q_double = {i: np.ascontiguousarray(self.PinvR[i][R])
+                        for i in self._double_harmonics()}
+        self.lowrank = LowRankStage(R, Rrow, blk_el, Lr, groups, lus, nb, full, Q, inverses,
+                                    None if coefs is None else Q_double)
 
     def _harmonic_groups(self, n_groups: int) -> list:
         """The coefficients (sorted index arrays into the ``n_c``) of ``n_groups`` groups of
@@ -745,8 +779,11 @@ class HarmonicPreconditioner:
 
         def product(S):
             T = np.empty((nc, lr.R.size, S.shape[1]))
-            jac._from_complex(np.matmul(lr.Q, self._amplitudes(S).astype(lr.Q.dtype)),
-                              T)                                           # G s
+            A = self._amplitudes(S)
+            GS = np.matmul(lr.Q, A.astype(lr.Q.dtype)).astype(complex)       # G s
+            for i, Qd in lr.Q_double.items():
+                GS[i] = Qd @ A[i]
+            jac._from_complex(GS, T)
             return S + np.matmul(lr.full, self._column_coordinates(T)[lr.block_element]) \
                 .reshape(S.shape)
 

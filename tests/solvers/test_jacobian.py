@@ -591,6 +591,58 @@ def test_loose_lowrank_stage_split_by_harmonics_and_its_capacitance_solve(normal
     assert len(HarmonicPreconditioner(Jl).lowrank.sizes) == 1
 
 
+@pytest.mark.parametrize("modal", [False, True])
+def test_a_loose_stage_keeps_the_static_and_fundamental_blocks_in_double(modal, monkeypatch):
+    """A loose solve's single-precision harmonic stage (LU factors, or the stuck
+    flexibility's inverses) keeps the blocks of ``LOOSE_DOUBLE_HARMONICS`` (0 and 1) in
+    double, and so do the columns of ``P_h^-1`` it keeps and ``G`` of its capacitance
+    system (``Q_double``): those harmonics' columns equal the inverse of the double
+    block (the oracle: the dense inverse of ``P_h``, or the flexibility's double
+    inverses) to round-off, the others only to single precision."""
+    import jointsim.solvers.preconditioner as pm
+    from jointsim.solvers.tangent_projection import add_projected_tangent
+    monkeypatch.setattr(pm, "MODAL_STAGE", modal)
+    monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", "coupled")))
+    F = sd.force_coefficients(0.3)
+    z = np.random.default_rng(5).normal(size=sd.n_z) * 0.4
+    sk.krylov_rtol = 1e-3
+    sk.preconditioner.single_solve = True
+    J = sk.evaluate(z, 1.1, F).J
+    P = HarmonicPreconditioner(J)
+    h = np.asarray(sk.basis.harmonics)
+    dbl = np.flatnonzero(np.isin(h, (0, 1)))
+    assert P.modal == modal and (P.Plu is not None) != modal and P.capacitance_solves
+    assert sorted(P._double_harmonics()) == dbl.tolist()
+    nh, nr = len(h), sk.n_r
+    cols = np.arange(nr)
+    got = P._inverse_columns(cols)
+    if modal:
+        nus = h * J.freq.omega
+        ref = np.empty((nh, nr, nr), dtype=complex)
+        ref[dbl] = J.lin.flexibility.inverses(nus[dbl], J.freq.xi)
+        ref[~np.isin(h, (0, 1))] = J.lin.flexibility.inverses(nus, J.freq.xi)[
+            ~np.isin(h, (0, 1))]
+    else:
+        ref = np.empty((nh, nr, nr), dtype=complex)
+        for i in range(nh):
+            B = np.array(P.S[i], dtype=complex)
+            add_projected_tangent(B, J, i, P.proj)
+            ref[i] = np.linalg.inv(B)
+    for i in range(nh):
+        err = np.abs(got[i] - ref[i]).max() / np.abs(ref[i]).max()
+        if i in dbl:
+            assert err <= 1e-12, (h[i], err)
+        else:
+            assert 1e-12 < err <= 1e-5, (h[i], err)
+    lr = P.lowrank
+    assert sorted(lr.Q_double) == dbl.tolist()
+    for i, Qd in lr.Q_double.items():
+        assert Qd.dtype == complex and np.array_equal(Qd, P.PinvR[i][lr.R])
+    monkeypatch.setattr(pm, "LOOSE_DOUBLE_HARMONICS", ())
+    assert HarmonicPreconditioner(J)._double_harmonics() == []
+
+
 def test_a_truncated_loose_bordered_solve_goes_through_the_capacitance_system(monkeypatch):
     """An EPMC point's extended Newton step (loose, bordered, its preconditioner shifted)
     whose low-rank correction would be truncated keeps every row block, split by
