@@ -186,10 +186,11 @@ class HarmonicPreconditioner:
         """Per harmonic, the inverse of ``S_h`` plus the harmonic projection of every
         element's tangent (``self.Pinv``, complex64 from ``SINGLE_INVERSE_MIN`` rows where
         the cache allows it, with the fundamental's in double in ``self.Pinv_double``;
-        or for a loose solve single-precision LU factors ``self.Plu`` (but for
-        ``LOOSE_DOUBLE_HARMONICS``): ``FACTORED_LOOSE_STAGE``, or a stage applied by solves ``self.Psolve``:
-        ``SOLVED_STAGE_RTOL``; ``self.proj``; ``S_h`` kept as ``self.S``); from the stuck
-        flexibility instead where it applies (:meth:`_modal_stage`)."""
+        or for a loose solve single-precision LU factors ``self.Plu``, but for
+        ``LOOSE_DOUBLE_HARMONICS``: ``FACTORED_LOOSE_STAGE``, or a stage applied by
+        solves ``self.Psolve``: ``SOLVED_STAGE_RTOL``; ``self.proj``; ``S_h`` kept as
+        ``self.S``); from the stuck flexibility instead where it applies
+        (:meth:`_modal_stage`)."""
         jac, nr = self.jac, self.jac.n_r
         self.omega, self.xi, self.Psolve = jac.freq.omega, jac.freq.xi, None
         self._columns = None
@@ -373,8 +374,9 @@ class HarmonicPreconditioner:
         # steps select nearly the same rows; docs/hbm.md, "Round 45")
         # (the blocks in double, LOOSE_DOUBLE_HARMONICS, keep theirs in double)
         if self._columns is None:
-            self._columns = (np.zeros(nr, dtype=bool), np.empty((nh, nr, nr), np.complex64),
-                             {i: np.empty((nr, nr), complex) for i in self._double_harmonics()})
+            Cd = {i: np.empty((nr, nr), complex) for i in self._double_harmonics()}
+            Ct = np.empty((nh, nr, nr), np.complex64)
+            self._columns = (np.zeros(nr, dtype=bool), Ct, Cd)
         done, Ct, Cd = self._columns                               # Ct[:, j]: column j
         new = np.unique(cols[~done[cols]])
         if new.size:
@@ -780,9 +782,11 @@ class HarmonicPreconditioner:
         def product(S):
             T = np.empty((nc, lr.R.size, S.shape[1]))
             A = self._amplitudes(S)
-            GS = np.matmul(lr.Q, A.astype(lr.Q.dtype)).astype(complex)       # G s
-            for i, Qd in lr.Q_double.items():
-                GS[i] = Qd @ A[i]
+            GS = np.matmul(lr.Q, A.astype(lr.Q.dtype))                       # G s
+            if lr.Q_double:
+                GS = GS.astype(complex)
+                for i, Qd in lr.Q_double.items():
+                    GS[i] = Qd @ A[i]
             jac._from_complex(GS, T)
             return S + np.matmul(lr.full, self._column_coordinates(T)[lr.block_element]) \
                 .reshape(S.shape)
