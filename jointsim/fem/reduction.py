@@ -76,6 +76,36 @@ def spd_lu(A):
         return spla.splu(A)
 
 
+class DenseFactor:
+    """The Cholesky factor of a dense symmetric positive definite matrix, solved as
+    :func:`spd_lu`'s (:func:`dense_spd_factor`)."""
+
+    def __init__(self, A):
+        self.factor = sla.cho_factor(A, check_finite=False)
+
+    def solve(self, b) -> np.ndarray:
+        return sla.cho_solve(self.factor, b, check_finite=False)
+
+
+def dense_spd_factor(A) -> DenseFactor:
+    """:func:`spd_lu` for a dense ``A`` (LAPACK's Cholesky).
+
+    A reduced model stored as a sparse matrix is often dense (a Craig-Bampton
+    reduction's interface block): SuperLU factored the 1,964 rows of the 480-Gauss-point
+    lap joint's stuck stiffness in 0.55 s, LAPACK in 0.06 s (round 47).
+
+    Raises
+    ------
+    RuntimeError
+        Where ``A`` is not (numerically) positive definite, as SuperLU's for a singular
+        matrix (the callers then take a dense eigen-solver).
+    """
+    try:
+        return DenseFactor(np.asarray(A, dtype=float))
+    except np.linalg.LinAlgError as exc:
+        raise RuntimeError(f"dense_spd_factor: {exc}") from exc
+
+
 # --------------------------------------------------------------------------
 # Craig-Bampton
 # --------------------------------------------------------------------------
@@ -258,16 +288,18 @@ def _fixed_interface_modes(K_II, M_II, lu, n_modes: int):
 
 
 def shift_invert_modes(K, M, n_modes: int, lu):
-    """The ``n_modes`` lowest modes of a sparse ``K phi = w^2 M phi`` by shift-invert
-    Lanczos about 0 on the factor ``lu`` of ``K`` (:func:`spd_lu`).
+    """The ``n_modes`` lowest modes of ``K phi = w^2 M phi`` by shift-invert Lanczos
+    about 0 on the factor ``lu`` of ``K`` (:func:`spd_lu`, or :func:`dense_spd_factor`
+    for dense matrices).
 
     Parameters
     ----------
-    K, M : sparse matrix, shape (n, n)
+    K, M : sparse matrix or ndarray, shape (n, n)
         Symmetric, ``K`` nonsingular, ``M`` positive definite.
     n_modes : int
         Fewer than ``n - 1``.
-    lu : scipy.sparse.linalg.SuperLU
+    lu : scipy.sparse.linalg.SuperLU or DenseFactor
+        Anything with ``solve(b)`` for ``K^-1 b``.
 
     Returns
     -------
@@ -278,8 +310,10 @@ def shift_invert_modes(K, M, n_modes: int, lu):
     """
     n = K.shape[0]
     op = spla.LinearOperator(K.shape, matvec=lu.solve, dtype=float)
-    w2, Phi = spla.eigsh(sp.csc_matrix(K), k=n_modes, M=sp.csc_matrix(M), sigma=0.0,
-                         which="LM", OPinv=op, v0=np.ones(n))
+    def operand(A):
+        return sp.csc_matrix(A) if sp.issparse(A) else np.asarray(A, dtype=float)
+    w2, Phi = spla.eigsh(operand(K), k=n_modes, M=operand(M), sigma=0.0, which="LM",
+                         OPinv=op, v0=np.ones(n))
     order = np.argsort(w2)
     w2, Phi = w2[order], Phi[:, order]
     # normalise to unit modal mass (eigsh already does, to round-off)

@@ -165,6 +165,12 @@ class StuckFlexibility:
             return None
         return cls(lam, Phi[:n_r], k, damped, Cm[np.ix_(damped, damped)])
 
+    def prepare(self, nu: float) -> None:
+        """Make the series for every frequency up to ``nu`` [rad/s] now (before workers
+        fork, :meth:`jointsim.solvers.hbm.HBMSystem.prepare_forks`), instead of on first
+        use and again each time a higher frequency asks for it."""
+        self._made_for(float(nu))
+
     def _made_for(self, nu: float):
         """The series valid up to ``nu`` (made when the kept one is not)."""
         sr = self._series

@@ -31,7 +31,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from ..fem.reduction import shift_invert_modes, spd_lu, with_fixed_signs
+from ..fem.reduction import dense_spd_factor, shift_invert_modes, spd_lu, with_fixed_signs
 from ..results import SUCCESS, Convergence
 
 log = logging.getLogger(__name__)
@@ -62,6 +62,10 @@ class ModesResult:
 
 #: Sparse models above this many DOFs are solved by shift-invert Lanczos.
 DENSE_MAX = 600
+#: ... on a dense Cholesky factor when this share of the stiffness's entries is stored
+#: (a reduced model, dense in its interface block: :func:`~jointsim.fem.reduction.
+#: dense_spd_factor`), else on a sparse LU.
+DENSE_FILL = 0.25
 
 
 def eigenmodes(K, M, n_modes: int):
@@ -71,8 +75,8 @@ def eigenmodes(K, M, n_modes: int):
     ----------
     K, M : matrix or sparse matrix, shape (n, n)
         Symmetric, ``M`` positive definite.  Sparse ``K`` with more than
-        ``DENSE_MAX`` rows: shift-invert Lanczos about 0 (dense if ``K`` is
-        singular).
+        ``DENSE_MAX`` rows: shift-invert Lanczos about 0 (on a dense factor from
+        ``DENSE_FILL`` stored entries; a dense eigen-solver if ``K`` is singular).
     n_modes : int
 
     Returns
@@ -86,8 +90,13 @@ def eigenmodes(K, M, n_modes: int):
     sparse_big = sp.issparse(K) and n > DENSE_MAX and m < n - 2
     if sparse_big:
         try:
-            # on the stiffness's own ordering (half SuperLU's default fill)
-            w2, phi = shift_invert_modes(K, M, m, spd_lu(K))
+            if K.nnz >= DENSE_FILL * n * n:
+                Kd = K.toarray()
+                Md = M.toarray() if sp.issparse(M) else np.asarray(M)
+                w2, phi = shift_invert_modes(Kd, Md, m, dense_spd_factor(Kd))
+            else:
+                # on the stiffness's own ordering (half SuperLU's default fill)
+                w2, phi = shift_invert_modes(K, M, m, spd_lu(K))
         except RuntimeError:  # singular K: the dense solver copes
             sparse_big = False
     if not sparse_big:

@@ -131,6 +131,25 @@ def test_series_is_made_again_for_higher_frequencies(coarse_model, monkeypatch):
         assert np.abs(Y - ref).max() <= 1e-10 * np.abs(ref).max()
 
 
+def test_prepare_forks_makes_the_series_for_the_highest_harmonic_once(coarse_model):
+    """``HBMSystem.prepare_forks`` makes the series for ``h_max omega_max``: the solves
+    of every harmonic up to it then make nothing again, and give what a series made on
+    first use gives (the sum over all modes to 1e-10, previous test)."""
+    system = HBMSystem(coarse_model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    system.prepare_forks(1100.0)
+    fl = system.lin.flexibility
+    series = fl._series
+    assert series[0] == pytest.approx(fx.FLEX_MARGIN * 3 * 1100.0)
+    B = np.random.default_rng(1).standard_normal((3, fl.n_r)) + 0j
+    nus = [900.0, 1800.0, 3300.0]
+    Y = fl.solve(nus, B)
+    assert fl._series is series                       # not made again
+    fresh = fx.StuckFlexibility(fl.lam, fl.Psi, fl.k, fl.damped, fl.Cd)
+    Yf = fresh.solve(nus[:1], B[:1])                  # made on first use, for 900 rad/s
+    assert fresh._series[0] == pytest.approx(fx.FLEX_MARGIN * 900.0)
+    assert np.abs(Y[0] - Yf[0]).max() <= 1e-10 * np.abs(Yf).max()
+
+
 @pytest.mark.parametrize("law,normal", [("jenkins", "coupled"), ("iwan4", "coupled"),
                                         ("jenkins", "fixed")])
 def test_modal_preconditioner_is_the_inverse_of_the_jacobian(law, normal, monkeypatch):

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from jointsim.fem.reduction import dense_spd_factor
 from jointsim.model import build_model
 from jointsim.solvers.modes import elastic_mode, eigenmodes, rigid_body_modes, stuck_modes
 
@@ -60,3 +61,44 @@ def test_rom_uses_the_spectral_gap_and_lumped_models_have_no_rigid_modes(coupled
     assert elastic_mode(lumped, 1).index == 0
     with pytest.raises(ValueError, match="elastic modes"):
         elastic_mode(lumped, 5)
+
+
+def test_a_dense_model_stored_sparse_takes_the_dense_factor_and_the_same_modes(monkeypatch):
+    """A reduced model is dense in its interface block: above ``DENSE_FILL`` stored
+    entries the shift-invert Lanczos runs on a dense Cholesky factor, and gives the
+    modes of the sparse LU's path and of a dense generalized ``eigh``; a singular
+    stiffness still falls back to the dense solver."""
+    import scipy.linalg as sla
+    import scipy.sparse as sp
+
+    import jointsim.solvers.modes as modes
+    rng = np.random.default_rng(3)
+    n = 700
+    A = rng.standard_normal((n, n))
+    K = A @ A.T + n * np.eye(n)
+    B = rng.standard_normal((n, n)) / n
+    M = np.diag(rng.uniform(0.5, 2.0, n)) + B @ B.T
+    Ks, Ms = sp.csr_matrix(K), sp.csr_matrix(M)
+    assert Ks.nnz >= modes.DENSE_FILL * n * n
+    calls = []
+    monkeypatch.setattr(modes, "dense_spd_factor",
+                        lambda A: calls.append(A.shape) or dense_spd_factor(A))
+    f, phi = eigenmodes(Ks, Ms, 8)
+    assert calls == [(n, n)]
+    monkeypatch.setattr(modes, "DENSE_FILL", 1.1)          # the sparse LU's path
+    f_lu, phi_lu = eigenmodes(Ks, Ms, 8)
+    assert len(calls) == 1
+    w2 = sla.eigh(K, M, eigvals_only=True, subset_by_index=(0, 7))
+    f_ref = np.sqrt(w2) / (2 * np.pi)
+    assert np.allclose(f, f_ref, rtol=1e-12, atol=0)
+    assert np.allclose(f, f_lu, rtol=1e-12, atol=0)
+    assert np.abs(phi - phi_lu).max() <= 1e-8 * np.abs(phi).max()
+    assert np.allclose(phi @ M @ phi.T, np.eye(8), atol=1e-10)
+    # not positive definite: the factor says so, and the dense eigen-solver answers
+    monkeypatch.setattr(modes, "DENSE_FILL", 0.25)
+    Kz = K.copy()
+    Kz[:, 0] = Kz[0, :] = 0.0
+    with pytest.raises(RuntimeError, match="dense_spd_factor"):
+        dense_spd_factor(Kz)
+    fz, _ = eigenmodes(sp.csr_matrix(Kz), Ms, 3)
+    assert fz[0] == pytest.approx(0.0, abs=1e-6 * fz[1]) and fz[1] > 0.0
