@@ -310,10 +310,10 @@ def shift_invert_modes(K, M, n_modes: int, lu):
     """
     n = K.shape[0]
     op = spla.LinearOperator(K.shape, matvec=lu.solve, dtype=float)
-    def operand(A):
-        return sp.csc_matrix(A) if sp.issparse(A) else np.asarray(A, dtype=float)
-    w2, Phi = spla.eigsh(operand(K), k=n_modes, M=operand(M), sigma=0.0, which="LM",
-                         OPinv=op, v0=np.ones(n))
+    Ka, Ma = (sp.csc_matrix(A) if sp.issparse(A) else np.asarray(A, dtype=float)
+              for A in (K, M))
+    w2, Phi = spla.eigsh(Ka, k=n_modes, M=Ma, sigma=0.0, which="LM", OPinv=op,
+                         v0=np.ones(n))
     order = np.argsort(w2)
     w2, Phi = w2[order], Phi[:, order]
     # normalise to unit modal mass (eigsh already does, to round-off)
