@@ -375,6 +375,19 @@ class ReducedLinear:
                                       for X in (self.K, self.M, self.C))
         return self._transformed
 
+    def block_times(self, b: str, nu: float, xi: float, v, transpose: bool = False):
+        """``D_b v`` (``D_b^T v`` with ``transpose``) for the block ``b`` (``"qq"``,
+        ``"qy"``, ``"yq"`` or ``"yy"``) of ``D = (K - nu^2 M) + i nu (C - xi M)`` and a
+        complex vector ``v``, by real products with ``K``, ``M`` and ``C``: the complex
+        block (:meth:`blocks`) is not formed.  The EPMC's amplitude condition
+        (:meth:`~jointsim.solvers.epmc.EPMCSystem._modal`) at each new frequency: at 480
+        Gauss points forming ``A``, ``B``, ``B'`` of harmonic 1 cost 0.07 s an evaluation
+        (round 48)."""
+        V = np.column_stack([v.real, v.imag])
+        Kv, Mv, Cv = (((X[b].T if transpose else X[b]) @ V) @ np.array([1.0, 1j])
+                      for X in (self.K, self.M, self.C))
+        return (Kv - nu * nu * Mv) + 1j * nu * (Cv - xi * Mv)
+
     def _real_product(self, b: str, v) -> tuple:
         """``(M_b v, C_b v)`` for a complex ``v`` by real products (the complex form of
         a real matrix is never made)."""

@@ -72,6 +72,9 @@ class EPMCSystem:
         Mphi = dense_array(system.model.M) @ self.phi
         self.m_q = lin.Psi.T @ Mphi
         self.m_y = lin.Z.T @ Mphi
+        # F's harmonic 1 on the welded coordinates (a real product: Z is not made complex)
+        F1 = system._complex(np.asarray(F, dtype=float), 1)
+        self.F_y1 = (lin.Z.T @ np.column_stack([F1.real, F1.imag])) @ np.array([1.0, 1j])
 
     def coefficients(self, y):
         """Full harmonic coefficients ``X`` (n_c, n_dof) [m] of the point ``y``.
@@ -112,15 +115,15 @@ class EPMCSystem:
         its derivatives by omega and xi."""
         s, lin = self.s, self.s.lin
         qh = s._complex(Q, 1)
-        # harmonic 1's blocks, kept by the system from the evaluation at (omega, xi)
-        _A, _B, Bp, Ef = s.harmonic_blocks(omega, xi).block(list(s.basis.harmonics).index(1))
-        Fy = lin.Z.T @ s._complex(self.F, 1)
-        y = lin.solve_E(Ef, Fy - Bp @ qh) if lin.n_y else np.zeros(0, complex)
+        # harmonic 1's E, kept by the system at (omega, xi); B' by products (not formed)
+        Ef = s.harmonic_blocks(omega, xi).welded_factor(list(s.basis.harmonics).index(1))
+        y = lin.solve_E(Ef, self.F_y1 - lin.block_times("yq", omega, xi, qh)) if lin.n_y \
+            else np.zeros(0, complex)
         q1 = self.m_q @ qh + self.m_y @ y
         if not derivs:
             return q1, None, None
-        ell = self.m_q - (Bp.T @ lin.solve_E(Ef, self.m_y.astype(complex), trans=True)
-                          if lin.n_y else 0.0)
+        ell = self.m_q - (lin.block_times("yq", omega, xi, lin.solve_E(
+            Ef, self.m_y.astype(complex), trans=True), transpose=True) if lin.n_y else 0.0)
         d = {}
         for p in ("omega", "xi"):
             if lin.n_y:

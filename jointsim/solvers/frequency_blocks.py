@@ -39,6 +39,7 @@ class FrequencyBlocks:
         self.omega, self.xi = float(omega), float(xi)
         self.S = [None] * len(self.harmonics)
         self._blocks = [None] * len(self.harmonics)
+        self._welded = [None] * len(self.harmonics)
         self._dynamic = None
         self._stacked = None
 
@@ -58,6 +59,18 @@ class FrequencyBlocks:
                 a.flags.writeable = False
             self._blocks[i] = (A, B, Bp, lin.factor_E(E) if lin.n_y else E)
         return self._blocks[i]
+
+    def welded_factor(self, i: int):
+        """``E`` of the ``i``-th harmonic, factorised (:meth:`ReducedLinear.factor_E`): the
+        one of :meth:`block` when that is formed, else made alone (``A``, ``B``, ``B'``
+        are not formed)."""
+        if self._blocks[i] is not None:
+            return self._blocks[i][3]
+        if self._welded[i] is None:
+            lin = self.lin
+            E = lin.blocks(self.harmonics[i] * self.omega, self.xi, parts="")[3]
+            self._welded[i] = lin.factor_E(E) if lin.n_y else E
+        return self._welded[i]
 
     def schur(self, i: int) -> np.ndarray:
         """``S_h = A - B E^-1 B'`` of the ``i``-th harmonic (complex n_r x n_r, a new

@@ -304,27 +304,32 @@ class HBMJacobian:
         return J * self.col[None, :]
 
     def max_abs(self) -> float:
-        """``max |J_ij|`` of the unscaled ``J`` without forming it."""
-        nr = self.n_r
+        """``max |J_ij|`` of the unscaled ``J`` without forming it.
+
+        Per harmonic, the entries of ``S_h`` that no element tangent reaches are read
+        in place, and only the reached ones (one per element and tangent kind) are
+        summed: the same sums as writing the blocks into a ``2 n_r x 2 n_r`` array, whose
+        copies cost 0.27 s at 480 Gauss points (round 48)."""
+        parts = [(J, self.t_row, self.t_row, 1.0) for J in (self.Juu,) if J is not None]
+        parts += [(J, self.t_row, self.n_row, 1.0) for J in (self.Jug,) if J is not None]
+        parts += [(J, self.n_row, self.n_row, -1.0) for J in (self.JNN,) if J is not None]
         m = 0.0
         for i, h in enumerate(self.basis.harmonics):
             cols = [self._ic[i]] + ([self._is[i]] if h else [])
             S = self.schur(i)
-            blk = np.zeros((len(cols) * nr, len(cols) * nr))
-            blk[:nr, :nr] = S.real
-            if h:
-                blk[:nr, nr:], blk[nr:, :nr], blk[nr:, nr:] = S.imag, -S.imag, S.real
-            sub = [(a, b) for a in range(len(cols)) for b in range(len(cols))]
-            for a, b in sub:
-                ka, kb = cols[a], cols[b]
-                r0, c0 = a * nr, b * nr
-                if self.Juu is not None:
-                    blk[r0 + self.t_row, c0 + self.t_row] += self.Juu[:, ka, kb]
-                if self.Jug is not None:
-                    blk[r0 + self.t_row, c0 + self.n_row] += self.Jug[:, ka, kb]
-                if self.JNN is not None:
-                    blk[r0 + self.n_row, c0 + self.n_row] -= self.JNN[:, ka, kb]
-            m = max(m, float(np.abs(blk).max(initial=0.0)))
+            # the cosine/sine sub-blocks: Re S (cc, ss), Im S (cs), -Im S (sc)
+            kinds = [np.abs(S.real)] + ([np.abs(S.imag)] if h else [])
+            for A in kinds:
+                for _, r, c, _ in parts:
+                    A[r, c] = 0.0
+                m = max(m, float(A.max(initial=0.0)))
+            for a, ka in enumerate(cols):
+                for b, kb in enumerate(cols):
+                    for J, r, c, sign in parts:
+                        base = S.real[r, c] if a == b else \
+                            (S.imag[r, c] if a < b else -S.imag[r, c])
+                        val = base + J[:, ka, kb] if sign > 0 else base - J[:, ka, kb]
+                        m = max(m, float(np.abs(val).max(initial=0.0)))
         hk = self.basis.hk
         other = hk[:, None] != hk[None, :]          # coefficient pairs of distinct harmonics
         for Jb in (self.Juu, self.Jug, self.JNN):

@@ -96,14 +96,17 @@ def welded_coordinates(M, K, C, T, threads: int = THREADS) -> WeldedCoordinates:
     n, n_r = M.shape[0], T.shape[0]
     n_y = n - n_r
     if n_r:
-        sv = np.linalg.svd(T, compute_uv=False)
-        if n_r > n or sv.min() <= 1e-10 * sv.max():
+        # T' = Q1 R: T's singular values are R's, Psi = Q1 R^-T (no T T' and no SVD of T,
+        # 0.36 and 0.13 s at 480 Gauss points, round 48), Z0 the rest of Q
+        Q, R = np.linalg.qr(T.T, mode="complete") if n_r <= n else (None, None)
+        sv = np.linalg.svd(R[:n_r], compute_uv=False) if R is not None else None
+        if sv is None or sv.min() <= 1e-10 * sv.max():
             raise ValueError(
                 "the contact coordinates are linearly dependent (two contact elements "
                 "measure the same relative motion, or an element's slip and gap coincide); "
                 "merge such elements or give them distinct DOFs")
-        Psi = np.linalg.solve(T @ T.T, T).T
-        Z0 = np.linalg.qr(T.T, mode="complete")[0][:, n_r:]
+        Psi = sla.solve_triangular(R[:n_r], Q[:, :n_r].T, check_finite=False).T
+        Z0 = Q[:, n_r:]
     else:
         Psi, Z0 = np.zeros((n, 0)), np.eye(n)
     V0 = np.hstack([Psi, Z0])
@@ -172,11 +175,15 @@ def welded_coordinates(M, K, C, T, threads: int = THREADS) -> WeldedCoordinates:
                              damping_low_rank=low)
 
 
-def symmetric(A) -> bool:
-    """Whether a dense ``A`` equals its transpose to ``1e-12`` of its largest entry."""
-    d = A - A.T
-    return float(np.abs(d, out=d).max(initial=0.0)) <= 1e-12 * float(
-        np.abs(A).max(initial=0.0))
+def symmetric(A, rows: int = 64) -> bool:
+    """Whether a dense ``A`` equals its transpose to ``1e-12`` of its largest entry
+    (compared by blocks of ``rows`` rows: no ``n x n`` temporary, 0.1 -> 0.03 s at
+    1,964 DOFs)."""
+    worst = 0.0
+    for i in range(0, A.shape[0], rows):
+        d = A[i:i + rows] - A[:, i:i + rows].T
+        worst = max(worst, float(np.abs(d, out=d).max(initial=0.0)))
+    return worst <= 1e-12 * float(np.abs(A).max(initial=0.0))
 
 
 def low_rank_factors(C, n_r: int, seed: int = 0, max_block: int | None = None):

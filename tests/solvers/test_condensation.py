@@ -256,6 +256,41 @@ def test_transformed_blocks_are_the_congruence(kind):
         assert np.abs(W.T @ W - np.eye(c.size)).max() <= 1e-13
 
 
+@pytest.mark.parametrize("kind", ["modal", "lowrank", "direct"])
+def test_psi_is_the_right_inverse_of_t_and_z_its_null_space(kind):
+    """``Psi`` (from the QR factors of ``T'``, round 48) equals ``T' (T T')^-1`` and ``T
+    Psi = I``; ``T Z = 0`` and ``Z`` is M-orthonormal (modal, low-rank) or orthonormal
+    (direct); rows of ``T`` that are linearly dependent are refused."""
+    M, K, C, T = _structure(kind, n=16, n_r=5, seed=3)
+    lin = ReducedLinear(M, K, C, T)
+    ref = T.T @ np.linalg.inv(T @ T.T)
+    assert np.abs(lin.Psi - ref).max() <= 1e-13 * np.abs(ref).max()
+    assert np.abs(T @ lin.Psi - np.eye(5)).max() <= 1e-13
+    assert np.abs(T @ lin.Z).max() <= 1e-13 * np.abs(T).max() * np.abs(lin.Z).max()
+    G = lin.Z.T @ (M if kind != "direct" else np.eye(16)) @ lin.Z
+    assert np.abs(G - np.eye(11)).max() <= 1e-12
+    T[4] = T[0] - 2.0 * T[2]
+    with pytest.raises(ValueError, match="linearly dependent"):
+        ReducedLinear(M, K, C, T)
+
+
+@pytest.mark.parametrize("kind", ["modal", "lowrank", "direct"])
+def test_block_products_equal_the_formed_blocks(kind):
+    """``block_times`` (real products, the block not formed) equals the complex block of
+    ``blocks`` times a vector, and its transpose, at a frequency and self-excitation."""
+    M, K, C, T = _structure(kind)
+    lin = ReducedLinear(M, K, C, T)
+    nu, xi = 3.7, 0.4
+    A, B, Bp, _ = lin.blocks(nu, xi)
+    rng = np.random.default_rng(4)
+    for b, X in (("qq", A), ("qy", B), ("yq", Bp)):
+        for transpose in (False, True):
+            Y = X.T if transpose else X
+            v = rng.normal(size=Y.shape[1]) + 1j * rng.normal(size=Y.shape[1])
+            got = lin.block_times(b, nu, xi, v, transpose=transpose)
+            assert np.abs(got - Y @ v).max() <= 1e-13 * np.abs(Y).max() * np.abs(v).sum()
+
+
 def test_symmetric_congruence_is_the_product_on_any_threads():
     """``jointsim.linalg.symmetric_congruence``: ``V' A V`` of a symmetric ``A`` (dense and
     sparse) by blocks on one side of the diagonal equals the whole product to round-off,

@@ -63,6 +63,34 @@ def test_structured_products_equal_the_dense_jacobian(law, normal):
     assert np.abs(xb - xd).max() <= 1e-7 * np.abs(xd).max()
 
 
+@pytest.mark.parametrize("normal", ["coupled", "fixed"])
+def test_max_abs_reads_the_entries_the_tangents_reach(normal):
+    """``max_abs`` against the formed Jacobian where its largest entries are ones the
+    element tangents reach: each tangent made to cancel ``S_h`` where it adds (the
+    largest of ``S_h`` is then not an entry of ``J``), and made the largest entry."""
+    sd, sk = _pair(build_model(four_dof("jenkins", "anchor", normal)))
+    F = sd.force_coefficients(0.3)
+    z = np.random.default_rng(2).normal(size=sd.n_z) * 0.4
+    Jk = sk.evaluate(z, 1.1, F, xi=0.05, wrt=()).J
+    S0 = Jk.schur(0).real
+    t, n = Jk.t_row, Jk.n_row
+    # cancel: the tangent of every kind is minus S_0 where it adds, at every coefficient
+    # pair of harmonic 0, so those entries of J vanish
+    i0 = Jk._ic[0]
+    for J, r, c, sign in ((Jk.Juu, t, t, 1.0), (Jk.Jug, t, n, 1.0), (Jk.JNN, n, n, -1.0)):
+        if J is not None:
+            J[:, i0, i0] = -sign * S0[r, c]
+    dense = Jk.to_dense()
+    assert Jk.max_abs() == np.abs(dense).max()
+    o = i0 * Jk.n_r
+    assert not np.any(dense[o + t, o + t])
+    assert Jk.JNN is None or not np.any(dense[o + n, o + n])
+    # the largest: one tangent entry between two harmonics' coefficients
+    assert Jk.basis.hk[0] != Jk.basis.hk[1]
+    Jk.Juu[0, 0, 1] = 1e3 * np.abs(dense).max()
+    assert Jk.max_abs() == np.abs(Jk.to_dense()).max() == Jk.Juu[0, 0, 1]
+
+
 @pytest.mark.parametrize("normal,damping,kind", [("fixed", "diagonal", "modal"),
                                                  ("fixed", "full", "direct"),
                                                  ("coupled", "diagonal", "direct")])
