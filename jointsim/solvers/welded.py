@@ -23,7 +23,9 @@ condensation came 6.1e-9 from the pivoted shift-invert one, 6.9e-8 with the mirr
 half on blocks of 128 columns, 5.3e-9 and 2.5e-9 on blocks of 64 and 256);
 the welded modes ``Phi`` (``Z = Z0 Phi``) then turn the ``y0 q`` blocks into the ``yq``
 ones.  A damping of low rank enters by its factors (``C = W diag(c) W^T``, found in
-``O(n^2 r)``, :func:`low_rank`), so that no product with ``C`` costs ``n^3``.
+``O(n^2 r)``, :func:`low_rank`), so that no product with ``C`` costs ``n^3``.  ``Psi``,
+``Z0`` and the check that ``T``'s rows are independent come from one complete QR of
+``T'`` (round 48: ``T' = Q_1 R``, ``Psi = Q_1 R^-T``, ``T``'s singular values ``R``'s).
 """
 from __future__ import annotations
 
