@@ -383,17 +383,19 @@ class ReducedLinear:
         (:meth:`~jointsim.solvers.epmc.EPMCSystem._modal`) at each new frequency: at 480
         Gauss points forming ``A``, ``B``, ``B'`` of harmonic 1 cost 0.07 s an evaluation
         (round 48)."""
-        V = np.column_stack([v.real, v.imag])
-        Kv, Mv, Cv = (((X[b].T if transpose else X[b]) @ V) @ np.array([1.0, 1j])
-                      for X in (self.K, self.M, self.C))
+        Kv, Mv, Cv = self._real_product(b, v, (self.K, self.M, self.C), transpose)
         return (Kv - nu * nu * Mv) + 1j * nu * (Cv - xi * Mv)
 
-    def _real_product(self, b: str, v) -> tuple:
-        """``(M_b v, C_b v)`` for a complex ``v`` by real products (the complex form of
-        a real matrix is never made)."""
+    def _real_product(self, b: str, v, mats=None, transpose: bool = False) -> tuple:
+        """``(M_b v, C_b v)`` (or of the blocks ``b`` of ``mats``, transposed with
+        ``transpose``) for a complex ``v`` by real products (the complex form of a real
+        matrix is never made)."""
         V = np.column_stack([v.real, v.imag])
-        Mv, Cv = self.M[b] @ V, self.C[b] @ V
-        return Mv[:, 0] + 1j * Mv[:, 1], Cv[:, 0] + 1j * Cv[:, 1]
+        out = []
+        for X in (self.M, self.C) if mats is None else mats:
+            P = (X[b].T if transpose else X[b]) @ V
+            out.append(P[:, 0] + 1j * P[:, 1])
+        return tuple(out)
 
     def dproducts(self, nu: float, xi: float, wrt: str, h: int, q, y, parts: str = "q y"):
         """Derivatives of the blocks' products with respect to ``omega`` (``nu = h omega``)

@@ -74,7 +74,8 @@ class EPMCSystem:
         self.m_y = lin.Z.T @ Mphi
         # F's harmonic 1 on the welded coordinates (a real product: Z is not made complex)
         F1 = system._complex(np.asarray(F, dtype=float), 1)
-        self.F_y1 = (lin.Z.T @ np.column_stack([F1.real, F1.imag])) @ np.array([1.0, 1j])
+        P = lin.Z.T @ np.column_stack([F1.real, F1.imag])
+        self.F_y1 = P[:, 0] + 1j * P[:, 1]
 
     def coefficients(self, y):
         """Full harmonic coefficients ``X`` (n_c, n_dof) [m] of the point ``y``.
