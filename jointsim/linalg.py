@@ -15,18 +15,56 @@ import logging
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import scipy.linalg as sla
 
 log = logging.getLogger(__name__)
 
 
-def stacked_inverse(blocks) -> np.ndarray:
-    """The inverses of the stacked ``blocks`` (n, m, m), in their precision; a singular
-    block's pseudo-inverse (a preconditioner's: GMRES then has to cope)."""
+def stacked_inverse(blocks, in_double: bool = False) -> np.ndarray:
+    """The inverses of the stacked ``blocks`` (n, m, m) (or of one block, (m, m)), in
+    their precision; a singular block's pseudo-inverse (a preconditioner's: GMRES then
+    has to cope).
+
+    Single precision (float32, complex64) is inverted by SciPy's LAPACK (``getrf`` and
+    ``getri``) block by block, or with ``in_double`` in double and rounded.  NumPy 2.4's
+    ``linalg.inv`` does the latter for every single-precision input (measured round 48:
+    a complex64 block of 960 rows 0.134 s, as long as in complex128, with the error of
+    a double inverse rounded, 1.4e-6; SciPy's 0.079 s, with a single-precision LU's
+    error, 6e-4 on a random block), so the preconditioners' single inverses were double
+    ones until round 48.  The 480-point FRC's harmonic stage keeps them so
+    (``in_double``: in single precision its gross-slip branch needed 14 more builds);
+    the capacitance blocks of a loose solve are inverted in single precision."""
+    blocks = np.asarray(blocks)
     try:
-        return np.linalg.inv(blocks)
+        if in_double and blocks.dtype in (np.float32, np.complex64):
+            return np.linalg.inv(blocks.astype(np.promote_types(blocks.dtype, np.float64))
+                                 ).astype(blocks.dtype)
+        if blocks.dtype not in (np.float32, np.complex64):
+            return np.linalg.inv(blocks)
+        if blocks.ndim == 2:
+            return _lapack_inverse(blocks)
+        out = np.empty_like(blocks)
+        for k, block in enumerate(blocks):
+            out[k] = _lapack_inverse(block)
+        return out
     except np.linalg.LinAlgError:
         log.debug("a singular block: its pseudo-inverse is used")
         return np.linalg.pinv(blocks)
+
+
+def _lapack_inverse(A) -> np.ndarray:
+    """``A^-1`` by LAPACK's ``getrf`` and ``getri`` in ``A``'s precision (SciPy's ``inv``
+    also estimates the condition number and warns above ``1 / eps``: a preconditioner's
+    ill-conditioned block is no error); raises ``LinAlgError`` for a zero pivot."""
+    getrf, getri, getri_lwork = sla.get_lapack_funcs(("getrf", "getri", "getri_lwork"), (A,))
+    lu, piv, info = getrf(A)
+    if info > 0:
+        raise np.linalg.LinAlgError("singular block")
+    work, _ = getri_lwork(A.shape[0])
+    inv, info = getri(lu, piv, lwork=int(1.01 * np.real(work)) + 1, overwrite_lu=True)
+    if info:
+        raise np.linalg.LinAlgError(f"getri: info {info}")
+    return inv
 
 
 def symmetric_congruence(V, A, threads: int = 1, columns: int = 128,

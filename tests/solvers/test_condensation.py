@@ -291,6 +291,38 @@ def test_block_products_equal_the_formed_blocks(kind):
             assert np.abs(got - Y @ v).max() <= 1e-13 * np.abs(Y).max() * np.abs(v).sum()
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.complex64, np.float64, np.complex128])
+def test_stacked_inverse_in_the_blocks_precision(dtype):
+    """``jointsim.linalg.stacked_inverse``: the inverses of a stack (and of one block) in
+    the blocks' precision, against a double inverse to that precision's rounding times
+    the blocks' condition number (about 30 here), or with ``in_double`` a double inverse
+    rounded; a singular block gets the stack's pseudo-inverse."""
+    from jointsim.linalg import stacked_inverse
+    rng = np.random.default_rng(5)
+    n = 60
+    A = rng.normal(size=(3, n, n)) + 4.0 * np.sqrt(n) * np.eye(n)
+    if np.iscomplexobj(np.zeros(0, dtype)):
+        A = A + 1j * rng.normal(size=(3, n, n))
+    A = A.astype(dtype)
+    X = stacked_inverse(A)
+    ref = np.linalg.inv(A.astype(np.complex128))
+    eps = np.finfo(dtype).eps
+    assert X.dtype == dtype
+    assert np.abs(X - ref).max() <= 100 * n * eps * np.abs(ref).max()
+    one = stacked_inverse(A[1])
+    assert one.dtype == dtype and np.abs(one - ref[1]).max() <= 100 * n * eps * np.abs(ref).max()
+    if eps > 1e-10:     # in double and rounded: a double inverse of the blocks, rounded
+        wide = np.promote_types(dtype, np.float64)
+        got = stacked_inverse(A, in_double=True)
+        assert got.dtype == dtype
+        assert np.array_equal(got, np.linalg.inv(A.astype(wide)).astype(dtype))
+    S = A.copy()
+    S[2, :, 0] = 0.0                                     # singular
+    P = stacked_inverse(S)
+    assert np.abs(P[2] - np.linalg.pinv(S[2].astype(np.complex128))).max() \
+        <= 1e3 * n * eps * np.abs(P[2]).max()
+
+
 def test_symmetric_congruence_is_the_product_on_any_threads():
     """``jointsim.linalg.symmetric_congruence``: ``V' A V`` of a symmetric ``A`` (dense and
     sparse) by blocks on one side of the diagonal equals the whole product to round-off,
