@@ -81,3 +81,22 @@ def test_scale_keeps_the_fastest_of_repeated_runs(monkeypatch, capsys):
             if re.match(r"\s+(48|96)\s", r)}
     assert float(rows[48][6]) == 0.15 and float(rows[96][6]) == 0.6
     assert "from 48 to 96 elements: n^2.00" in out and "run 3 times" in out
+
+
+def test_scale_case_leaves_out_the_other_analysis_overrides():
+    """One ``--set`` list serves both analyses of ``benchmarks/scale.py``: an override of
+    the analysis a case does not run (its section is removed from the case's scene) is
+    left out, the others kept in their order before the case's own."""
+    import benchmarks.scale as scale
+    sets = ["model.ny_half=10", "analysis.epmc.error_indicators=false",
+            "analysis.hbm.error_indicators=false"]
+    hbm = scale._overrides("lap.msh", "hbm", "krylov", 25, sets)
+    epmc = scale._overrides("lap.msh", "epmc", "direct", 4, sets)
+    assert hbm[:3] == ["model.mesh='lap.msh'", "model.ny_half=10",
+                       "analysis.hbm.error_indicators=false"]
+    assert "analysis.hbm.max_points=25" in hbm and "analysis.hbm.force_scale=[2.0]" in hbm
+    assert not any(s.startswith("analysis.epmc.") for s in hbm)
+    assert epmc[:3] == ["model.mesh='lap.msh'", "model.ny_half=10",
+                        "analysis.epmc.error_indicators=false"]
+    assert "analysis.epmc.linear_solver='direct'" in epmc
+    assert not any(s.startswith("analysis.hbm.") for s in epmc)
