@@ -12,7 +12,9 @@ through ``jointsim.run.run_scene`` in a fresh process per case (so the peak
 resident memory is that case's), once with ``linear_solver = "krylov"`` and,
 while the dense path's estimated time stays below ``--dense-limit`` seconds (the first
 size's from the flops of its LUs, the next ones from the last measured),
-once with ``"direct"``.  Printed per case: unknowns, Newton iterations, GMRES
+once with ``"direct"``.  Printed per case: unknowns, Newton iterations (of the accepted
+correctors), linear solves (all of them, a failed corrector's too: a corner of a branch
+shows here), GMRES
 iterations, preconditioner builds, time per point (analysis time / points) of both
 paths, the analysis's one-time set-up (the condensation, ``ReducedLinear``, and the
 branch's scales: for the FRC ``frc_scales``, the stuck responses and the resonance
@@ -193,6 +195,7 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str,
                     time=float(g.attrs["time_s"]), wall=wall, setup=setup[0],
                     points=int(g.attrs["n_points"]),
                     newton=int(f[f"{analysis}/iterations"][()].sum()),
+                    solves=int(f[f"{analysis}/linear_solves"][()].sum()),
                     krylov=int(f[f"{analysis}/krylov_iterations"][()].sum()),
                     builds=int(f[f"{analysis}/preconditioners"][()].sum()),
                     X=f[f"{analysis}/X"][()].tolist(),
@@ -290,7 +293,8 @@ def main(argv=None) -> None:
         for analysis in a.analyses:
             print(f"\n{analysis.upper()}: points per branch "
                   f"{', '.join(f'{n}: {k}' for n, k in points.items())}")
-            print(f"{'n_e':>5} {'n_z':>6} {'pts':>4} {'Newton':>6} {'GMRES':>6} {'builds':>6} "
+            print(f"{'n_e':>5} {'n_z':>6} {'pts':>4} {'Newton':>6} {'solves':>6} {'GMRES':>6} "
+                  f"{'builds':>6} "
                   f"{'krylov s/pt':>11} {'setup s':>7} {'w/o s/pt':>8} {'dense s/pt':>10} "
                   f"{'ratio':>6} {'max dX':>8} {'MB krylov':>9} {'MB dense':>8}", flush=True)
             sizes, tpp, tpp0 = [], [], []
@@ -327,6 +331,7 @@ def main(argv=None) -> None:
                 tpp.append(kt)
                 tpp0.append(kt0)
                 print(f"{n:>5} {k['n_z']:>6} {k['points']:>4} {k['newton']:>6} "
+                      f"{k['solves']:>6} "
                       f"{k['krylov']:>6} {k['builds']:>6} {kt:>11.3f} {k['setup']:>7.2f} "
                       f"{kt0:>8.3f} {dt:>10.3f} {dt / kt:>6.2f} {dx:>8.1e} "
                       f"{k['rss_mb']:>9.0f} {d['rss_mb'] if d else np.nan:>8.0f}{same}", flush=True)
