@@ -79,6 +79,7 @@ def test_scale_keeps_the_fastest_of_repeated_runs(monkeypatch, capsys):
     out = capsys.readouterr().out
     rows = {int(r.split()[0]): r.split() for r in out.splitlines()
             if re.match(r"\s+(48|96)\s", r)}
+    assert rows[48][3:5] == ["1", "2"]                  # Newton iterations, linear solves
     assert float(rows[48][7]) == 0.15 and float(rows[96][7]) == 0.6
     assert "from 48 to 96 elements: n^2.00" in out and "run 3 times" in out
 
