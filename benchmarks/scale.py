@@ -226,6 +226,12 @@ def _run_child(mesh, analysis, solver, points, tmp, numba_cache=None, sets=()) -
     return r
 
 
+def _fastest(repeat: int, *args, **kw) -> dict:
+    """The fastest (analysis time) of ``repeat`` runs of :func:`_run_child` (at least one)."""
+    return min((_run_child(*args, **kw) for _ in range(max(repeat, 1))),
+               key=lambda r: r["time"])
+
+
 def _numba_cache_case(mesh, analysis, points, tmp) -> None:
     """The same Krylov case with an empty numba cache (cold: every kernel compiled),
     then again with that cache filled (warm)."""
@@ -301,15 +307,14 @@ def main(argv=None) -> None:
             dense_est, measured = None, False
             for n in a.elements:
                 mesh = _mesh(n, cache, a.interface)
-                k = min((_run_child(mesh, analysis, "krylov", points[n], tmp, sets=a.set)
-                         for _ in range(max(a.repeat, 1))), key=lambda r: r["time"])
+                k = _fastest(a.repeat, mesh, analysis, "krylov", points[n], tmp, sets=a.set)
                 d = None
                 if not measured:        # no smaller size measured: from the LUs' flops
                     dense_est = points[n] * DENSE_LUS_PER_POINT * 2 / 3 * k["n_z"] ** 3 \
                         / DENSE_FLOP_RATE
                 if a.dense_limit > 0 and dense_est < a.dense_limit:
-                    d = min((_run_child(mesh, analysis, "direct", points[n], tmp, sets=a.set)
-                             for _ in range(max(a.repeat, 1))), key=lambda r: r["time"])
+                    d = _fastest(a.repeat, mesh, analysis, "direct", points[n], tmp,
+                                 sets=a.set)
                     dense_est = d["time"] * 10.0      # next size: about n^3, x 2^3
                     measured = True
                 kt = k["time"] / max(k["points"], 1)
