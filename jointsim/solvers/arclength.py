@@ -57,10 +57,12 @@ def tangent(J, t_prev):
     return t
 
 
-def corner_step(F, yk, t, h, tol, max_iter, max_jump=np.inf):
+def corner_step(F, yk, t, h, tol, max_iter, max_jump=np.inf, stall=None):
     """Try to leave a corner at ``yk`` along the tangent of the piece beyond it.
 
-    Returns ``(y, R, J, extra, iterations)`` or None.
+    A direction whose Newton stalls (``stall`` iterations without a 10 % better residual,
+    :class:`~.newton.NewtonOptions`) is given up.  Returns ``(y, R, J, extra,
+    iterations)`` or None.
     """
     dirs = []
     for eps in (1e-7, 1e-5, 1e-3):   # the Jacobian just beyond the corner
@@ -74,7 +76,7 @@ def corner_step(F, yk, t, h, tol, max_iter, max_jump=np.inf):
             continue
         yk1 = yk + h * d
         fun, jac, measure = bordered(F, d, yk, h)
-        res = newton(fun, yk1, NewtonOptions(tol, max_iter, line_search="none"),
+        res = newton(fun, yk1, NewtonOptions(tol, max_iter, line_search="none", stall=stall),
                      jacobian=jac, measure=measure)
         if res.success:
             yc, (R, J, extra) = res.x, res.extra

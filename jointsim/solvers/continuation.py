@@ -28,12 +28,10 @@ tolerances refer to the scaled quantities.
   limit too.  EPMC monitors the damping ratio and the log of the frequency,
   so the corner of the backbone at the slip onset is resolved without a
   small step everywhere.
-* Corners (when the step is already small): a point beyond a corner of
-  the branch of up to 80 degrees is accepted although it lies far from the
-  predictor (``CORNER_JUMP``); failing that, the tangent of the piece beyond
-  the corner is tried in both orientations; failing that, a corrector at
-  fixed ``lam`` a little ahead (a corner sharper than 90 degrees whose new
-  piece still advances in ``lam``).
+* Corners (when the step is already small): a point beyond a corner of up to 80
+  degrees far from the predictor (``CORNER_JUMP``); failing that, the tangent of the
+  piece beyond in both orientations (given up on a stall); failing that, a
+  corrector at fixed ``lam`` a little ahead (a corner sharper than 90 degrees).
 * Orientation: the new tangent is oriented like the secant of the last step,
   or, after a step shorter than a quarter of the one before that lands
   straight behind the last point, like the chord over the last two steps (a tiny step from a poor tangent must not turn the
@@ -346,14 +344,14 @@ class Continuation:
                                         f"lam = {self.lam_end:g} (reached "
                                         f"{self.points[-1][-1]:.8g})")
 
-    def _corrector_fixed(self, yh, lam_h):
-        """Newton in z at fixed lam (scaled)."""
+    def _corrector_fixed(self, yh, lam_h, stall=None):
+        """Newton in z at fixed lam (scaled); gives up on a stall when ``stall`` is set."""
         def fun(z):
             R, J, extra = self._F(np.concatenate([z, [lam_h]]))
             return R, drop_last_column(J), (J, extra)
 
-        res = newton(fun, yh[:-1], NewtonOptions(self.tol, self.max_iter, line_search="none"),
-                     solve=solve)
+        res = newton(fun, yh[:-1], NewtonOptions(self.tol, self.max_iter, line_search="none",
+                                                 stall=stall), solve=solve)
         J, extra = res.extra
         return (np.concatenate([res.x, [lam_h]]), res.R, J, extra, res.iterations,
                 res.success)
@@ -390,7 +388,8 @@ class Continuation:
         yc, (R, J, extra), ok, it = res.x, res.extra, res.success, res.iterations
         if not ok:
             log.debug("%s: corrector failed (h = %.3g): %s", desc, h, res.message)
-        if ok and np.linalg.norm(yc - pred) > jump_limit * h:
+        jumped = bool(ok and np.linalg.norm(yc - pred) > jump_limit * h)
+        if jumped:
             ok = False
             log.debug("%s: corrector jumped %.3g from the predictor (h = %.3g); retrying",
                       desc, np.linalg.norm(yc - pred), h)
@@ -400,6 +399,7 @@ class Continuation:
             log.debug("%s: corrector landed back on the traced branch (h = %.3g)", desc, h)
         if not ok:
             self.n_failed += 1
+            self._failed = (h, jumped, (yc, R, J, extra, it))   # for _try_corner
         return ok, yc, R, J, extra, it
 
     def _orientation(self, yk, yc):
@@ -479,25 +479,26 @@ class Continuation:
     def _try_corner(self, yk, t, h):
         """Pass a corner of the piecewise-smooth branch.
 
-        First accept a point beyond a corner of up to 80 degrees (the
-        hyperplane still cuts the branch there, but far from the predictor),
-        then take the tangent of the piece beyond it and try both orientations,
-        and last a corrector at fixed ``lam`` a little ahead (a natural-parameter
-        step, :meth:`_natural_step`): beyond a corner sharper than 90 degrees in
-        the scaled unknowns the new piece runs back against the incoming tangent
-        while ``lam`` still advances, so no hyperplane normal to that tangent cuts
-        it near the corner (the EPMC of a friction contact at the end of its
-        shaken-down stuck range, issue 13 case 14).
-        Returns ``(ok, h, y, R, J, extra, iterations)``.
+        First accept a point beyond a corner of up to 80 degrees (the hyperplane still
+        cuts the branch there, far from the predictor; not when this step just failed
+        otherwise, which would recur), then the tangent of the piece beyond it in both
+        orientations (a stalled direction is given up), last a corrector at fixed
+        ``lam`` a little ahead (:meth:`_natural_step`; no hyperplane normal to the
+        incoming tangent cuts the new piece of a corner sharper than 90 degrees near
+        it: issue 13 case 14; tried first, it sent the rough branches of sampled
+        closing in ``tests/hard`` zig-zagging, round 50).  Returns ``(ok, h, y, R, J,
+        extra, iterations)``.
         """
         hc = max(h, 1e3 * self.step_min)
-        ok, yc, R, J, extra, it = self._correct(yk, t, hc, jump_limit=CORNER_JUMP)
+        ok, (yc, R, J, extra, it) = False, self._failed[2]
+        if self._failed[:2] != (hc, False):     # a stall or retrace would recur
+            ok, yc, R, J, extra, it = self._correct(yk, t, hc, jump_limit=CORNER_JUMP)
         if ok:
             h = hc
             log.debug("%s: passed a corner of the branch at lam = %.8g", self.desc,
                       yk[-1] * self.scale[-1])
         got = None if ok else corner_step(self._F, yk, t, hc, self.tol, self.max_iter,
-                                      self.max_jump)
+                                          self.max_jump, self.stall)
         if got is not None and self._retraces(got[0], yk):
             got = None
         if got is not None:
@@ -505,11 +506,10 @@ class Continuation:
             ok = True
             log.debug("%s: passed a corner of the branch at lam = %.8g", self.desc,
                       yk[-1] * self.scale[-1])
-        if not ok:
-            got = self._natural_step(yk, hc)
-            if got is not None:
-                yc, R, J, extra, it = got
-                ok, h = True, float(np.linalg.norm(yc - yk))
+        got = None if ok else self._natural_step(yk, hc)
+        if got is not None:
+            yc, R, J, extra, it = got
+            ok, h = True, float(np.linalg.norm(yc - yk))
         if not ok:
             # a non-smooth fold (kink whose pieces are not coherently oriented):
             # the point beyond it lies on the other piece, so it is not a retrace
@@ -529,7 +529,7 @@ class Continuation:
         iterations)`` or None.
         """
         lam_h = yk[-1] + self.direction * h
-        yc, R, J, extra, it, ok = self._corrector_fixed(yk, lam_h)
+        yc, R, J, extra, it, ok = self._corrector_fixed(yk, lam_h, self.stall)
         if not ok or not np.all(np.isfinite(yc)):
             return None
         if np.linalg.norm(yc - yk) > CORNER_JUMP * h or self._retraces(yc, yk):

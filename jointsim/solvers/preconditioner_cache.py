@@ -33,6 +33,14 @@ REFRESH_ITERATIONS = 10
 #: GMRES iterations, 3 vs 16 builds); the FRC at force scale 2 lost too.
 COST_REUSE = False
 ITERATION_WEIGHT = 2.5
+#: ... but from this many rows ``n_r`` the cost model is used by a cache whose
+#: Jacobians are solved tightly (a branch's continuation, not the error indicators'
+#: loose extended systems): a build's ``n_r^3`` then outweighs the iterations' ``n_r^2``.
+#: Measured side by side (round 50, EPMC, first 25 points): 480 Gauss points (960 rows)
+#: 98.4 -> 64.4 s with the indicators off (builds 28 -> 4, GMRES iterations 908 ->
+#: 1,662, X equal to 1.5e-9) and 142.7 -> 125.7 s with them; 240 points 40.4 -> 40.8 s;
+#: on every cache down to 48 points it lost 5 to 20 % (docs/hbm.md, "Round 50").
+COST_REUSE_MIN_ROWS = 800
 #: Largest threshold of the chord policy (GMRES iterations; below the restart length).
 REFRESH_MAX = 60
 
@@ -221,9 +229,16 @@ class PreconditionerCache:
         return TRUNCATED_REUSE > 0 and self.current is not None \
             and bool(getattr(self.current, "truncated", False))
 
+    def _by_cost(self) -> bool:
+        """Whether the current preconditioner is kept by the cost model (``COST_REUSE``,
+        or ``COST_REUSE_MIN_ROWS`` for a tightly solved one)."""
+        P = self.current
+        return self.cost_reuse or (P is not None and P.jac.n_r >= COST_REUSE_MIN_ROWS
+                                   and P.jac.rtol < SINGLE_LU_RTOL)
+
     def budget(self) -> int:
         """GMRES iterations a reused preconditioner gets before it is rebuilt."""
-        if self.cost_reuse or self._truncated():
+        if self._by_cost() or self._truncated():
             return self.threshold()
         return 2 * self.threshold()
 
@@ -237,8 +252,7 @@ class PreconditionerCache:
         if self._truncated():
             return max(self.refresh_iterations,
                        int(TRUNCATED_REUSE * max(self.fresh_iterations, 1)))
-        if not self.cost_reuse or self.current is None \
-                or self.fresh_iterations > self.refresh_iterations:
+        if not self._by_cost() or self.fresh_iterations > self.refresh_iterations:
             return self.refresh_iterations
         P = self.current
         extra = P.build_flops / max(ITERATION_WEIGHT * P.iteration_flops, 1.0)

@@ -85,3 +85,36 @@ def test_fixed_lam_step_passes_a_corner_sharper_than_90_degrees():
     assert got is not None
     z, lam = got[0]
     assert lam == pytest.approx(yk[1] + h) and z == pytest.approx(-3.0 * lam, abs=1e-12)
+
+
+
+def test_a_corner_remedy_repeats_no_stalled_corrector_and_drops_stalled_directions():
+    """At a corner whose step just failed without a jump, the remedy does not repeat that
+    corrector with a wider jump limit (it would fail alike) and passes the 117-degree
+    corner; a tangent direction whose Newton stalls is given up after ``stall``
+    iterations, not ``max_iter`` (the 240-point FRC's corner: 127 -> 49 linear solves)."""
+    from jointsim.solvers.arclength import corner_step
+    from jointsim.solvers.continuation import Continuation
+
+    c = Continuation(_sharp_corner, np.array([-1e-3, -1e-3]), 1.0, scale=np.ones(2),
+                     rscale=1.0, step=0.05, step_min=1e-6, step_max=0.2, max_points=200,
+                     tol=1e-12)
+    yk, t, h = c._yh, c._t, 0.01
+    assert not c._correct(yk, t, h)[0] and not c._failed[1]      # failed, not by a jump
+    correct, tried = c._correct, []
+    c._correct = lambda *a, **k: tried.append(a) or correct(*a, **k)
+    ok, _, (z, lam), *_ = c._try_corner(yk, t, h)
+    assert ok and not tried and z == pytest.approx(-3.0 * lam, abs=1e-12) and lam > 0.0
+
+    calls = []
+
+    def nowhere(y):                     # z^2 + 1 = 0: Newton wanders, never converges
+        calls.append(1)
+        return np.array([y[0] ** 2 + 1.0]), np.array([[2.0 * y[0], 0.0]]), None
+    y0, t0 = np.array([0.3, 0.0]), np.array([0.0, 1.0])
+    counts = []
+    for stall in (None, 5):
+        calls.clear()
+        assert corner_step(nowhere, y0, t0, 0.01, 1e-12, 20, stall=stall) is None
+        counts.append(len(calls))
+    assert counts[1] < counts[0] / 2

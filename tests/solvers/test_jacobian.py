@@ -1079,3 +1079,40 @@ def test_krylov_epmc_in_the_linear_range_of_the_coarse_lap_joint(tmp_path, monke
     x = orig_solve(A, b)
     xd = np.linalg.solve(A.to_dense(), b)
     assert np.abs(x - xd).max() <= 1e-6 * np.abs(xd).max()
+
+
+def test_chord_cost_model_from_its_size_keeps_the_branch(monkeypatch):
+    """From ``COST_REUSE_MIN_ROWS`` rows a tightly solved system's preconditioner is kept
+    by the chord cost model (at 480 Gauss points its builds cost more than the GMRES
+    iterations they save): on the coarse lap joint, with the size lowered to its own,
+    other builds and GMRES iterations (here more builds: why it waits for the size) and
+    the same FRC branch piece to 1e-8 in X; the error indicators' loose systems keep
+    the fixed threshold."""
+    import jointsim.solvers.preconditioner_cache as pc
+    runs = {}
+    for rows in (10 ** 9, 0):
+        monkeypatch.setattr(pc, "COST_REUSE_MIN_ROWS", rows)
+        sc = lap_scene(ROOT / "models" / "lap_joint_nodes.toml", ("modes", "hbm"),
+                       ["analysis.hbm.max_points=10", "analysis.hbm.harmonics=[0,1,2,3]",
+                        "analysis.hbm.n_samples=64", "analysis.hbm.step=0.05",
+                        "analysis.hbm.linear_solver='krylov'"])
+        s = _system(build_model(sc), sc.analysis.hbm)
+        out, by_cost = [], []
+        keep = pc.PreconditionerCache.after_solve
+
+        def noted(self, iterations, fresh):      # (cost model used, a loose system)
+            by_cost.append((self._by_cost(), self.current.jac.rtol >= pc.SINGLE_LU_RTOL))
+            return keep(self, iterations, fresh)
+        monkeypatch.setattr(pc.PreconditionerCache, "after_solve", noted)
+        _run_branch(_BranchJob(0, 20.0, None), system=s, a=sc.analysis.hbm, dof=0,
+                    want_aft=False, n_branches=1, on_record=out.append, progress=False)
+        monkeypatch.setattr(pc.PreconditionerCache, "after_solve", keep)
+        runs[rows] = ([r["X"] for r in out], sum(r["preconditioners"] for r in out),
+                      sum(r["krylov_iterations"] for r in out), by_cost)
+    (X_off, b_off, it_off, c_off), (X_on, b_on, it_on, c_on) = runs[10 ** 9], runs[0]
+    assert not any(c for c, _ in c_off) and all(c == (not lo) for c, lo in c_on)
+    assert any(not lo for _, lo in c_on)
+    assert len(X_off) == len(X_on) == 10
+    for a, b in zip(X_off, X_on):
+        assert np.abs(a - b).max() <= 1e-8 * np.abs(a).max()
+    assert (b_on, it_on) != (b_off, it_off)
