@@ -233,8 +233,8 @@ class PreconditionerCache:
         """Whether the current preconditioner is kept by the cost model (``COST_REUSE``,
         or ``COST_REUSE_MIN_ROWS`` for a tightly solved one)."""
         P = self.current
-        return self.cost_reuse or (P is not None and P.jac.n_r >= COST_REUSE_MIN_ROWS
-                                   and P.jac.rtol < SINGLE_LU_RTOL)
+        return P is not None and (self.cost_reuse or (P.jac.n_r >= COST_REUSE_MIN_ROWS
+                                                      and P.jac.rtol < SINGLE_LU_RTOL))
 
     def budget(self) -> int:
         """GMRES iterations a reused preconditioner gets before it is rebuilt."""
