@@ -67,6 +67,16 @@ def _lapack_inverse(A) -> np.ndarray:
     return inv
 
 
+def real_times(A, Z) -> np.ndarray:
+    """``A Z`` of a real ``A`` (m, n) and a C-contiguous complex ``Z`` (n, k), as one real
+    product with the view of ``Z`` as (n, 2 k) reals: no complex copy of ``A`` (a real
+    ``Z``: ``A Z``)."""
+    if not np.iscomplexobj(Z):
+        return A @ Z
+    n, k = Z.shape
+    return (A @ Z.view(np.float64).reshape(n, 2 * k)).view(np.complex128)
+
+
 def symmetric_congruence(V, A, threads: int = 1, columns: int = 128,
                          both_sides: bool = False) -> np.ndarray:
     """``V^T A V`` of a symmetric ``A``, dense and symmetric.

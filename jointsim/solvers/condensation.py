@@ -40,17 +40,8 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from ..linalg import real_times
 from .welded import low_rank_factors, orthonormal_factors, welded_coordinates
-
-
-def _real_times(A, Z) -> np.ndarray:
-    """``A Z`` of a real ``A`` (m, n) and a C-contiguous complex ``Z`` (n, k), as one real
-    product with the view of ``Z`` as (n, 2 k) reals: no complex copy of ``A`` (a real
-    ``Z``: ``A Z``)."""
-    if not np.iscomplexobj(Z):
-        return A @ Z
-    n, k = Z.shape
-    return (A @ Z.view(np.float64).reshape(n, 2 * k)).view(np.complex128)
 
 
 #: Why ``E`` (the structure with its contact coordinates held) has no inverse.
@@ -267,8 +258,8 @@ class ReducedLinear:
         # products with W_y / d, whose real and imaginary parts are the columns of a real
         # view (B_0, B'_0 are never formed: (n_r, n_y) complex arrays)
         Wdy = np.ascontiguousarray(Wy / d[:, None])                 # (n_y, r)
-        Pl = _real_times(self.K["qy"], Wdy) - s * _real_times(self.M["qy"], Wdy)
-        Pr = (_real_times(self.K["yq"].T, Wdy) - s * _real_times(self.M["yq"].T, Wdy)).T
+        Pl = real_times(self.K["qy"], Wdy) - s * real_times(self.M["qy"], Wdy)
+        Pr = (real_times(self.K["yq"].T, Wdy) - s * real_times(self.M["yq"].T, Wdy)).T
         Q = Wdy.T @ Wy
         Wc = Wq * c                                      # (n_r, r)
         WcQ = Wc @ Q
@@ -390,12 +381,9 @@ class ReducedLinear:
         """``(M_b v, C_b v)`` (or of the blocks ``b`` of ``mats``, transposed with
         ``transpose``) for a complex ``v`` by real products (the complex form of a real
         matrix is never made)."""
-        V = np.column_stack([v.real, v.imag])
-        out = []
-        for X in (self.M, self.C) if mats is None else mats:
-            P = (X[b].T if transpose else X[b]) @ V
-            out.append(P[:, 0] + 1j * P[:, 1])
-        return tuple(out)
+        V = np.ascontiguousarray(v, dtype=complex)[:, None]
+        return tuple(real_times(X[b].T if transpose else X[b], V)[:, 0]
+                     for X in ((self.M, self.C) if mats is None else mats))
 
     def dproducts(self, nu: float, xi: float, wrt: str, h: int, q, y, parts: str = "q y"):
         """Derivatives of the blocks' products with respect to ``omega`` (``nu = h omega``)

@@ -36,6 +36,7 @@ import logging
 
 import numpy as np
 
+from ..linalg import real_times
 from .condensation import dense_array
 from .hbm import HBMSystem
 from .jacobian import BorderedJacobian
@@ -74,8 +75,7 @@ class EPMCSystem:
         self.m_y = lin.Z.T @ Mphi
         # F's harmonic 1 on the welded coordinates (a real product: Z is not made complex)
         F1 = system._complex(np.asarray(F, dtype=float), 1)
-        P = lin.Z.T @ np.column_stack([F1.real, F1.imag])
-        self.F_y1 = P[:, 0] + 1j * P[:, 1]
+        self.F_y1 = real_times(lin.Z.T, np.ascontiguousarray(F1, dtype=complex)[:, None])[:, 0]
 
     def coefficients(self, y):
         """Full harmonic coefficients ``X`` (n_c, n_dof) [m] of the point ``y``.
