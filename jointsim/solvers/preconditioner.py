@@ -109,8 +109,9 @@ HIERARCHICAL_STAGE_MIN_ROWS = 800
 #: (:class:`~jointsim.solvers.flexibility.StuckFlexibility`; not where the low-rank stage
 #: would be truncated): ``P_h = S_h + diag(k)`` formed from the stuck modes, no ``S_h``
 #: and no ``n_r^3`` inverse.  With a shift (the EPMC's bordered solves) only from
-#: ``SHIFTED_FLEX_MIN_ROWS`` rows and near the stuck joint (at most
-#: ``SOLVED_STAGE_COLUMNS n_r`` row blocks): docs/hbm.md, "Round 40".
+#: ``SHIFTED_FLEX_MIN_ROWS`` rows, and near the stuck joint (at most
+#: ``SOLVED_STAGE_COLUMNS n_r`` row blocks: docs/hbm.md, "Round 40") or for a loose solve
+#: (an EPMC point's extended Newton steps, its correction split by harmonics, "Round 51").
 MODAL_STAGE = True
 SHIFTED_FLEX_MIN_ROWS = 400
 
@@ -203,11 +204,12 @@ class HarmonicPreconditioner:
         # a loose solve whose low-rank stage needs few columns of P_h^-1: a stage applied
         # by solves (SOLVED_STAGE_COLUMNS), the flexibility's first, else the hierarchical
         loose = by_solves and jac.rtol >= SOLVED_STAGE_RTOL and shift is None
-        # shifted (the EPMC's bordered solves): large, and near the stuck joint (few columns)
+        # shifted (the EPMC's bordered solves): large, and loose or near the stuck joint
         flex = jac.lin.flexibility if MODAL_STAGE and modal and (
             shift is None or nr >= SHIFTED_FLEX_MIN_ROWS) else None
         stuck = self._stuck_proj(flex) if flex is not None else None
-        self.modal = flex is not None and (shift is None or self._few_columns(stuck))
+        self.modal = flex is not None and (shift is None or jac.rtol >= SINGLE_LU_RTOL
+                                           or self._few_columns(stuck))
         if self.modal and loose and nr >= FLEX_SOLVE_MIN_ROWS and self._few_columns(stuck):
             self.S, self.Plu, self.Pinv, self.Pinv_double = None, None, None, {}
             self.Psolve = FlexibilitySolve(flex, np.asarray(jac.basis.harmonics, dtype=float)
@@ -629,12 +631,8 @@ class HarmonicPreconditioner:
         coefficients, contact tangent with its harmonic coupling plus the diagonal of
         ``S_h``): the second stage of the preconditioner."""
         jac = self.jac
-        nc, ne = jac.n_c, len(jac.t_row)
-        rows = [jac.t_row] + ([jac.n_row] if jac.JNN is not None else [])
-        if jac.Juu is None:
-            rows = [jac.n_row]
-        nb = len(rows)
-        Bk = np.zeros((ne, nb * nc, nb * nc))
+        nc = jac.n_c
+        rows, nb, Bk = self._element_tangent()
         for a, ra in enumerate(rows):
             for b, rb in enumerate(rows):
                 Se = schur_entries(self.Psolve.prod, ra, rb) if self.S is None else None
@@ -646,12 +644,6 @@ class HarmonicPreconditioner:
                         Bk[:, a * nc + ic, b * nc + is_] += S.imag
                         Bk[:, a * nc + is_, b * nc + ic] -= S.imag
                         Bk[:, a * nc + is_, b * nc + is_] += S.real
-        if jac.Juu is not None:
-            Bk[:, :nc, :nc] += jac.Juu
-            if jac.Jug is not None and nb == 2:
-                Bk[:, :nc, nc:] += jac.Jug
-        if jac.JNN is not None:
-            Bk[:, -nc:, -nc:] -= jac.JNN
         self.rows = np.concatenate(rows)
         self.nb = nb
         self.Binv = np.linalg.inv(Bk)

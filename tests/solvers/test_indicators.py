@@ -402,6 +402,41 @@ def test_an_epmc_points_newton_steps_share_its_harmonic_stage(monkeypatch):
         pm.HarmonicPreconditioner(first.jac, None, base=first)
 
 
+
+def test_an_epmc_points_loose_bordered_stage_is_the_stuck_flexibility(monkeypatch):
+    """The extended EPMC Newton steps (loose, bordered: a shifted preconditioner) take
+    their harmonic stage from the stuck flexibility wherever it exists, not only near
+    the stuck joint: the low-rank stage of a loose solve is never truncated, and the
+    stage needs no ``S_h`` and no ``n_r^3`` LU (the 480-point lap joint's indicators in
+    gross slip: docs/hbm.md, "Round 51").  Here the SDOF Jenkins EPMC at a = 2 (H = 0..7),
+    where its one element slips (more than ``SOLVED_STAGE_COLUMNS n_r`` row blocks,
+    which round 50 took for the inverted blocks), with the row limit lowered to it: the
+    indicators equal those of the dense path to 1e-6."""
+    import jointsim.solvers.preconditioner as pm
+    monkeypatch.setattr(indicators, "EPMC_CHANGE_TOL", 1e-6)     # Newton steps past the first
+    monkeypatch.setattr(pm, "SHIFTED_FLEX_MIN_ROWS", 0)
+    m = build_model(load_scene(MODELS / "hbm" / "sdof_jenkins_epmc.toml"))
+    s, ep, y1 = _mode_point(m, 7, 64, 1.5)
+    y2 = _mode_point(m, 7, 64, 2.0, y1[:-1])[2]
+    d = ErrorEstimator(s).epmc(ep, y2)
+    sk = HBMSystem(m, s.basis.harmonics, 64, linear_solver="krylov")
+    assert sk.lin.flexibility is not None
+    built = []
+    init = pm.HarmonicPreconditioner.__init__
+
+    def spy(self, jac, shift=None, base=None):
+        init(self, jac, shift, base)
+        built.append(self)
+    monkeypatch.setattr(pm.HarmonicPreconditioner, "__init__", spy)
+    k = ErrorEstimator(sk).epmc(EPMCSystem(sk, ep.phi, ep.F), y2)
+    first = built[0]
+    assert first.C2 is not None and first.modal and first.S is None
+    assert first.lowrank is not None and not first.truncated
+    assert d.estimate > 1e-6 and d.damping > 1e-4
+    for name in ("truncation", "aliasing", "estimate", "frequency", "damping"):
+        assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-6), name
+
+
 W_NEAR_FOLD = 1.415
 
 
