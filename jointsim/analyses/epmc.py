@@ -44,7 +44,6 @@ from ..solvers.condensation import dense_array
 from ..solvers.hbm import HBMSystem
 from ..solvers.indicators import ErrorEstimator, ToleranceWatch, safe_indicators
 from ..solvers.modes import elastic_mode
-from ..solvers.preconditioner import SHIFTED_FLEX_MIN_ROWS
 from .epmc_exact import exact_amplitudes, solve_at_amplitudes
 
 log = logging.getLogger(__name__)
@@ -135,7 +134,7 @@ def _indicators(writer, a, system, ep, omega0, xi0):
     n = pool_workers(a.workers, len(missing) if done else None, system.n_z) \
         if system.n_z else 1
     if n > 1:
-        system.prepare_forks(omega0, xi0, flexibility=system.n_r >= SHIFTED_FLEX_MIN_ROWS)
+        system.prepare_forks(omega0, xi0)   # the flexibility too: the workers' loose solves
     # the workers never start numba threads (a forked process must not): parallel=False
     estimator = ErrorEstimator(system, parallel=n == 1)
     steps = a.error_newton_steps

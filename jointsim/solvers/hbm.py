@@ -227,8 +227,7 @@ class HBMSystem:
         xi : float
             Self-excitation [1/s] (EPMC), as in :meth:`harmonic_blocks`.
         flexibility : bool
-            Whether the workers use the flexibility (the EPMC's shifted solves only from
-            ``preconditioner.SHIFTED_FLEX_MIN_ROWS`` contact coordinates).
+            Whether the workers use the flexibility (``preconditioner.MODAL_STAGE``).
 
         Nothing is made on the direct path, nor at a zero frequency.
         """

@@ -108,10 +108,10 @@ HIERARCHICAL_STAGE_MIN_ROWS = 800
 #: The harmonic stage from the stuck joint's flexibility where it applies
 #: (:class:`~jointsim.solvers.flexibility.StuckFlexibility`; not where the low-rank stage
 #: would be truncated): ``P_h = S_h + diag(k)`` formed from the stuck modes, no ``S_h``
-#: and no ``n_r^3`` inverse.  With a shift (the EPMC's bordered solves) only from
-#: ``SHIFTED_FLEX_MIN_ROWS`` rows, and near the stuck joint (at most
-#: ``SOLVED_STAGE_COLUMNS n_r`` row blocks: docs/hbm.md, "Round 40") or for a loose solve
-#: (an EPMC point's extended Newton steps, its correction split by harmonics, "Round 51").
+#: and no ``n_r^3`` inverse.  With a shift (the EPMC's bordered solves): for a loose
+#: solve (an EPMC point's extended Newton steps, whose correction is not truncated:
+#: docs/hbm.md, "Round 51"), else only from ``SHIFTED_FLEX_MIN_ROWS`` rows and near the
+#: stuck joint (at most ``SOLVED_STAGE_COLUMNS n_r`` row blocks: "Round 40").
 MODAL_STAGE = True
 SHIFTED_FLEX_MIN_ROWS = 400
 
@@ -204,11 +204,12 @@ class HarmonicPreconditioner:
         # a loose solve whose low-rank stage needs few columns of P_h^-1: a stage applied
         # by solves (SOLVED_STAGE_COLUMNS), the flexibility's first, else the hierarchical
         loose = by_solves and jac.rtol >= SOLVED_STAGE_RTOL and shift is None
-        # shifted (the EPMC's bordered solves): large, and loose or near the stuck joint
+        # shifted (the EPMC's bordered solves): loose, or large and near the stuck joint
+        loose_shifted = jac.rtol >= SINGLE_LU_RTOL
         flex = jac.lin.flexibility if MODAL_STAGE and modal and (
-            shift is None or nr >= SHIFTED_FLEX_MIN_ROWS) else None
+            shift is None or nr >= SHIFTED_FLEX_MIN_ROWS or loose_shifted) else None
         stuck = self._stuck_proj(flex) if flex is not None else None
-        self.modal = flex is not None and (shift is None or jac.rtol >= SINGLE_LU_RTOL
+        self.modal = flex is not None and (shift is None or loose_shifted
                                            or self._few_columns(stuck))
         if self.modal and loose and nr >= FLEX_SOLVE_MIN_ROWS and self._few_columns(stuck):
             self.S, self.Plu, self.Pinv, self.Pinv_double = None, None, None, {}

@@ -408,13 +408,12 @@ def test_an_epmc_points_loose_bordered_stage_is_the_stuck_flexibility(monkeypatc
     their harmonic stage from the stuck flexibility wherever it exists, not only near
     the stuck joint: the low-rank stage of a loose solve is never truncated, and the
     stage needs no ``S_h`` and no ``n_r^3`` LU (the 480-point lap joint's indicators in
-    gross slip: docs/hbm.md, "Round 51").  Here the SDOF Jenkins EPMC at a = 2 (H = 0..7),
-    where its one element slips (more than ``SOLVED_STAGE_COLUMNS n_r`` row blocks,
-    which round 50 took for the inverted blocks), with the row limit lowered to it: the
-    indicators equal those of the dense path to 1e-6."""
+    gross slip: docs/hbm.md, "Round 51"), and below ``SHIFTED_FLEX_MIN_ROWS`` rows too.
+    Here the SDOF Jenkins EPMC at a = 2 (H = 0..7), where its one element slips (more
+    than ``SOLVED_STAGE_COLUMNS n_r`` row blocks, which round 50 took for the inverted
+    blocks): the indicators equal those of the dense path to 1e-6."""
     import jointsim.solvers.preconditioner as pm
     monkeypatch.setattr(indicators, "EPMC_CHANGE_TOL", 1e-6)     # Newton steps past the first
-    monkeypatch.setattr(pm, "SHIFTED_FLEX_MIN_ROWS", 0)
     m = build_model(load_scene(MODELS / "hbm" / "sdof_jenkins_epmc.toml"))
     s, ep, y1 = _mode_point(m, 7, 64, 1.5)
     y2 = _mode_point(m, 7, 64, 2.0, y1[:-1])[2]
