@@ -65,10 +65,6 @@ SINGLE_LU_MIN = 1000
 #: So does any other loose solve whose correction would be truncated (an EPMC point's
 #: extended Newton steps, bordered and shifted: round 40).
 LOOSE_SPLIT_MIN = 1000
-#: ... and so does one shared by several solves (an EPMC point's extended Newton steps)
-#: whose whole correction exceeds this many coordinates (round 51: the 96-point EPMC's
-#: indicators, up to 4,092 in one LU, 8.31 and 7.73 -> 7.08 and 6.60 s in 25 points).
-LOOSE_SPLIT_SHARED_MIN = 2500
 #: Elements whose harmonic coupling ``|L_e|`` is below this fraction of the largest
 #: tangent entry are left out of the low-rank stage (in the stuck range the AFT's
 #: round-off, about 1e-12, used to fill it: 1,260 coordinates at 121 pairs).
@@ -516,11 +512,10 @@ class HarmonicPreconditioner:
         # a raised limit truncates to itself, not to LOWRANK_MAX_FRACTION
         most = sel.size if sel.size <= blocks(LOWRANK_EXACT_FRACTION) else \
             blocks(LOWRANK_EXACT_FRACTION if limit > LOWRANK_MAX else LOWRANK_MAX_FRACTION)
-        if jac.rtol >= SINGLE_LU_RTOL and sel.size * nc > LOOSE_SPLIT_MIN and (
-                jac.cache.single_solve or most < sel.size
-                or sel.size * nc > LOOSE_SPLIT_SHARED_MIN):
-            # a loose solve, one per preconditioner, large or else truncated: every row
-            # block, the correction split by harmonics (solve_capacitance)
+        if jac.rtol >= SINGLE_LU_RTOL and sel.size * nc > LOOSE_SPLIT_MIN \
+                and (jac.cache.single_solve or most < sel.size):
+            # a loose solve, one per preconditioner or else truncated: every row block,
+            # the correction split by harmonics (solve_capacitance)
             return RowBlocks(rows, nb, Lb, norm, sel, sel.size, len(jac.basis.harmonics))
         return RowBlocks(rows, nb, Lb, norm, sel, most, 1)
 

@@ -411,9 +411,7 @@ def test_an_epmc_points_loose_bordered_stage_is_the_stuck_flexibility(monkeypatc
     gross slip: docs/hbm.md, "Round 51"), and below ``SHIFTED_FLEX_MIN_ROWS`` rows too.
     Here the SDOF Jenkins EPMC at a = 2 (H = 0..7), where its one element slips (more
     than ``SOLVED_STAGE_COLUMNS n_r`` row blocks, which round 50 took for the inverted
-    blocks): the indicators equal those of the dense path to 1e-6.  A correction above
-    ``LOOSE_SPLIT_SHARED_MIN`` coordinates is split by harmonics instead of one LU
-    (solved through its capacitance system): to 1e-4."""
+    blocks): the indicators equal those of the dense path to 1e-6."""
     import jointsim.solvers.preconditioner as pm
     monkeypatch.setattr(indicators, "EPMC_CHANGE_TOL", 1e-6)     # Newton steps past the first
     m = build_model(load_scene(MODELS / "hbm" / "sdof_jenkins_epmc.toml"))
@@ -436,17 +434,6 @@ def test_an_epmc_points_loose_bordered_stage_is_the_stuck_flexibility(monkeypatc
     assert d.estimate > 1e-6 and d.damping > 1e-4
     for name in ("truncation", "aliasing", "estimate", "frequency", "damping"):
         assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-6), name
-    # a large correction (LOOSE_SPLIT_SHARED_MIN, lowered to this one's 31 coordinates)
-    # is split by harmonics and solved through its capacitance system, to the same
-    built.clear()
-    monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
-    monkeypatch.setattr(pm, "LOOSE_SPLIT_SHARED_MIN", 30)
-    k = ErrorEstimator(sk).epmc(EPMCSystem(sk, ep.phi, ep.F), y2)
-    first = built[0]
-    assert first.modal and first.capacitance_solves and not first.truncated
-    assert len(first.lowrank.sizes) == len(first.jac.basis.harmonics) == 16   # H_x = 0..15
-    for name in ("truncation", "aliasing", "estimate", "frequency", "damping"):
-        assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-4), name
 
 
 W_NEAR_FOLD = 1.415
