@@ -357,24 +357,20 @@ def test_a_point_builds_its_own_extended_preconditioner(points):
     np.testing.assert_array_equal(astuple(after), astuple(alone))     # NaN == NaN here
 
 
-def test_an_epmc_points_newton_steps_share_its_harmonic_stage(monkeypatch):
-    """The extended EPMC Newton steps of one point that build a preconditioner each (the
-    refresh threshold forced to 0 here; on the 480-point lap joint three of a point's
-    four builds) keep the first build's harmonic stage, with its shift, and build only
-    their low-rank stages (``PreconditionerCache.share_within_point``).  The indicators
-    equal those of the dense path to the GMRES tolerance's effect, and the next point
-    starts with a full build of its own.  SDOF Jenkins EPMC at a = 2 (H = 0..7)."""
-    import jointsim.solvers.indicators as ind
+def _sdof_mode_builds(monkeypatch):
+    """The SDOF Jenkins EPMC's points at a = 1.5 and 2 (H = 0..7, N_t = 64), the dense
+    path's indicators of the second, the Krylov system and its EPMC system, and the
+    list every :class:`~jointsim.solvers.preconditioner.HarmonicPreconditioner` built
+    from then on is appended to.  Its extended Newton makes steps past the first (the
+    lumped case's first step is in the quadratic region, where one residual evaluation
+    ends it)."""
     import jointsim.solvers.preconditioner as pm
-    # Newton steps past the first here too (the lumped case's first step is in the
-    # quadratic region, where one residual evaluation ends it)
-    monkeypatch.setattr(ind, "EPMC_CHANGE_TOL", 1e-6)
+    monkeypatch.setattr(indicators, "EPMC_CHANGE_TOL", 1e-6)
     m = build_model(load_scene(MODELS / "hbm" / "sdof_jenkins_epmc.toml"))
     s, ep, y1 = _mode_point(m, 7, 64, 1.5)
     y2 = _mode_point(m, 7, 64, 2.0, y1[:-1])[2]
     d = ErrorEstimator(s).epmc(ep, y2)
     sk = HBMSystem(m, s.basis.harmonics, 64, linear_solver="krylov")
-    epk = EPMCSystem(sk, ep.phi, ep.F)
     built = []
     init = pm.HarmonicPreconditioner.__init__
 
@@ -382,6 +378,19 @@ def test_an_epmc_points_newton_steps_share_its_harmonic_stage(monkeypatch):
         init(self, jac, shift, base)
         built.append(self)
     monkeypatch.setattr(pm.HarmonicPreconditioner, "__init__", spy)
+    return y1, y2, d, sk, EPMCSystem(sk, ep.phi, ep.F), built
+
+
+def test_an_epmc_points_newton_steps_share_its_harmonic_stage(monkeypatch):
+    """The extended EPMC Newton steps of one point that build a preconditioner each (the
+    refresh threshold forced to 0 here; on the 480-point lap joint three of a point's
+    four builds) keep the first build's harmonic stage, with its shift, and build only
+    their low-rank stages (``PreconditionerCache.share_within_point``).  The indicators
+    equal those of the dense path to the GMRES tolerance's effect, and the next point
+    starts with a full build of its own.  SDOF Jenkins EPMC at a = 2 (H = 0..7)."""
+    import jointsim.solvers.preconditioner as pm
+    y1, y2, d, sk, epk, built = _sdof_mode_builds(monkeypatch)
+
     def same_stage(P, Q):
         return all(a is b for a, b in ((P.Pinv, Q.Pinv), (P.Plu, Q.Plu), (P.Psolve, Q.Psolve)))
     est = ErrorEstimator(sk)
@@ -402,7 +411,6 @@ def test_an_epmc_points_newton_steps_share_its_harmonic_stage(monkeypatch):
         pm.HarmonicPreconditioner(first.jac, None, base=first)
 
 
-
 def test_an_epmc_points_loose_bordered_stage_is_the_stuck_flexibility(monkeypatch):
     """The extended EPMC Newton steps (loose, bordered: a shifted preconditioner) take
     their harmonic stage from the stuck flexibility wherever it exists, not only near
@@ -412,22 +420,9 @@ def test_an_epmc_points_loose_bordered_stage_is_the_stuck_flexibility(monkeypatc
     Here the SDOF Jenkins EPMC at a = 2 (H = 0..7), where its one element slips (more
     than ``SOLVED_STAGE_COLUMNS n_r`` row blocks, which round 50 took for the inverted
     blocks): the indicators equal those of the dense path to 1e-6."""
-    import jointsim.solvers.preconditioner as pm
-    monkeypatch.setattr(indicators, "EPMC_CHANGE_TOL", 1e-6)     # Newton steps past the first
-    m = build_model(load_scene(MODELS / "hbm" / "sdof_jenkins_epmc.toml"))
-    s, ep, y1 = _mode_point(m, 7, 64, 1.5)
-    y2 = _mode_point(m, 7, 64, 2.0, y1[:-1])[2]
-    d = ErrorEstimator(s).epmc(ep, y2)
-    sk = HBMSystem(m, s.basis.harmonics, 64, linear_solver="krylov")
+    y1, y2, d, sk, epk, built = _sdof_mode_builds(monkeypatch)
     assert sk.lin.flexibility is not None
-    built = []
-    init = pm.HarmonicPreconditioner.__init__
-
-    def spy(self, jac, shift=None, base=None):
-        init(self, jac, shift, base)
-        built.append(self)
-    monkeypatch.setattr(pm.HarmonicPreconditioner, "__init__", spy)
-    k = ErrorEstimator(sk).epmc(EPMCSystem(sk, ep.phi, ep.F), y2)
+    k = ErrorEstimator(sk).epmc(epk, y2)
     first = built[0]
     assert first.C2 is not None and first.modal and first.S is None
     assert first.lowrank is not None and not first.truncated
