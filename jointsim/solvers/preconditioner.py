@@ -204,12 +204,13 @@ class HarmonicPreconditioner:
         # a loose solve whose low-rank stage needs few columns of P_h^-1: a stage applied
         # by solves (SOLVED_STAGE_COLUMNS), the flexibility's first, else the hierarchical
         loose = by_solves and jac.rtol >= SOLVED_STAGE_RTOL and shift is None
-        # shifted (the EPMC's bordered solves): loose, or large and near the stuck joint
-        loose_shifted = jac.rtol >= SINGLE_LU_RTOL
+        # shifted (the EPMC's bordered solves): a loose solve (its correction is split by
+        # harmonics, never truncated), or a large one near the stuck joint
+        loose_solve = jac.rtol >= SINGLE_LU_RTOL
         flex = jac.lin.flexibility if MODAL_STAGE and modal and (
-            shift is None or nr >= SHIFTED_FLEX_MIN_ROWS or loose_shifted) else None
+            shift is None or nr >= SHIFTED_FLEX_MIN_ROWS or loose_solve) else None
         stuck = self._stuck_proj(flex) if flex is not None else None
-        self.modal = flex is not None and (shift is None or loose_shifted
+        self.modal = flex is not None and (shift is None or loose_solve
                                            or self._few_columns(stuck))
         if self.modal and loose and nr >= FLEX_SOLVE_MIN_ROWS and self._few_columns(stuck):
             self.S, self.Plu, self.Pinv, self.Pinv_double = None, None, None, {}
