@@ -134,7 +134,7 @@ def _indicators(writer, a, system, ep, omega0, xi0):
     n = pool_workers(a.workers, len(missing) if done else None, system.n_z) \
         if system.n_z else 1
     if n > 1:
-        system.prepare_forks(omega0, xi0)   # the flexibility too: the workers' loose solves
+        system.prepare_forks(omega0, xi0)   # shared by the workers
     # the workers never start numba threads (a forked process must not): parallel=False
     estimator = ErrorEstimator(system, parallel=n == 1)
     steps = a.error_newton_steps

@@ -208,8 +208,7 @@ class HBMSystem:
             cache.pop(next(iter(cache)))
         return got
 
-    def prepare_forks(self, omega_max: float, xi: float = 0.0,
-                      flexibility: bool = True) -> None:
+    def prepare_forks(self, omega_max: float, xi: float = 0.0) -> None:
         """Make the condensation's one-time pieces that the Krylov solves use before
         workers are forked, so that the workers share them instead of each making them
         again: the stuck joint's flexibility (an eigen-decomposition, ``n^3``, and its
@@ -226,13 +225,11 @@ class HBMSystem:
             made for it (``2 h_max omega_max``) serves every frequency below.
         xi : float
             Self-excitation [1/s] (EPMC), as in :meth:`harmonic_blocks`.
-        flexibility : bool
-            Whether the workers use the flexibility (``preconditioner.MODAL_STAGE``).
 
         Nothing is made on the direct path, nor at a zero frequency.
         """
         if self.krylov and self.lin.n_r and omega_max > 0.0:
-            flex = self.lin.flexibility if flexibility else None
+            flex = self.lin.flexibility
             h_max = max(self.basis.harmonics)
             if flex is not None and h_max > 0:
                 flex.prepare(h_max * float(omega_max))
