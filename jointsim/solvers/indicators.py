@@ -388,7 +388,7 @@ class ErrorEstimator:
         if not REUSE_ACROSS_POINTS:
             ext.preconditioner.forget(stage=True)
         # one solve (three columns) per preconditioner: a large low-rank stage is split
-        # by harmonics and solved through its capacitance system
+        # (no LU) and solved through its capacitance system
         # (preconditioner.LOOSE_SPLIT_MIN)
         ext.preconditioner.single_solve = not REUSE_ACROSS_POINTS
         ext.preconditioner.share_within_point = False
@@ -518,8 +518,9 @@ class ErrorEstimator:
         cache = ext.preconditioner
         if not REUSE_ACROSS_POINTS:
             cache.forget(stage=True)
-        # the extended Newton's steps share it (a truncated low-rank stage is split by
-        # harmonics instead, preconditioner.LOOSE_SPLIT_MIN: its step's alone), and the
+        # the extended Newton's steps share it (a truncated or large low-rank stage is
+        # split instead, preconditioner.LOOSE_SPLIT_MIN and LOOSE_SPLIT_SHARED_MIN: its
+        # step's alone), and the
         # first build's harmonic stage in any case (their frequencies differ by the
         # estimated errors): their builds are low-rank stages (docs/hbm.md, "Round 44")
         cache.single_solve = False

@@ -39,7 +39,7 @@ and rows (``dR/domega``, the EPMC unknowns and phase conditions, the
 continuation's hyperplane); it is solved by GMRES preconditioned by
 bordering the harmonic preconditioner (one extra preconditioner solve per
 column and an ``m x m`` Schur complement), which stays regular through
-turning points.  A loose solve whose low-rank stage is split by harmonics (the error
+turning points.  A loose solve whose low-rank stage is split (no LU of it: the error
 indicators') first solves through its capacitance system, the bordering included
 (:func:`_capacitance_refined`), and GMRES finishes.
 

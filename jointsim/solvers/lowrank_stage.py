@@ -6,6 +6,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+import scipy.linalg as sla
+
+from ..linalg import stacked_inverse
 
 
 class LowRankStage(NamedTuple):
@@ -22,29 +25,22 @@ class LowRankStage(NamedTuple):
     block_element : ndarray of int, shape (n_rb,)
         Column element (index into the ``n_l``) of each row block.
     Lr : ndarray, shape (n_rb, n_c, nb n_c)
-        ``L`` on each row block, over its element's coordinates [N/m] (without the
-        terms that couple two harmonic groups, when there are several).
-    groups : tuple
-        The coordinates (index ``j n_c + k`` into the ``m = n_rb n_c``) of each
-        group, one per harmonic (``_lowrank``);
-        ``(slice(None),)`` for one group.
-    lus : tuple
-        With one group, ``scipy.linalg.lu_factor`` of ``I + L_r G`` (single precision
-        for a loose solve or a large ``m``: ``SINGLE_LU_RTOL``, ``SINGLE_LU_MIN``);
-        else empty.
+        ``L`` on each row block, over its element's coordinates [N/m].
     nb : int
         Row kinds per element (slip and gap rows: 2; one of them: 1).
-    full : ndarray, shape (n_rb, n_c, nb n_c), or None
-        With several groups, ``L`` on each row block with the terms between groups
-        (``HarmonicPreconditioner.solve_capacitance``); else None.
+    lu : tuple, or None
+        ``scipy.linalg.lu_factor`` of ``I + L_r G`` (single precision for a loose solve
+        or a large ``m``: ``SINGLE_LU_RTOL``, ``SINGLE_LU_MIN``); None when the stage is
+        split (``blocks``).
+    blocks : tuple of (ndarray, ndarray), or None
+        A split stage (solved through its capacitance system, ``HarmonicPreconditioner.
+        solve_capacitance``): the inverses of the element blocks of ``I + L_r G``
+        (:func:`capacitance_element_blocks`), by block size; else None.
     Q : ndarray, shape (n_h, nb n_l, n_rb), complex, or None
-        With several groups, the ``(R, Rrow)`` part of each ``P_h^-1`` (``G`` by
-        harmonics, single precision); else None.
-    inverses : tuple of ndarray, or None
-        With several groups, the inverse of each group's block of ``I + L_r G``
-        (single precision); else None.
+        A split stage's ``(R, Rrow)`` part of each ``P_h^-1`` (``G`` by harmonics,
+        single precision); else None.
     Q_double : dict, or None
-        With several groups, ``Q`` of the harmonics whose stage is in double
+        A split stage's ``Q`` of the harmonics whose stage is in double
         (``preconditioner.LOOSE_DOUBLE_HARMONICS``), index -> (nb n_l, n_rb) complex128;
         ``Q`` holds them in single precision too, unused.
     """
@@ -53,20 +49,35 @@ class LowRankStage(NamedTuple):
     Rrow: np.ndarray
     block_element: np.ndarray
     Lr: np.ndarray
-    groups: tuple
-    lus: tuple
     nb: int
-    full: np.ndarray | None = None
+    lu: tuple | None = None
+    blocks: tuple | None = None
     Q: np.ndarray | None = None
-    inverses: tuple | None = None
     Q_double: dict | None = None
 
     @property
+    def split(self) -> bool:
+        """Whether ``I + L_r G`` is kept by element blocks (no LU of it)."""
+        return self.blocks is not None
+
+    @property
     def sizes(self) -> list[int]:
-        """Coordinates of each group (of its LU, or of its inverse)."""
-        if self.inverses is not None:
-            return [inv.shape[0] for inv in self.inverses]
-        return [lu.shape[0] for lu, _ in self.lus]
+        """Coordinates of each inverted block of ``I + L_r G``: its LU's, or each
+        element block's."""
+        if self.blocks is not None:
+            return [inv.shape[1] for _, inv in self.blocks for _ in range(inv.shape[0])]
+        return [self.lu[0].shape[0]]
+
+    def capacitance_inverse(self, rhs) -> np.ndarray:
+        """``(I + L_r G)^-1 rhs`` by its LU, or approximately by its element blocks (a
+        split stage); ``rhs`` (m, k)."""
+        if self.blocks is None:
+            return sla.lu_solve(self.lu, rhs.astype(self.lu[0].dtype, copy=False),
+                                check_finite=False)
+        s = np.empty(rhs.shape)
+        for coords, inv in self.blocks:
+            s[coords] = np.matmul(inv, rhs[coords].astype(inv.dtype, copy=False))
+        return s
 
 
 class RowBlocks(NamedTuple):
@@ -78,11 +89,11 @@ class RowBlocks(NamedTuple):
     norm: np.ndarray    # (n_e nb,) each row block's norm
     sel: np.ndarray     # the row blocks above LOWRANK_NEGLIGIBLE, index e nb + kind
     most: int           # how many of them are kept at most
-    n_groups: int       # harmonic groups of a split correction (1: none)
+    split: bool         # every row block kept, I + L_r G by element blocks
 
 
-def capacitance_blocks(jac, PinvR, Lr4, R, blk_el, dtype, coefs=None) -> list:
-    """``L_r G`` (``m x m``) of a low-rank stage by harmonics, one block per harmonic group
+def capacitance_blocks(jac, PinvR, Lr4, R, blk_el, dtype) -> np.ndarray:
+    """``L_r G`` (``m x m``) of a low-rank stage, formed by harmonics
     (:meth:`~jointsim.solvers.preconditioner.HarmonicPreconditioner._lowrank`).
 
     ``G = E_c^T P^-1 E_r`` couples the coefficients of one harmonic only: per harmonic
@@ -94,9 +105,7 @@ def capacitance_blocks(jac, PinvR, Lr4, R, blk_el, dtype, coefs=None) -> list:
     1)``) of the flops of the product with the dense ``G`` (``m^2 d``), which is never
     formed.  Measured on 120 Gauss points, FRC at force scale 20 (error indicators on,
     one thread): the dense ``G`` and product took about 5 of the 15 s of the low-rank
-    stages.  With several harmonic groups (``L_r`` without the terms between them) only
-    the diagonal blocks, (rows of a group) x (columns of that group), are nonzero: only
-    they are formed.
+    stages.
 
     Parameters
     ----------
@@ -110,37 +119,79 @@ def capacitance_blocks(jac, PinvR, Lr4, R, blk_el, dtype, coefs=None) -> list:
         As in :class:`LowRankStage`.
     dtype : numpy dtype
         Of the result (float32 for a single-precision LU).
-    coefs : list of ndarray of int, optional
-        Each group's coefficients (sorted; ``HarmonicPreconditioner._harmonic_groups``);
-        default one group of all.
 
     Returns
     -------
-    list of ndarray, shape (nrb n_g, nrb n_g)
-        Per group of ``n_g`` coefficients, its rows and columns ``(j, k)`` of ``L_r G``,
-        index ``j n_g + k`` (the whole ``L_r G`` for one group), dimensionless.
+    ndarray, shape (nrb n_c, nrb n_c)
+        ``L_r G``, rows and columns ``(j, k)`` at index ``j n_c + k``, dimensionless.
     """
     nrb, nc, nb, _ = Lr4.shape
     nl = R.size // nb
-    if coefs is None:
-        coefs = [np.arange(nc)]
-    group = np.empty(nc, dtype=np.intp)
-    place = np.empty(nc, dtype=np.intp)          # a coefficient's place in its group
-    for g, c in enumerate(coefs):
-        group[c], place[c] = g, np.arange(c.size)
-    out = [np.empty((nrb, c.size, nrb, c.size), dtype=dtype) for c in coefs]
-    rows = [Lr4[:, c] if len(coefs) > 1 else Lr4 for c in coefs]
+    out = np.empty((nrb, nc, nrb, nc), dtype=dtype)
     for i, h in enumerate(jac.basis.harmonics):
         # (R, Rrow) part of P_h^-1, R index b nl + l -> (l, b, j'), then per row block
         Q = PinvR[i][R].reshape(nb, nl, nrb).transpose(1, 0, 2)
         Qj = Q[blk_el]                                    # (nrb, nb, nrb)
         ic, is_ = jac._ic[i], jac._is[i]
-        g = group[ic]
-        Lg, Mk = rows[g], out[g]
         if h:
-            W = np.matmul(Lg[:, :, :, ic] + 1j * Lg[:, :, :, is_], Qj)
-            Mk[:, :, :, place[ic]] = W.real
-            Mk[:, :, :, place[is_]] = W.imag
+            W = np.matmul(Lr4[:, :, :, ic] + 1j * Lr4[:, :, :, is_], Qj)
+            out[:, :, :, ic] = W.real
+            out[:, :, :, is_] = W.imag
         else:
-            Mk[:, :, :, place[ic]] = np.matmul(Lg[:, :, :, ic], Qj.real)
-    return [Mk.reshape(nrb * c.size, nrb * c.size) for Mk, c in zip(out, coefs)]
+            out[:, :, :, ic] = np.matmul(Lr4[:, :, :, ic], Qj.real)
+    return out.reshape(nrb * nc, nrb * nc)
+
+
+def capacitance_element_blocks(jac, PinvR, Lr4, R, blk_el, dtype) -> tuple:
+    """The inverses of the element blocks of ``I + L_r G``: for each column element, the
+    rows and columns of its own row blocks (``n_c`` or ``nb n_c`` of them), the
+    preconditioner of a split stage's capacitance system
+    (:meth:`~jointsim.solvers.preconditioner.HarmonicPreconditioner.solve_capacitance`).
+
+    An element block holds the element's whole ``L_r`` (every harmonic coupled with every
+    other, which an element's tangent does in slip) times ``G`` between the element's own
+    coordinates (its self-flexibility, per harmonic); what it leaves out is ``G`` between
+    elements.  Blocks by harmonic (``G`` between all elements, ``L_r`` of one harmonic)
+    needed about as many GMRES iterations, and cost ``(H + 1)`` inverses of ``n_rb`` rows
+    and twice the memory traffic an application (docs/hbm.md, "Round 52").
+
+    Parameters
+    ----------
+    jac, PinvR, Lr4, R, blk_el
+        As in :func:`capacitance_blocks`.
+    dtype : numpy dtype
+        Of the inverses (float32 for a loose solve).
+
+    Returns
+    -------
+    tuple of (ndarray, ndarray)
+        Per block size ``c n_c`` (``c`` row blocks of an element): the capacitance
+        coordinates of each such element (index ``j n_c + k``), shape (n_e_c, c n_c), and
+        the inverses of their blocks, shape (n_e_c, c n_c, c n_c), dimensionless.
+    """
+    nrb, nc, nb, _ = Lr4.shape
+    nl = R.size // nb
+    Rl = R.reshape(nb, nl)                               # (kind, column element)
+    order = np.argsort(blk_el, kind="stable")
+    count = np.bincount(blk_el, minlength=nl)            # row blocks of each element
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    out = []
+    for c in np.unique(count[count > 0]):
+        els = np.flatnonzero(count == c)
+        idx = order[start[els][:, None] + np.arange(c)]            # (n_e_c, c) row blocks
+        # q[i, e, b, x]: P_h^-1 at (the element's kind-x coordinate, its row block b)
+        q = PinvR[:, Rl[:, els].T[:, None, :], idx[:, :, None]]    # (n_h, n_e_c, c, nb)
+        Le = Lr4[idx]                                  # (n_e_c, c, n_c, nb, n_c)
+        B = np.zeros((els.size, c, nc, c, nc))
+        for i, h in enumerate(jac.basis.harmonics):
+            ic, is_ = jac._ic[i], jac._is[i]
+            if h:
+                W = np.einsum("earx,ebx->earb", Le[..., ic] + 1j * Le[..., is_], q[i])
+                B[..., ic], B[..., is_] = W.real, W.imag
+            else:
+                B[..., ic] = np.einsum("earx,ebx->earb", Le[..., ic], q[i].real)
+        B = B.reshape(els.size, c * nc, c * nc)
+        B[:, np.arange(c * nc), np.arange(c * nc)] += 1.0
+        coords = (idx[:, :, None] * nc + np.arange(nc)).reshape(els.size, c * nc)
+        out.append((coords, stacked_inverse(B).astype(dtype, copy=False)))
+    return tuple(out)

@@ -23,7 +23,8 @@ from ..linalg import stacked_inverse
 from .gmres import gmres_columns
 from .flexibility import FlexibilitySolve
 from .hierarchical import HierarchicalInverse, schur_entries
-from .lowrank_stage import LowRankStage, RowBlocks, capacitance_blocks
+from .lowrank_stage import (LowRankStage, RowBlocks, capacitance_blocks,
+                            capacitance_element_blocks)
 from .tangent_projection import add_projected_tangent, project_tangent
 
 log = logging.getLogger(__name__)
@@ -60,11 +61,16 @@ SINGLE_LU_MIN = 1000
 #: preconditioner, :attr:`.PreconditionerCache.single_solve`) whose low-rank stage exceeds
 #: ``LOOSE_SPLIT_MIN`` coordinates keeps every row block and is solved through its
 #: capacitance system (:meth:`HarmonicPreconditioner.solve_capacitance`): GMRES on
-#: ``I + L_r G`` preconditioned by its blocks of one harmonic each (``G`` couples a
-#: harmonic with itself only), refined on the system itself; ``inf``: never (round 34).
-#: So does any other loose solve whose correction would be truncated (an EPMC point's
-#: extended Newton steps, bordered and shifted: round 40).
+#: ``I + L_r G`` preconditioned by the inverses of its element blocks
+#: (:func:`.lowrank_stage.capacitance_element_blocks`; by harmonics until round 52),
+#: refined on the system itself; ``inf``: never (round 34).  So does any other loose
+#: solve whose correction would be truncated (an EPMC point's extended Newton steps,
+#: bordered and shifted: round 40).
 LOOSE_SPLIT_MIN = 1000
+#: ... and any loose one shared by several solves (an EPMC point's extended Newton
+#: steps) whose correction exceeds this many coordinates, instead of one LU (round 52:
+#: the 96-point EPMC's indicators kept up to 4,092 in one LU; docs/hbm.md, "Round 52").
+LOOSE_SPLIT_SHARED_MIN = 2500
 #: Elements whose harmonic coupling ``|L_e|`` is below this fraction of the largest
 #: tangent entry are left out of the low-rank stage (in the stuck range the AFT's
 #: round-off, about 1e-12, used to fill it: 1,260 coordinates at 121 pairs).
@@ -513,12 +519,13 @@ class HarmonicPreconditioner:
         # a raised limit truncates to itself, not to LOWRANK_MAX_FRACTION
         most = sel.size if sel.size <= blocks(LOWRANK_EXACT_FRACTION) else \
             blocks(LOWRANK_EXACT_FRACTION if limit > LOWRANK_MAX else LOWRANK_MAX_FRACTION)
-        if jac.rtol >= SINGLE_LU_RTOL and sel.size * nc > LOOSE_SPLIT_MIN \
-                and (jac.cache.single_solve or most < sel.size):
-            # a loose solve, one per preconditioner or else truncated: every row block,
-            # the correction split by harmonics (solve_capacitance)
-            return RowBlocks(rows, nb, Lb, norm, sel, sel.size, len(jac.basis.harmonics))
-        return RowBlocks(rows, nb, Lb, norm, sel, most, 1)
+        if jac.rtol >= SINGLE_LU_RTOL and sel.size * nc > LOOSE_SPLIT_MIN and (
+                jac.cache.single_solve or most < sel.size
+                or sel.size * nc > LOOSE_SPLIT_SHARED_MIN):
+            # a loose solve, one per preconditioner, large or else truncated: every row
+            # block, I + L_r G by element blocks (solve_capacitance)
+            return RowBlocks(rows, nb, Lb, norm, sel, sel.size, True)
+        return RowBlocks(rows, nb, Lb, norm, sel, most, False)
 
     def _lowrank(self):
         """Exact correction for the elements whose tangent couples harmonics.
@@ -543,10 +550,13 @@ class HarmonicPreconditioner:
         correction at that point).  When ``m`` would exceed ``LOWRANK_EXACT_FRACTION
         n_z`` (but at least ``LOWRANK_MIN``) or ``LOWRANK_MAX``, only the row blocks
         with the largest ``|L|`` are kept, ``LOWRANK_MAX_FRACTION n_z`` coordinates
-        (``self.truncated``; GMRES and the element-block stage handle the rest).  An FRC
-        point's extended solve keeps every row block instead and splits the correction
-        by harmonics (``LOOSE_SPLIT_MIN``, :func:`.lowrank_stage.capacitance_blocks`,
-        :meth:`solve_capacitance`).
+        (``self.truncated``; GMRES and the element-block stage handle the rest).  A large
+        loose correction (an FRC point's extended solve, an EPMC point's extended Newton
+        steps) keeps every row block instead and is split: no LU, ``I + L_r G`` kept by
+        its element blocks as the preconditioner of its capacitance system
+        (``LOOSE_SPLIT_MIN``, :func:`.lowrank_stage.capacitance_element_blocks`,
+        :meth:`solve_capacitance`); as a preconditioner of ``J`` it applies those blocks
+        in place of the inverse.
         """
         jac = self.jac
         nc = jac.n_c
@@ -556,7 +566,7 @@ class HarmonicPreconditioner:
         if got is None:
             self.truncated = False
             return
-        rows, nb, Lb, norm, sel, most, n_groups = got
+        rows, nb, Lb, norm, sel, most, split = got
         self.truncated, kept = sel.size > most, min(most, sel.size)
         log.debug("low-rank stage: %d of %d coordinates wanted, %d kept", sel.size * nc,
                   jac.n_z, kept * nc)
@@ -579,46 +589,25 @@ class HarmonicPreconditioner:
         # selected ones block-major, (j n_c + k), so that L_r is one (n_c, d) block per
         # row block and nothing is permuted.
         Lr = np.ascontiguousarray(Lb[el, kind])               # (nrb, n_c, d)
-        coefs = self._harmonic_groups(n_groups) if n_groups > 1 else None
-        full = None
-        if coefs is not None:
-            # the preconditioner's L_r leaves out the terms between two groups: I + L_r G
-            # is then block-diagonal over the groups (G couples a harmonic with itself
-            # only); the whole L_r is kept for solve_capacitance
-            group = np.empty(nc, dtype=np.intp)
-            for g, c in enumerate(coefs):
-                group[c] = g
-            full = Lr.copy()
-            Lr[:, group[:, None] != np.tile(group, nb)[None, :]] = 0.0
+        Lr4 = Lr.reshape(nrb, nc, nb, nc)
         # the selected columns of P_h^-1: the correction P^-1 E_r s lives on the Rrow
         # rows; G is their R rows
         self.PinvR = self._inverse_columns(Rrow)
         single = jac.rtol >= SINGLE_LU_RTOL or m >= SINGLE_LU_MIN   # the LU in float32
-        caps = capacitance_blocks(jac, self.PinvR, Lr.reshape(nrb, nc, nb, nc), R, blk_el,
-                                  np.float32 if single else float, coefs)
-        for Mk in caps:
-            Mk[np.diag_indices_from(Mk)] += 1.0
-        if coefs is None:
-            lus, inverses, groups, Q = (sla.lu_factor(caps[0], check_finite=False),), \
-                None, (slice(None),), None
-        else:       # small blocks (one harmonic's rows), applied many times: inverses
-            lus, inverses = (), tuple(stacked_inverse(Mk) for Mk in caps)
-            groups = tuple((np.arange(nrb)[:, None] * nc + c[None, :]).ravel() for c in coefs)
-            Q = np.ascontiguousarray(self.PinvR[:, R].astype(np.complex64))
-            Q_double = {i: np.ascontiguousarray(self.PinvR[i][R])
-                        for i in self._double_harmonics()}
-        self.lowrank = LowRankStage(R, Rrow, blk_el, Lr, groups, lus, nb, full, Q, inverses,
-                                    None if coefs is None else Q_double)
-
-    def _harmonic_groups(self, n_groups: int) -> list:
-        """The coefficients (sorted index arrays into the ``n_c``) of ``n_groups`` groups of
-        harmonics, contiguous in ``h`` and of about equal size."""
-        jac = self.jac
-        order = np.argsort(jac.basis.harmonics, kind="stable")
-        return [np.sort(np.concatenate([np.atleast_1d(jac._ic[i]) for i in part]
-                                       + [np.atleast_1d(jac._is[i]) for i in part
-                                          if jac.basis.harmonics[i]]).astype(np.intp))
-                for part in np.array_split(order, n_groups)]
+        dtype = np.float32 if single else float
+        if not split:
+            C = capacitance_blocks(jac, self.PinvR, Lr4, R, blk_el, dtype)
+            C[np.diag_indices_from(C)] += 1.0
+            self.lowrank = LowRankStage(R, Rrow, blk_el, Lr, nb,
+                                        lu=sla.lu_factor(C, check_finite=False))
+            return
+        # split: I + L_r G by its element blocks, G by harmonics for solve_capacitance
+        self.lowrank = LowRankStage(
+            R, Rrow, blk_el, Lr, nb,
+            blocks=capacitance_element_blocks(jac, self.PinvR, Lr4, R, blk_el, dtype),
+            Q=np.ascontiguousarray(self.PinvR[:, R].astype(np.complex64)),
+            Q_double={i: np.ascontiguousarray(self.PinvR[i][R])
+                      for i in self._double_harmonics()})
 
     def _harmonic_solve(self, V):
         """``P^-1`` of the harmonic stage; ``V`` (n_c, n_r, k) real, returns its shape."""
@@ -690,7 +679,7 @@ class HarmonicPreconditioner:
         lr = self.lowrank
         k = V.shape[2]
         rhs = np.matmul(lr.Lr, self._column_coordinates(Y[:, lr.R])[lr.block_element])
-        return (Y - self._correction(self._group_solve(rhs.reshape(-1, k)))).reshape(v.shape)
+        return (Y - self._correction(lr.capacitance_inverse(rhs.reshape(-1, k)))).reshape(v.shape)
 
     def _column_coordinates(self, Yr) -> np.ndarray:
         """The column elements' coordinates ``Yr`` (n_c, R.size, k), the ``R`` rows of
@@ -700,17 +689,6 @@ class HarmonicPreconditioner:
         nc, k = self.jac.n_c, Yr.shape[2]
         nl = lr.R.size // lr.nb
         return Yr.reshape(nc, lr.nb, nl, k).transpose(2, 1, 0, 3).reshape(nl, -1, k)
-
-    def _group_solve(self, rhs) -> np.ndarray:
-        """``I + L_r G`` on ``rhs`` (m, k) by its LU, or by its groups' inverses."""
-        lr = self.lowrank
-        if lr.inverses is None:
-            lu = lr.lus[0]
-            return sla.lu_solve(lu, rhs.astype(lu[0].dtype, copy=False), check_finite=False)
-        s = np.empty(rhs.shape)
-        for rows, inv in zip(lr.groups, lr.inverses):
-            s[rows] = inv @ rhs[rows].astype(inv.dtype, copy=False)
-        return s
 
     def _amplitudes(self, s) -> np.ndarray:
         """The complex amplitudes (n_h, nrb, k) of the low-rank coordinates ``s`` (m, k),
@@ -731,9 +709,9 @@ class HarmonicPreconditioner:
 
     @property
     def capacitance_solves(self) -> bool:
-        """Whether :meth:`solve_capacitance` applies: a low-rank stage split into
-        harmonic groups, not truncated (with a shift it solves ``J + C2 R2``)."""
-        return self.lowrank is not None and self.lowrank.full is not None \
+        """Whether :meth:`solve_capacitance` applies: a split low-rank stage (``I + L_r G``
+        by element blocks), not truncated (with a shift it solves ``J + C2 R2``)."""
+        return self.lowrank is not None and self.lowrank.split \
             and self.Binv is None
 
     def solve_capacitance(self, b, rtol: float):
@@ -741,16 +719,15 @@ class HarmonicPreconditioner:
         the low-rank stage's capacitance system (:attr:`capacitance_solves`; the error
         indicators' extended solves).
 
-        Woodbury with the whole ``L_r`` (the terms between harmonic groups included):
-        ``x = y - P^-1 E_r s``, ``y = P^-1 b``, ``(I + L_r G) s = L_r E_c^T y``.  Then
-        ``J x - b = -E_r ((I + L_r G) s - L_r E_c^T y)``: the capacitance system's
+        Woodbury: ``x = y - P^-1 E_r s``, ``y = P^-1 b``, ``(I + L_r G) s = L_r E_c^T y``.
+        Then ``J x - b = -E_r ((I + L_r G) s - L_r E_c^T y)``: the capacitance system's
         residual is the whole system's, so GMRES on its ``m`` unknowns, preconditioned
-        by the inverses of its blocks of one harmonic each, stops at ``rtol |b|``.  A
-        product with ``I + L_r G`` reads ``G`` by harmonics (:attr:`LowRankStage.Q`) and
-        ``L_r`` by row blocks, not the ``S_h`` and the harmonic stage: measured at
-        240-point gross-slip points (three columns), 7 ms an iteration against 27 ms
-        on ``J`` preconditioned by the same split, and about as many iterations (the
-        terms between harmonics are what both iterate on).  ``P^-1`` and ``G`` are in
+        by the inverses of its element blocks (:attr:`LowRankStage.blocks`), stops at
+        ``rtol |b|``.  A product with ``I + L_r G`` reads ``G`` by harmonics
+        (:attr:`LowRankStage.Q`) and ``L_r`` by row blocks, not the ``S_h`` and the
+        harmonic stage: measured at 240-point gross-slip points (three columns), 7 ms an
+        iteration against 27 ms on ``J`` preconditioned by the same split, and about as
+        many iterations (round 34).  ``P^-1`` and ``G`` are in
         single precision, so the result is refined on ``J`` itself
         (:func:`~jointsim.solvers.jacobian.krylov_solve`).
 
@@ -771,7 +748,7 @@ class HarmonicPreconditioner:
         B = np.asarray(b, dtype=float).reshape(jac.n_z, -1)
         k = B.shape[1]
         Y = self._harmonic_solve(B.reshape(nc, jac.n_r, k))
-        rhs = np.matmul(lr.full, self._column_coordinates(Y[:, lr.R])[lr.block_element]) \
+        rhs = np.matmul(lr.Lr, self._column_coordinates(Y[:, lr.R])[lr.block_element]) \
             .reshape(-1, k)
 
         def product(S):
@@ -783,12 +760,12 @@ class HarmonicPreconditioner:
                 for i, Qd in lr.Q_double.items():
                     GS[i] = Qd @ A[i]
             jac._from_complex(GS, T)
-            return S + np.matmul(lr.full, self._column_coordinates(T)[lr.block_element]) \
+            return S + np.matmul(lr.Lr, self._column_coordinates(T)[lr.block_element]) \
                 .reshape(S.shape)
 
         bn, rn = np.linalg.norm(B, axis=0), np.linalg.norm(rhs, axis=0)
         pos = rn > 0.0
         tol = rtol * float(np.min(bn[pos] / rn[pos])) if pos.any() else rtol
-        cols = gmres_columns(product, rhs, self._group_solve, rtol=tol)
+        cols = gmres_columns(product, rhs, lr.capacitance_inverse, rtol=tol)
         s = np.column_stack([c.x for c in cols])
         return (Y - self._correction(s)).reshape(np.shape(b)), sum(c.iterations for c in cols)

@@ -141,8 +141,8 @@ class PreconditionerCache:
         self.stage = None
         self.stage_iterations = None
         #: each preconditioner serves one solve (the FRC points' extended solves of the
-        #: error indicators): a loose one may split its low-rank stage by harmonics
-        #: and be solved through its capacitance system (``LOOSE_SPLIT_MIN``; a split
+        #: error indicators): a loose one may split its low-rank stage (element blocks
+        #: of ``I + L_r G``) and be solved through its capacitance system (``LOOSE_SPLIT_MIN``; a split
         #: one is kept for its own Jacobian only); set by the caller
         self.single_solve = False
         #: the builds share the kept harmonic stage whatever their frequency and

@@ -281,7 +281,8 @@ def test_krylov_path_gives_the_direct_indicators():
 
 def test_frc_indicators_through_the_capacitance_system(monkeypatch):
     """An FRC point's extended solve builds its preconditioner for that one solve
-    (``single_solve``): a large low-rank stage is split by harmonics and the solve goes
+    (``single_solve``): a large low-rank stage is split (``I + L_r G`` kept by element
+    blocks) and the solve goes
     through its capacitance system (``LOOSE_SPLIT_MIN``, forced here on the fold
     chain's small one; :meth:`~.HarmonicPreconditioner.solve_capacitance`, refined on
     the system).  The indicators equal the dense solve's to the GMRES tolerance's
@@ -299,7 +300,7 @@ def test_frc_indicators_through_the_capacitance_system(monkeypatch):
 
     def spy(self):
         build(self)
-        sizes.append(self.lowrank.sizes)
+        sizes.append(self.lowrank.split)
 
     def spy_refine(*args):
         steps.append(refine(*args))
@@ -308,12 +309,11 @@ def test_frc_indicators_through_the_capacitance_system(monkeypatch):
     monkeypatch.setattr(jm, "_capacitance_refined", spy_refine)
     sk = HBMSystem(m, tuple(range(6)), 64, linear_solver="krylov")
     ErrorEstimator(sk).hbm(p.z, 1.2, F, p.X)
-    assert len(sizes[-1]) == 1 and not steps        # at most LOOSE_SPLIT_MIN: one LU
+    assert not sizes[-1] and not steps              # at most LOOSE_SPLIT_MIN: one LU
     monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
     est = ErrorEstimator(sk)
     k = est.hbm(p.z, 1.2, F, p.X)
-    nh = len(est.ext.basis.harmonics)
-    assert est.ext.preconditioner.single_solve and len(sizes[-1]) == nh and steps
+    assert est.ext.preconditioner.single_solve and sizes[-1] and steps
     assert d.estimate > 1e-4
     for name in ("truncation", "aliasing", "force_tail", "curve", "curve_truncation",
                  "curve_aliasing"):
@@ -419,7 +419,10 @@ def test_an_epmc_points_loose_bordered_stage_is_the_stuck_flexibility(monkeypatc
     gross slip: docs/hbm.md, "Round 51"), and below ``SHIFTED_FLEX_MIN_ROWS`` rows too.
     Here the SDOF Jenkins EPMC at a = 2 (H = 0..7), where its one element slips (more
     than ``SOLVED_STAGE_COLUMNS n_r`` row blocks, which round 50 took for the inverted
-    blocks): the indicators equal those of the dense path to 1e-6."""
+    blocks): the indicators equal those of the dense path to 1e-6.  A correction above
+    ``LOOSE_SPLIT_SHARED_MIN`` coordinates is split (``I + L_r G`` by element blocks,
+    solved through its capacitance system) instead of one LU: to 1e-4."""
+    import jointsim.solvers.preconditioner as pm
     y1, y2, d, sk, epk, built = _sdof_mode_builds(monkeypatch)
     assert sk.lin.flexibility is not None
     k = ErrorEstimator(sk).epmc(epk, y2)
@@ -429,6 +432,18 @@ def test_an_epmc_points_loose_bordered_stage_is_the_stuck_flexibility(monkeypatc
     assert d.estimate > 1e-6 and d.damping > 1e-4
     for name in ("truncation", "aliasing", "estimate", "frequency", "damping"):
         assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-6), name
+    assert not first.lowrank.split                  # one LU
+    # a large correction (LOOSE_SPLIT_SHARED_MIN, lowered below this one's coordinates)
+    # is split and solved through its capacitance system, to the same
+    built.clear()
+    monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
+    monkeypatch.setattr(pm, "LOOSE_SPLIT_SHARED_MIN", 30)
+    k = ErrorEstimator(sk).epmc(epk, y2)
+    first = built[0]
+    assert first.modal and first.capacitance_solves and not first.truncated
+    assert first.lowrank.split and sum(first.lowrank.sizes) > 30
+    for name in ("truncation", "aliasing", "estimate", "frequency", "damping"):
+        assert getattr(k, name) == pytest.approx(getattr(d, name), rel=1e-4), name
 
 
 W_NEAR_FOLD = 1.415

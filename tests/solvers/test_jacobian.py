@@ -11,7 +11,7 @@ from jointsim.scene import load_scene
 from jointsim.solvers.hbm import HBMSystem, solve_point
 from jointsim.solvers.gmres import KRYLOV_RTOL
 from jointsim.solvers.jacobian import BorderedJacobian, gmres, gmres_columns
-from jointsim.solvers.lowrank_stage import capacitance_blocks
+from jointsim.solvers.lowrank_stage import capacitance_blocks, capacitance_element_blocks
 from jointsim.solvers.preconditioner import HarmonicPreconditioner
 
 from .._scenes import ROOT, four_dof, lap_scene
@@ -400,28 +400,26 @@ def test_lowrank_product_by_harmonics_equals_the_dense_one(normal):
     G = Pr[:, lr.R][:, :, :, lr.Rrow]                     # (k, b nl + l, k', j)
     G = G.reshape(nc, nb, nl, nc, nrb).transpose(2, 1, 0, 4, 3).reshape(nl, nb * nc, -1)
     dense = np.concatenate([lr.Lr[j] @ G[lr.block_element[j]] for j in range(nrb)])
-    fast, = capacitance_blocks(P.jac, P.PinvR, lr.Lr.reshape(nrb, nc, nb, nc), lr.R,
-                               lr.block_element, float)
+    fast = capacitance_blocks(P.jac, P.PinvR, lr.Lr.reshape(nrb, nc, nb, nc), lr.R,
+                              lr.block_element, float)
     assert fast.shape == dense.shape == (nrb * nc, nrb * nc)
     assert np.abs(fast - dense).max() <= 1e-13 * np.abs(dense).max()
-    # by harmonic groups (a loose solve's: one per harmonic, LOOSE_SPLIT_MIN): L_r
-    # without the terms between two groups makes L_r G block-diagonal over them; the
-    # blocks are formed
-    coefs = P._harmonic_groups(2)
-    assert sorted(np.concatenate(coefs).tolist()) == list(range(nc))
-    group = np.empty(nc, dtype=int)
-    for g, c in enumerate(coefs):
-        group[c] = g
-    Lz = lr.Lr.copy()
-    Lz[:, group[:, None] != np.tile(group, nb)[None, :]] = 0.0
-    dense = np.concatenate([Lz[j] @ G[lr.block_element[j]] for j in range(nrb)])
-    blocks = capacitance_blocks(P.jac, P.PinvR, Lz.reshape(nrb, nc, nb, nc), lr.R,
-                                lr.block_element, float, coefs)
-    rows = [(np.arange(nrb)[:, None] * nc + c[None, :]).ravel() for c in coefs]
-    for r, B in zip(rows, blocks):
-        assert np.abs(B - dense[np.ix_(r, r)]).max() <= 1e-13 * np.abs(dense).max()
-    assert np.abs(dense[np.ix_(rows[0], rows[1])]).max() == 0.0
-    assert np.abs(dense[np.ix_(rows[1], rows[0])]).max() == 0.0
+    # the element blocks of I + L_r G (a split stage's preconditioner of its capacitance
+    # system): each the inverse of the dense one's rows and columns of an element's row
+    # blocks, and together every coordinate once
+    blocks = capacitance_element_blocks(P.jac, P.PinvR, lr.Lr.reshape(nrb, nc, nb, nc),
+                                        lr.R, lr.block_element, float)
+    C = np.eye(nrb * nc) + dense
+    seen = []
+    for coords, inv in blocks:
+        for e, idx in enumerate(coords):
+            assert np.unique(lr.block_element[idx // nc]).size == 1        # one element
+            ref = np.linalg.inv(C[np.ix_(idx, idx)])
+            assert np.abs(inv[e] - ref).max() <= 1e-12 * np.abs(ref).max()
+            seen.extend(idx.tolist())
+    assert sorted(seen) == list(range(nrb * nc))
+    # an element with both row blocks (slip and gap rows) keeps both in one block
+    assert normal == "fixed" or max(inv.shape[1] for _, inv in blocks) == nb * nc
 
 
 @pytest.mark.parametrize("normal", ["coupled", "fixed"])
@@ -530,10 +528,10 @@ def test_lowrank_lu_is_single_precision_for_a_loose_solve_or_a_large_stage(monke
     xd = np.linalg.solve(sd.evaluate(z, 1.1, F).J, v)
     Jk = sk.evaluate(z, 1.1, F).J
     assert Jk.rtol < SINGLE_LU_RTOL
-    assert HarmonicPreconditioner(Jk).lowrank.lus[0][0].dtype == np.float64
+    assert HarmonicPreconditioner(Jk).lowrank.lu[0].dtype == np.float64
     Jk.rtol = 1e-3
     P = HarmonicPreconditioner(Jk)
-    assert P.lowrank.lus[0][0].dtype == np.float32 and not P.truncated
+    assert P.lowrank.lu[0].dtype == np.float32 and not P.truncated
     err = np.abs(P.solve(v) - xd).max() / np.abs(xd).max()
     assert 1e-12 < err <= 1e-4
     x, it, rel, _ = gmres(Jk.matvec, v, P.solve, rtol=1e-3)
@@ -543,20 +541,20 @@ def test_lowrank_lu_is_single_precision_for_a_loose_solve_or_a_large_stage(monke
     assert m < pm.SINGLE_LU_MIN
     monkeypatch.setattr(pm, "SINGLE_LU_MIN", m)
     P = HarmonicPreconditioner(Jk)
-    assert P.lowrank.lus[0][0].dtype == np.float32
+    assert P.lowrank.lu[0].dtype == np.float32
     x, it, rel, _ = gmres(Jk.matvec, v, P.solve, rtol=KRYLOV_RTOL)
     assert 1 < it <= 4 and rel <= KRYLOV_RTOL
     assert np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
 
 
 @pytest.mark.parametrize("normal", ["coupled", "fixed"])
-def test_loose_lowrank_stage_split_by_harmonics_and_its_capacitance_solve(normal, monkeypatch):
+def test_loose_split_lowrank_stage_and_its_capacitance_solve(normal, monkeypatch):
     """A loose solve's low-rank stage above ``LOOSE_SPLIT_MIN`` coordinates, built for
     one solve (``PreconditionerCache.single_solve``), keeps every row block and splits
-    ``I + L_r G`` by harmonics: as a preconditioner (the terms of ``L_r`` between two
-    harmonics left out) it is not the inverse of J; its capacitance solve, with the
-    whole ``L_r``, is (to single precision), and refined on J it reaches the dense
-    solution (the oracle) to the tolerance asked."""
+    ``I + L_r G`` into its element blocks: as a preconditioner (``G`` between elements
+    left out) it is not the inverse of J; its capacitance solve is (to single
+    precision), and refined on J it reaches the dense solution (the oracle) to the
+    tolerance asked."""
     import jointsim.solvers.jacobian as jm
     import jointsim.solvers.preconditioner as pm
     sd, sk = _pair(build_model(four_dof("jenkins", "anchor", normal)))
@@ -569,28 +567,22 @@ def test_loose_lowrank_stage_split_by_harmonics_and_its_capacitance_solve(normal
     Jl = sk.evaluate(z, 1.1, F).J
     one = HarmonicPreconditioner(Jl)
     m = sum(one.lowrank.sizes)
-    assert len(one.lowrank.sizes) == 1 and m <= pm.LOOSE_SPLIT_MIN
+    assert not one.lowrank.split and m <= pm.LOOSE_SPLIT_MIN
     assert not one.capacitance_solves
     assert np.abs(one.solve(v) - xd).max() <= 1e-4 * np.abs(xd).max()
     monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
-    assert len(HarmonicPreconditioner(Jl).lowrank.sizes) == 1  # not for several solves
+    assert not HarmonicPreconditioner(Jl).lowrank.split  # not for several solves
     sk.preconditioner.single_solve = True
     P = HarmonicPreconditioner(Jl)
     lr = P.lowrank
     nh, nc = len(sk.basis.harmonics), sk.n_c
-    assert len(lr.sizes) == nh and sum(lr.sizes) == m and not P.truncated
-    assert P.capacitance_solves
-    assert sorted(np.concatenate(lr.groups).tolist()) == list(range(m))
-    # each group holds the coefficients of one harmonic
-    coef_group = np.empty(nc, dtype=int)
-    for g, rows in enumerate(lr.groups):
-        coef_group[rows % nc] = g
-    assert sorted(coef_group[Jl._ic].tolist()) == list(range(nh))
-    assert np.array_equal(coef_group[Jl._is], coef_group[Jl._ic])
-    # no term of L_r between two harmonics; the whole L_r kept for the capacitance
-    cross = coef_group[:, None] != np.tile(coef_group, lr.nb)[None, :]
-    assert np.abs(lr.Lr[:, cross]).max() == 0.0 < np.abs(lr.Lr).max()
-    assert np.array_equal(lr.full, one.lowrank.Lr)
+    assert lr.split and sum(lr.sizes) == m and not P.truncated
+    assert P.capacitance_solves and lr.lu is None
+    assert np.array_equal(lr.Lr, one.lowrank.Lr)       # the whole L_r, no LU of I + L_r G
+    # one block per column element (all its row blocks): more than one, fewer than the
+    # row blocks where an element slips and separates
+    assert len(lr.sizes) == lr.R.size // lr.nb > 1
+    assert len(lr.sizes) < lr.Rrow.size or normal == "fixed"
     assert np.abs(P.solve(v) - xd).max() > 1e-3 * np.abs(xd).max()
     xc, it = P.solve_capacitance(v, 1e-10)
     assert it > 1 and np.abs(xc - xd).max() <= 1e-4 * np.abs(xd).max()
@@ -616,7 +608,7 @@ def test_loose_lowrank_stage_split_by_harmonics_and_its_capacitance_solve(normal
     x = Jl.solve(v)
     assert np.linalg.norm(Jl.matvec(x) - v) <= 1e-3 * np.linalg.norm(v)
     monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", np.inf)                # off: one group
-    assert len(HarmonicPreconditioner(Jl).lowrank.sizes) == 1
+    assert not HarmonicPreconditioner(Jl).lowrank.split
 
 
 @pytest.mark.parametrize("modal", [False, True])
@@ -705,7 +697,7 @@ def test_a_truncated_loose_bordered_solve_goes_through_the_capacitance_system(mo
     x = A.solve(b)
     P = sk.preconditioner.current
     assert used and P.C2 is not None and P.capacitance_solves and not P.truncated
-    assert len(P.lowrank.sizes) == len(sk.basis.harmonics)
+    assert P.lowrank.split
     for k in range(2):
         assert np.linalg.norm(A.matvec(x[:, k]) - b[:, k]) <= 1e-3 * np.linalg.norm(b[:, k])
         assert np.abs(x[:, k] - xd[:, k]).max() <= 1e-2 * np.abs(xd[:, k]).max()
