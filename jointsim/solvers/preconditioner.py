@@ -679,7 +679,8 @@ class HarmonicPreconditioner:
         lr = self.lowrank
         k = V.shape[2]
         rhs = np.matmul(lr.Lr, self._column_coordinates(Y[:, lr.R])[lr.block_element])
-        return (Y - self._correction(lr.capacitance_inverse(rhs.reshape(-1, k)))).reshape(v.shape)
+        s = lr.capacitance_inverse(rhs.reshape(-1, k))
+        return (Y - self._correction(s)).reshape(v.shape)
 
     def _column_coordinates(self, Yr) -> np.ndarray:
         """The column elements' coordinates ``Yr`` (n_c, R.size, k), the ``R`` rows of
