@@ -575,7 +575,6 @@ def test_loose_split_lowrank_stage_and_its_capacitance_solve(normal, monkeypatch
     sk.preconditioner.single_solve = True
     P = HarmonicPreconditioner(Jl)
     lr = P.lowrank
-    nh, nc = len(sk.basis.harmonics), sk.n_c
     assert lr.split and sum(lr.sizes) == m and not P.truncated
     assert P.capacitance_solves and lr.lu is None
     assert np.array_equal(lr.Lr, one.lowrank.Lr)       # the whole L_r, no LU of I + L_r G
