@@ -18,6 +18,17 @@ import numpy as np
 from .jacobian import append_row, solve
 from .newton import NewtonOptions, newton
 
+#: Relative residual to which a structured ``[J; t_prev^T] t = [0; 1]`` is solved
+#: (GMRES; its default, ``gmres.KRYLOV_RTOL = 1e-11``, lies below the round-off floor of
+#: these systems, 2e-11 to 7e-11 at 480 Gauss points, so the reused preconditioner ran
+#: out of iterations and each tangent built a new one).  The tangent is the predictor's
+#: direction and the corrector's hyperplane; the corrector makes the point exact.  Round
+#: 53 (docs/hbm.md): the 480-point FRC's first 25 points built 20 preconditioners instead
+#: of 37, X equal to 2e-12.  Not for the EPMC's deflated systems, solved exactly as their
+#: Newton steps are (``inexact_steps``): there it saved nothing and moved the branch by
+#: 4e-9 at 480 points.
+TANGENT_RTOL = 1e-9
+
 
 def bordered(F, t, yk, h):
     """``F`` with the hyperplane row ``t . (y - yk) - h``, for :func:`newton`.
@@ -39,13 +50,14 @@ def bordered(F, t, yk, h):
 
 
 def tangent(J, t_prev):
-    """Unit tangent of ``J t = 0`` oriented like ``t_prev`` (scaled variables)."""
+    """Unit tangent of ``J t = 0`` oriented like ``t_prev`` (scaled variables): a
+    structured ``J`` whose Newton steps may be inexact is solved to ``TANGENT_RTOL``."""
     n1 = J.shape[1]
     A = append_row(J, t_prev)
     rhs = np.zeros(n1)
     rhs[-1] = 1.0
     try:
-        t = solve(A, rhs)
+        t = solve(A, rhs, rtol=TANGENT_RTOL if getattr(A, "inexact_steps", False) else None)
     except (np.linalg.LinAlgError, RuntimeError):
         return t_prev.copy()
     nt = np.linalg.norm(t)

@@ -1107,3 +1107,37 @@ def test_chord_cost_model_from_its_size_keeps_the_branch(monkeypatch):
     for a, b in zip(X_off, X_on):
         assert np.abs(a - b).max() <= 1e-8 * np.abs(a).max()
     assert (b_on, it_on) != (b_off, it_off)
+
+
+@pytest.mark.parametrize("law", ["jenkins", "iwan4"])
+def test_structured_tangent_to_its_tolerance_equals_the_dense_one(law, monkeypatch):
+    """The branch tangent of ``[J, dR/domega]`` solved by GMRES to ``TANGENT_RTOL``
+    (looser than the Newton steps' 1e-11, which lies below the round-off floor of large
+    systems) equals the dense LU's tangent to about that tolerance, and GMRES is asked
+    for it; not for a deflated (EPMC) system."""
+    import jointsim.solvers.arclength as arc
+    import jointsim.solvers.jacobian as jm
+    sd, sk = _pair(build_model(four_dof(law, "anchor", "coupled")))
+    F = sk.force_coefficients(0.3)
+    rng = np.random.default_rng(11)
+    z = rng.normal(size=sk.n_z) * 0.4
+    asked = []
+    solve = jm.krylov_solve
+
+    def spy(*a, rtol=None, **k):
+        asked.append(rtol)
+        return solve(*a, rtol=rtol, **k)
+    monkeypatch.setattr(jm, "krylov_solve", spy)
+    for w in (1.1, 1.6):
+        ek, ed = (s.evaluate(z, w, F, wrt=("omega",)) for s in (sk, sd))
+        t_prev = rng.normal(size=sk.n_z + 1)
+        t_k = arc.tangent(BorderedJacobian(ek.J, C=ek.dR["omega"]), t_prev)
+        t_d = arc.tangent(np.column_stack([ed.J, ed.dR["omega"]]), t_prev)
+        assert np.linalg.norm(t_d) == pytest.approx(1.0)
+        assert np.abs(t_k - t_d).max() <= 10 * arc.TANGENT_RTOL * np.abs(t_d).max()
+    assert asked and all(r == arc.TANGENT_RTOL for r in asked)
+    # a deflated (EPMC) system is solved to its own tolerance, as its Newton steps are
+    asked.clear()
+    ell = np.ones(sk.n_r, dtype=complex)
+    arc.tangent(BorderedJacobian(ek.J, C=ek.dR["omega"], deflate=(1, ell)), t_prev)
+    assert asked == [None]
