@@ -92,6 +92,12 @@ FLOOR_FACTOR = 1e3
 CAPACITANCE_REFINE = 6
 CAPACITANCE_MARGIN = 0.02
 CAPACITANCE_STEP = 0.03
+#: ... and they stop at a step that leaves more than this share of its residual (a
+#: step that leaves more than all of it is undone): where the element blocks of the
+#: capacitance system are weak, its GMRES stagnates and the steps gain little or lose
+#: (the 480-point EPMC's indicators in deep gross slip: residual ratios 0.88 to 4.8, six
+#: steps of 80 iterations each; round 53, docs/hbm.md).
+CAPACITANCE_GAIN = 0.8
 #: A bordered solve's capacitance steps (the EPMC indicators') solve ``M^-1`` of the
 #: border columns once, to this relative residual (or tighter), since every step's
 #: bordering uses them: the EPMC's frequency and damping directions are nearly singular,
@@ -555,7 +561,9 @@ def _capacitance_refined(step, matvec, b, rtol: float):
     :meth:`~jointsim.solvers.preconditioner.HarmonicPreconditioner.solve_capacitance`
     (to ``CAPACITANCE_MARGIN rtol |b|``, or to ``CAPACITANCE_STEP`` of the residual when
     that is looser: a step's gain is limited by its single precision) and the
-    residual is recomputed with ``matvec``.  Returns ``(x, GMRES iterations)``."""
+    residual is recomputed with ``matvec``; it stops after a step that did not bring a
+    column's residual below ``CAPACITANCE_GAIN`` of what it was, undone when it raised
+    it.  Returns ``(x, GMRES iterations)``."""
     bn = np.linalg.norm(b, axis=0)
     x, r, total = np.zeros_like(b), b, 0
     target = CAPACITANCE_MARGIN * rtol
@@ -566,8 +574,13 @@ def _capacitance_refined(step, matvec, b, rtol: float):
         tau = max(target * float(np.min(bn[rn > 0] / rn[rn > 0])), CAPACITANCE_STEP)
         dx, it = step(r, tau)
         total += it
-        x = x + dx
-        r = b - matvec(x)
+        r_new = b - matvec(x + dx)
+        gain = np.linalg.norm(r_new, axis=0)[rn > 0] / rn[rn > 0]
+        if not np.all(gain <= 1.0):         # worse, or not finite: undone
+            break
+        x, r = x + dx, r_new
+        if not np.all(gain <= CAPACITANCE_GAIN):
+            break       # too little gained: GMRES on the system finishes
     return x, total
 
 

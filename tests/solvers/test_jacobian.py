@@ -1141,3 +1141,38 @@ def test_structured_tangent_to_its_tolerance_equals_the_dense_one(law, monkeypat
     ell = np.ones(sk.n_r, dtype=complex)
     arc.tangent(BorderedJacobian(ek.J, C=ek.dR["omega"], deflate=(1, ell)), t_prev)
     assert asked == [None]
+
+
+def test_capacitance_refinement_stops_on_a_poor_step_and_undoes_a_harmful_one():
+    """The capacitance steps' refinement (``_capacitance_refined``) keeps a step that
+    gains, stops after one that leaves more than ``CAPACITANCE_GAIN`` of the residual,
+    and undoes one that raises it; GMRES on the system then goes on from the result."""
+    import jointsim.solvers.jacobian as jm
+    rng = np.random.default_rng(5)
+    A = np.diag(rng.uniform(1.0, 2.0, 12))
+    b = rng.normal(size=(12, 1))
+    x_true = np.linalg.solve(A, b)
+
+    def run(gains):
+        """Steps that leave ``gains[k]`` of the residual (``dx = (1 - g) A^-1 r``);
+        returns (x, steps taken, GMRES iterations)."""
+        calls = []
+
+        def step(r, tau):
+            g = gains[len(calls)]
+            calls.append(tau)
+            return (1.0 - g) * np.linalg.solve(A, r), 7
+        x, it = jm._capacitance_refined(step, lambda v: A @ v, b, 1e-3)
+        return x, len(calls), it
+    # two good steps (0.1 each), then a poor one (0.9): kept, and the refinement stops
+    x, n, it = run([0.1, 0.1, 0.9, 0.1])
+    assert n == 3 and it == 21
+    np.testing.assert_allclose(b - A @ x, 0.9 * 0.01 * b, rtol=1e-12)
+    # a good step, then one that doubles the residual: undone, and the refinement stops
+    x, n, _ = run([0.1, 2.0, 0.1])
+    assert n == 2
+    np.testing.assert_allclose(b - A @ x, 0.1 * b, rtol=1e-12)
+    # good steps only: on to the tolerance asked (CAPACITANCE_MARGIN 1e-3 of |b|)
+    x, n, _ = run([0.03] * jm.CAPACITANCE_REFINE)
+    assert np.linalg.norm(b - A @ x) <= jm.CAPACITANCE_MARGIN * 1e-3 * np.linalg.norm(b)
+    assert np.abs(x - x_true).max() <= 1e-4 * np.abs(x_true).max()
