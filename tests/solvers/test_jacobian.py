@@ -1133,7 +1133,6 @@ def test_structured_tangent_to_its_tolerance_equals_the_dense_one(law, monkeypat
         t_prev = rng.normal(size=sk.n_z + 1)
         t_k = arc.tangent(BorderedJacobian(ek.J, C=ek.dR["omega"]), t_prev)
         t_d = arc.tangent(np.column_stack([ed.J, ed.dR["omega"]]), t_prev)
-        assert np.linalg.norm(t_d) == pytest.approx(1.0)
         assert np.abs(t_k - t_d).max() <= 10 * arc.TANGENT_RTOL * np.abs(t_d).max()
     assert asked and all(r == arc.TANGENT_RTOL for r in asked)
     # a deflated (EPMC) system is solved to its own tolerance, as its Newton steps are
