@@ -22,8 +22,10 @@ solve; for the EPMC the elastic mode, its linear start and ``_scales``) and the 
 per point without it, their ratio, the largest
 relative difference of ``X`` between the two paths over the points they placed at the
 same frequency (FRC) or amplitude (EPMC), with how many those are, and peak memory;
-then the fitted exponent ``p`` of time per point ~ n^p (Krylov path, least squares over
-the sizes from 57 on; also without the set-up).
+then where each size's set-up went (each piece's own time, :class:`SetupTimer`; e.g.
+``StuckFlexibility.of``, the stuck modes' eigen-decomposition), and the fitted exponent
+``p`` of time per point ~ n^p (Krylov path, least squares over the sizes from 57 on;
+also without the set-up).
 
 ``--interface gauss`` runs the default scene's own interface instead (2 Gauss
 points per interface edge, pressure-proportional stiffness, washer bolts; the mesh
@@ -70,6 +72,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -129,6 +132,44 @@ def _overrides(mesh: str, analysis: str, solver: str, points: int, sets=()) -> l
     return ov
 
 
+class SetupTimer:
+    """The one-time pieces of an analysis, timed where they run (:func:`_case`).
+
+    :meth:`wrap` replaces a function or method by one that times it.  ``total`` is the
+    time spent in the outermost of them [s]; ``parts`` each piece's own time [s], a piece
+    called inside another counted for the inner one only, so that the parts add up to
+    ``total``.
+    """
+
+    def __init__(self, clock=time.perf_counter):
+        self.clock, self.total, self.parts, self._stack = clock, 0.0, {}, []
+
+    def wrap(self, owner, name: str) -> None:
+        """Time ``owner.name`` (a module's function or a class's attribute) from now on;
+        nothing when ``owner`` has no such attribute (an older tree, measured side by
+        side)."""
+        inner = getattr(owner, name, None)
+        if inner is None:
+            return
+        label = name if isinstance(owner, types.ModuleType) else f"{owner.__name__}.{name}"
+
+        def timed(*args, **kw):
+            t = self.clock()
+            self._stack.append(label)
+            try:
+                return inner(*args, **kw)
+            finally:
+                self._stack.pop()
+                dt = self.clock() - t
+                self.parts[label] = self.parts.get(label, 0.0) + dt
+                if self._stack:
+                    outer = self._stack[-1]
+                    self.parts[outer] = self.parts.get(outer, 0.0) - dt
+                else:
+                    self.total += dt
+        setattr(owner, name, timed)
+
+
 def _case(mesh: str, analysis: str, solver: str, points: int, out: str,
           sets=()) -> dict:
     """One run in this process; returns its numbers (called in a child process);
@@ -160,29 +201,12 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str,
     import jointsim.solvers.hierarchical as shi
     from jointsim.solvers.condensation import ReducedLinear
     from jointsim.solvers.flexibility import StuckFlexibility
-    setup = [0.0]
-    depth = [0]                   # one of them inside another is counted once
-
-    def timed(module, name):
-        inner = getattr(module, name, None)
-        if inner is None:         # (an older tree, measured side by side)
-            return
-
-        def wrapper(*args, **kw):
-            t = time.perf_counter()
-            depth[0] += 1
-            try:
-                return inner(*args, **kw)
-            finally:
-                depth[0] -= 1
-                if not depth[0]:
-                    setup[0] += time.perf_counter() - t
-        setattr(module, name, wrapper)
+    setup = SetupTimer()
     for module, name in ((sh, "ReducedLinear"), (StuckFlexibility, "of"),
                          (shi, "QuasiStaticForm"), (ReducedLinear, "_quasi_static"),
                          (sh.HBMSystem, "prepare_forks"), (ah, "frc_scales"),
                          (ae, "elastic_mode"), (ae, "_linear_start"), (ae, "_scales")):
-        timed(module, name)
+        setup.wrap(module, name)
     t0 = time.perf_counter()
     try:
         run_scene(scene, out)
@@ -192,7 +216,8 @@ def _case(mesh: str, analysis: str, solver: str, points: int, out: str,
     with h5py.File(out, "r") as f:
         g = f[analysis]
         return dict(n_z=int(g.attrs["n_unknowns"]), solver=str(g.attrs["linear_solver"]),
-                    time=float(g.attrs["time_s"]), wall=wall, setup=setup[0],
+                    time=float(g.attrs["time_s"]), wall=wall, setup=setup.total,
+                    setup_parts=setup.parts,
                     points=int(g.attrs["n_points"]),
                     newton=int(f[f"{analysis}/iterations"][()].sum()),
                     solves=int(f[f"{analysis}/linear_solves"][()].sum()),
@@ -303,7 +328,7 @@ def main(argv=None) -> None:
                   f"{'builds':>6} {'krylov s/pt':>11} {'setup s':>7} {'w/o s/pt':>8} "
                   f"{'dense s/pt':>10} {'ratio':>6} {'max dX':>8} {'MB krylov':>9} "
                   f"{'MB dense':>8}", flush=True)
-            sizes, tpp, tpp0 = [], [], []
+            sizes, tpp, tpp0, setup_parts = [], [], [], []
             dense_est, measured = None, False
             for n in a.elements:
                 mesh = _mesh(n, cache, a.interface)
@@ -333,12 +358,19 @@ def main(argv=None) -> None:
                                        for i, j in pairs))
                     same = f" ({len(pairs)}/{len(lk)} points)"
                 sizes.append(n)
+                setup_parts.append((n, k.get("setup_parts", {})))
                 tpp.append(kt)
                 tpp0.append(kt0)
                 print(f"{n:>5} {k['n_z']:>6} {k['points']:>4} {k['newton']:>6} "
                       f"{k['solves']:>6} {k['krylov']:>6} {k['builds']:>6} {kt:>11.3f} "
                       f"{k['setup']:>7.2f} {kt0:>8.3f} {dt:>10.3f} {dt / kt:>6.2f} {dx:>8.1e} "
                       f"{k['rss_mb']:>9.0f} {d['rss_mb'] if d else np.nan:>8.0f}{same}", flush=True)
+            # where the set-up went (each piece's own time, s; StuckFlexibility.of: the stuck
+            # modes' eigen-decomposition)
+            for n, parts in setup_parts:
+                print(f"  set-up at {n}: " + ", ".join(
+                    f"{name} {t:.2f}" for name, t in sorted(parts.items(), key=lambda x: -x[1])
+                    if t >= 0.005))
             sel = [i for i, n in enumerate(sizes) if n >= (48 if a.interface == "gauss" else 57)]
             for label, t in (("", tpp), (" without the set-up", tpp0)):
                 if len(sel) < 2:

@@ -101,3 +101,37 @@ def test_scale_case_leaves_out_the_other_analysis_overrides():
                         "analysis.epmc.error_indicators=false"]
     assert "analysis.epmc.linear_solver='direct'" in epmc
     assert not any(s.startswith("analysis.hbm.") for s in epmc)
+
+
+def test_scale_setup_timer_counts_a_nested_piece_once_for_the_inner_one():
+    """``benchmarks/scale.py``'s set-up timer on a fake clock: an outer piece of 5 s that
+    calls an inner one of 2 s, the inner one again alone (3 s) and a class's method (1 s).
+    The parts are the pieces' own times (outer 3, inner 5, the method 1) and add up to the
+    total (9); an attribute that does not exist is left alone."""
+    import types
+
+    import benchmarks.scale as scale
+    now = [0.0]
+    mod = types.ModuleType("pieces")
+
+    def inner(dt):
+        now[0] += dt
+        return "inner"
+
+    def outer():
+        now[0] += 3.0
+        return mod.inner(2.0)
+    mod.inner, mod.outer = inner, outer
+
+    class Owner:
+        @staticmethod
+        def method():
+            now[0] += 1.0
+    timer = scale.SetupTimer(clock=lambda: now[0])
+    for owner, name in ((mod, "inner"), (mod, "outer"), (Owner, "method"),
+                        (mod, "absent")):
+        timer.wrap(owner, name)
+    assert mod.outer() == "inner" and mod.inner(3.0) == "inner"
+    Owner.method()
+    assert timer.parts == {"inner": 5.0, "outer": 3.0, "Owner.method": 1.0}
+    assert timer.total == 9.0 and not hasattr(mod, "absent")
