@@ -113,6 +113,15 @@ def bisection_tree(positions: np.ndarray, leaf: int = LEAF_ROWS):
     return np.asarray(order, dtype=np.int64), levels, leaves
 
 
+def _places(idx: np.ndarray, n: int) -> np.ndarray:
+    """For every coordinate, the row of the padded index array ``idx`` (blocks, m) that
+    holds it and its place there, shape (n, 2); ``-1`` where none does."""
+    where = np.full((n + 1, 2), -1, dtype=np.int64)
+    b, q = np.nonzero(idx < n)
+    where[idx[b, q]] = np.column_stack([b, q])
+    return where[:n]
+
+
 def _padded(ranges, order, n):
     """Index arrays ``(len(ranges), max length)`` into the coordinates, padded with ``n``."""
     m = max(hi - lo for lo, hi in ranges)
@@ -199,6 +208,41 @@ class HODLR:
         if not Us:
             return np.zeros((ir.size, 0)), np.zeros((0, ic.size)), np.zeros(0, np.int64)
         return np.hstack(Us), np.vstack(Vs), np.concatenate(pid)
+
+    def columns(self, cols, spow: np.ndarray) -> np.ndarray:
+        """Columns of ``sum_p spow[p, h] G_p`` for every ``h``, read from the factors
+        (``O(n k)`` a column and ``h``, no product with unit vectors).
+
+        Parameters
+        ----------
+        cols : array_like of int, shape (m,)
+        spow : ndarray, shape (len(powers), n_h)
+            The factor of each kept part in each of ``n_h`` combinations.
+
+        Returns
+        -------
+        ndarray, shape (n_h, n, m), complex
+        """
+        cols = np.asarray(cols, dtype=np.int64)
+        spow = np.asarray(spow, dtype=complex)
+        n, n_h, m = self.n, spow.shape[1], cols.size
+        out = np.zeros((n_h, n + 1, m), dtype=complex)
+        L, ml = self.leaf_idx.shape
+        P = len(self.powers)
+        leaf, place = self.leaf_of[cols, 0], self.leaf_of[cols, 1]
+        # the dense leaves: D[leaf][p m + r, place] = G_p[leaf_idx[leaf, r], col]
+        Dc = self.D[leaf, :, place].reshape(m, P, ml)                 # (m, P, ml)
+        Yl = np.einsum("jpr,ph->hrj", Dc, spow)                         # (n_h, ml, m)
+        out[:, self.leaf_idx[leaf].T, np.arange(m)[None, :]] += Yl
+        for rows, bcols, U, V, pid in self.levels:
+            where = _places(bcols, n)
+            b, q = where[cols, 0], where[cols, 1]
+            for blk in np.unique(b[b >= 0]):
+                sel = np.flatnonzero(b == blk)
+                Vs = V[blk][:, q[sel]]                                  # (k, |sel|)
+                Vz = Vs[None, :, :] * spow[pid[blk]].T[:, :, None]      # (n_h, k, |sel|)
+                out[:, rows[blk][:, None], sel[None, :]] += U[blk] @ Vz
+        return out[:, :n, :]
 
     @property
     def leaves(self) -> np.ndarray:

@@ -106,7 +106,10 @@ SINGLE_INVERSE_MIN = 200
 #: ``FLEX_SOLVE_MIN_ROWS`` rows the stuck flexibility's (:class:`~jointsim.solvers.
 #: flexibility.FlexibilitySolve`), else from ``HIERARCHICAL_STAGE_MIN_ROWS`` the
 #: hierarchical ``S_h``'s (:class:`~jointsim.solvers.hierarchical.HierarchicalInverse`).
-#: docs/hbm.md, "Round 38" and "Round 39".
+#: docs/hbm.md, "Round 38" and "Round 39".  A tight solve takes the flexibility's too
+#: where its series is kept compressed (from ``flexibility.FLEX_HODLR_MIN_ROWS``
+#: coordinates; the columns read from the HODLR): round 54, the 480-point FRC's
+#: applications 5.0 -> 3.0 ms and no inverses formed.
 SOLVED_STAGE_RTOL = SINGLE_LU_RTOL
 SOLVED_STAGE_COLUMNS = 0.1
 FLEX_SOLVE_MIN_ROWS = 400
@@ -195,7 +198,8 @@ class HarmonicPreconditioner:
         the cache allows it, with the fundamental's in double in ``self.Pinv_double``;
         or for a loose solve single-precision LU factors ``self.Plu``, but for
         ``LOOSE_DOUBLE_HARMONICS``: ``FACTORED_LOOSE_STAGE``, or a stage applied by
-        solves ``self.Psolve``: ``SOLVED_STAGE_RTOL``; ``self.proj``; ``S_h`` kept as
+        solves ``self.Psolve``: ``SOLVED_STAGE_RTOL``, or a tight solve's on the
+        compressed flexibility; ``self.proj``; ``S_h`` kept as
         ``self.S``); from the stuck flexibility instead where it applies
         (:meth:`_modal_stage`)."""
         jac, nr = self.jac, self.jac.n_r
@@ -218,10 +222,13 @@ class HarmonicPreconditioner:
         stuck = self._stuck_proj(flex) if flex is not None else None
         self.modal = flex is not None and (shift is None or loose_solve
                                            or self._few_columns(stuck))
-        if self.modal and loose and nr >= FLEX_SOLVE_MIN_ROWS and self._few_columns(stuck):
+        nus = np.asarray(jac.basis.harmonics, dtype=float) * self.omega
+        # a tight one too, from FLEX_HODLR_MIN_ROWS: the series kept compressed
+        if self.modal and by_solves and shift is None and nr >= FLEX_SOLVE_MIN_ROWS and (
+                loose or flex.compressed(float(nus.max(initial=0.0))) is not None) \
+                and self._few_columns(stuck):
             self.S, self.Plu, self.Pinv, self.Pinv_double = None, None, None, {}
-            self.Psolve = FlexibilitySolve(flex, np.asarray(jac.basis.harmonics, dtype=float)
-                                           * self.omega, self.xi)
+            self.Psolve = FlexibilitySolve(flex, nus, self.xi)
             return
         if loose and nr >= HIERARCHICAL_STAGE_MIN_ROWS and jac.freq.hierarchical is not None \
                 and self._few_columns(proj()):
@@ -375,6 +382,10 @@ class HarmonicPreconditioner:
                     C[i] = Pd[:, cols]
             return C
         nh, nr = len(self.jac.basis.harmonics), self.jac.n_r
+        if isinstance(self.Psolve, FlexibilitySolve):      # read, not solved for
+            C = self.Psolve.columns(cols)
+            C[self.jac._h0] = C[self.jac._h0].real
+            return C
         if self.Psolve is not None:
             E = np.zeros((nh, nr, len(cols)), dtype=complex)
             E[:, cols, np.arange(len(cols))] = 1.0

@@ -308,3 +308,73 @@ def test_stuck_solve_by_the_flexibility_is_the_lu_solve(coarse_model, monkeypatc
     x = J.solve_uncoupled(b, flexibility=wrong)
     assert any(S is not None for S in J._S)            # the LU path
     assert np.abs(J.matvec(x) - b).max() <= 1e-8 * np.abs(b).max()
+
+
+def test_compressed_series_solves_and_gives_columns_like_the_inverses(coarse_model,
+                                                                        monkeypatch):
+    """``StuckFlexibility.compressed``: from ``FLEX_HODLR_MIN_ROWS`` coordinates (lowered
+    to the coarse lap joint's 34, leaves of 8) the series' sums are kept as one HODLR.
+    ``solve`` and ``columns`` then equal the formed inverses to 1e-8 (the truncation,
+    1e-10 of each sum's norm); uncompressed, ``columns`` slices them to round-off.
+    Below the limit, or without the coordinates' positions, nothing is compressed."""
+    system = HBMSystem(coarse_model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    fl = system.lin.flexibility
+    nus = np.array([0.0, 900.0, 2700.0, 6300.0])
+    cols = np.array([0, 5, 33, 12])
+    rng = np.random.default_rng(11)
+    B = rng.normal(size=(4, fl.n_r, 2)) + 1j * rng.normal(size=(4, fl.n_r, 2))
+    assert fl.compressed(nus.max()) is None                    # 34 < 800 coordinates
+    for xi in (0.0, 0.8):
+        Y = np.array(fl.inverses(nus, xi))
+        got = fl.columns(nus, cols, xi)
+        assert np.abs(got - Y[:, :, cols]).max() <= 1e-12 * np.abs(Y).max()
+    monkeypatch.setattr(fx, "FLEX_HODLR_MIN_ROWS", 0)
+    monkeypatch.setattr(fx, "FLEX_HODLR_LEAF", 8)
+    fl.positions, kept = None, fl.positions
+    assert fl.compressed(nus.max()) is None
+    fl.positions = kept
+    nu_max, _, H = fl.compressed(nus.max())
+    assert fl.compressed(nus.max())[2] is H                   # made once
+    for xi in (0.0, 0.8):
+        Y = np.array(fl.inverses(nus, xi))
+        ref = Y @ B
+        X = fl.solve(nus, B, xi)
+        assert np.abs(X - ref).max() <= 1e-8 * np.abs(ref).max()
+        assert np.abs(X - ref).max() > 0.0                     # the HODLR, not the sums
+        got = fl.columns(nus, cols, xi)
+        assert np.abs(got - Y[:, :, cols]).max() <= 1e-8 * np.abs(Y).max()
+    # a series made for a higher frequency drops the old HODLR until asked again
+    fl.prepare(4.0 * nu_max)
+    assert fl._series_hodlr() is None and fl.compressed(4.0 * nu_max)[2] is not H
+
+
+def test_a_tight_solves_stage_is_the_compressed_flexibility(coarse_model, monkeypatch):
+    """With the series compressed (``FLEX_HODLR_MIN_ROWS`` lowered), a tight solve whose
+    low-rank stage keeps few row blocks takes the flexibility applied by solves too: at a
+    stuck state and at a slipping one (its low-rank stage's columns read from the HODLR)
+    the preconditioner solves ``J`` like the dense solve to 1e-8; GMRES on it reaches
+    the Krylov tolerance.  Without the compression the stage forms its inverses."""
+    sd = HBMSystem(coarse_model, (0, 1, 2, 3), 64, linear_solver="direct")
+    sk = HBMSystem(coarse_model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    monkeypatch.setattr(pm, "FLEX_SOLVE_MIN_ROWS", 0)
+    monkeypatch.setattr(pm, "SOLVED_STAGE_COLUMNS", 1.0)
+    F = sk.force_coefficients(20.0)
+    z0 = sk.static_coordinates()
+    rng = np.random.default_rng(12)
+    v = rng.normal(size=sk.n_z)
+    z_slip = z0 + 3e-6 * rng.normal(size=sk.n_z)
+    P = HarmonicPreconditioner(sk.evaluate(z0, 950.0, F).J)
+    assert P.Psolve is None and P.Pinv is not None             # not compressed: inverses
+    monkeypatch.setattr(fx, "FLEX_HODLR_MIN_ROWS", 0)
+    monkeypatch.setattr(fx, "FLEX_HODLR_LEAF", 8)
+    for z in (z0, z_slip):
+        J = sk.evaluate(z, 950.0, F).J
+        P = HarmonicPreconditioner(J)
+        assert isinstance(P.Psolve, fx.FlexibilitySolve) and P.Pinv is None
+        assert sk.lin.flexibility._series_hodlr() is not None
+        xd = np.linalg.solve(sd.evaluate(z, 950.0, F).J, v)
+        if P.lowrank is None:
+            assert np.abs(P.solve(v) - xd).max() <= 1e-8 * np.abs(xd).max()
+        x = J.solve(v)
+        assert np.abs(x - xd).max() <= 1e-8 * np.abs(xd).max()
+    assert P.lowrank is not None                                # the slipping state's

@@ -200,3 +200,29 @@ def test_the_pieces_shared_with_forked_workers_are_made_once(small_tree, coarse_
     for omega in (250.0, 310.0, 400.0 * 7 / 9):
         assert other.harmonic_blocks(omega).hierarchical is not None
     assert hier._form is form
+
+
+def test_hodlr_columns_are_read_from_its_factors():
+    """:meth:`HODLR.columns`: the columns of ``sum_p spow[p, h] G_p`` for several ``h``
+    (complex factors) equal the product with unit vectors to round-off and the dense
+    sums' columns within the truncations' sum; a repeated column and every leaf's are
+    served."""
+    parts, pos = _kernel_parts()
+    n = parts[0].shape[0]
+    tree = hi.bisection_tree(pos, leaf=32)
+    tols = [1e-10 * np.linalg.norm(G, 2) for G in parts]
+    H = hi.HODLR(parts, tols, tree)
+    rng = np.random.default_rng(7)
+    spow = rng.normal(size=(3, 4)) + 1j * rng.normal(size=(3, 4))
+    cols = np.concatenate([[0, n - 1, 17, 17], rng.choice(n, 30, replace=False)])
+    C = H.columns(cols, spow)
+    assert C.shape == (4, n, cols.size)
+    E = np.zeros((n, cols.size))
+    E[cols, np.arange(cols.size)] = 1.0
+    bound = len(tree[1]) * np.abs(spow).sum(axis=0)[:, None] * max(tols)
+    for h in range(4):
+        by_apply = H.apply(E.astype(complex), np.repeat(spow[:, h:h + 1], cols.size, axis=1))
+        assert np.abs(C[h] - by_apply).max() <= 1e-13 * np.abs(by_apply).max()
+        dense = sum(spow[p, h] * parts[p][:, cols] for p in range(3))
+        err = np.linalg.norm(C[h] - dense, axis=0)
+        assert np.all(err <= bound[h]) and err.max() > 0.0
