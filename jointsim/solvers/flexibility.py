@@ -24,8 +24,9 @@ no ``n_r^3`` inverse and no ``S_h`` (``n_r^2 n_y``).  The modes and the sums are
 once per run (one eigen-decomposition of the reduced structure, ``n^3``).  On a large
 interface the sums are kept compressed (:meth:`StuckFlexibility.compressed`, a HODLR on
 the bisection tree of the coordinates' positions: the flexibility of an elastic body
-between distant points is smooth), and the flexibility is applied by solves instead of
-formed inverses: ``n_r^2`` memory traffic per application becomes about a fifth.
+between distant points is smooth: 0.19 of the sums' storage at 480 Gauss points), and
+the flexibility is applied by solves instead of formed inverses, whose ``n_r^2`` entries
+every application reads.
 
 Its accuracy is that of the stuck modes of a structure with stiff contact springs: their
 eigenvalues are known to about ``eps lam_max`` absolutely, so it agrees with the
@@ -230,11 +231,17 @@ class StuckFlexibility:
                       H.compression)
         return self._hodlr
 
-    def _series_hodlr(self):
-        """``(sigma, HODLR)`` of the current series when it is kept compressed, else None."""
+    def _series_hodlr(self, s=None):
+        """``(sigma, HODLR)`` of the current series when it is kept compressed, else None;
+        with ``s`` (n_h,) (``nu^2 + i nu xi`` of each frequency), ``(HODLR, spow)``
+        instead, ``spow`` (parts, n_h) the factor ``(s / sigma)^p`` of each kept part."""
         hz = self._hodlr
-        return hz[1:] if hz is not None and self._series is not None \
-            and hz[0] == self._series[0] else None
+        if hz is None or self._series is None or hz[0] != self._series[0]:
+            return None
+        if s is None:
+            return hz[1:]
+        sigma, H = hz[1:]
+        return H, ((s / sigma)[None, :] ** np.arange(FLEX_ORDER)[:, None])[H.powers]
 
     def columns(self, nus, cols, xi: float = 0.0) -> np.ndarray:
         """The columns ``cols`` of ``(S_h + diag(k))^-1`` at each frequency, shape
@@ -246,11 +253,9 @@ class StuckFlexibility:
         s = nus ** 2 + 1j * nus * xi
         d = 1.0 / (lamL[None, :] - s[:, None])                    # (n_h, n_L)
         out = np.matmul(PsiL * d[:, None, :], PsiL[cols].T)        # (n_h, n_r, m)
-        hz = self._series_hodlr()
+        hz = self._series_hodlr(s)
         if hz is not None:
-            sigma, H = hz
-            spow = ((s / sigma)[None, :] ** np.arange(FLEX_ORDER)[:, None])[H.powers]
-            out += H.columns(cols, spow)
+            out += hz[0].columns(cols, hz[1])
         else:
             powers = s[:, None] ** np.arange(FLEX_ORDER)[None, :]
             out += np.einsum("hp,prm->hrm", powers, C[:, :, cols])
@@ -360,10 +365,9 @@ class StuckFlexibility:
         # the quasi-static modes: sum_p s^p C_p b_h (C_p real: applied to the real and
         # imaginary parts as one real product, no complex copy of C; or its HODLR)
         n_h, n_r, m = B3.shape
-        hz = self._series_hodlr()
+        hz = self._series_hodlr(s)
         if hz is not None:
-            sigma, H = hz
-            spow = ((s / sigma)[None, :] ** np.arange(FLEX_ORDER)[:, None])[H.powers]
+            H, spow = hz
             Bt = np.ascontiguousarray(B3.transpose(1, 0, 2)).reshape(n_r, n_h * m)
             Yq = H.apply(Bt, np.repeat(spow, m, axis=1)).reshape(n_r, n_h, m)
             Y += Yq.transpose(1, 0, 2)

@@ -227,8 +227,7 @@ class HODLR:
         spow = np.asarray(spow, dtype=complex)
         n, n_h, m = self.n, spow.shape[1], cols.size
         out = np.zeros((n_h, n + 1, m), dtype=complex)
-        L, ml = self.leaf_idx.shape
-        P = len(self.powers)
+        ml, P = self.leaf_idx.shape[1], len(self.powers)
         leaf, place = self.leaf_of[cols, 0], self.leaf_of[cols, 1]
         # the dense leaves: D[leaf][p m + r, place] = G_p[leaf_idx[leaf, r], col]
         Dc = self.D[leaf, :, place].reshape(m, P, ml)                 # (m, P, ml)

@@ -223,7 +223,8 @@ class HarmonicPreconditioner:
         self.modal = flex is not None and (shift is None or loose_solve
                                            or self._few_columns(stuck))
         nus = np.asarray(jac.basis.harmonics, dtype=float) * self.omega
-        # a tight one too, from FLEX_HODLR_MIN_ROWS: the series kept compressed
+        # the flexibility applied by solves: for a loose solve, or for a tight one where its
+        # series is kept compressed (flexibility.FLEX_HODLR_MIN_ROWS)
         if self.modal and by_solves and shift is None and nr >= FLEX_SOLVE_MIN_ROWS and (
                 loose or flex.compressed(float(nus.max(initial=0.0))) is not None) \
                 and self._few_columns(stuck):
