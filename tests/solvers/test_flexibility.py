@@ -352,8 +352,9 @@ def test_a_tight_solves_stage_is_the_compressed_flexibility(coarse_model, monkey
     """With the series compressed (``FLEX_HODLR_MIN_ROWS`` lowered), a tight solve whose
     low-rank stage keeps few row blocks takes the flexibility applied by solves too: at a
     stuck state and at a slipping one (its low-rank stage's columns read from the HODLR)
-    the preconditioner solves ``J`` like the dense solve to 1e-8; GMRES on it reaches
-    the Krylov tolerance.  Without the compression the stage forms its inverses."""
+    the preconditioner, exact but for the truncation, solves ``J`` like the dense solve
+    (to 1e-8 stuck, 1e-4 slipping), and GMRES on it to 1e-8.  Without the compression the stage forms its
+    inverses."""
     sd = HBMSystem(coarse_model, (0, 1, 2, 3), 64, linear_solver="direct")
     sk = HBMSystem(coarse_model, (0, 1, 2, 3), 64, linear_solver="krylov")
     monkeypatch.setattr(pm, "FLEX_SOLVE_MIN_ROWS", 0)
@@ -373,8 +374,12 @@ def test_a_tight_solves_stage_is_the_compressed_flexibility(coarse_model, monkey
         assert isinstance(P.Psolve, fx.FlexibilitySolve) and P.Pinv is None
         assert sk.lin.flexibility._series_hodlr() is not None
         xd = np.linalg.solve(sd.evaluate(z, 950.0, F).J, v)
-        if P.lowrank is None:
-            assert np.abs(P.solve(v) - xd).max() <= 1e-8 * np.abs(xd).max()
+        # no stage truncated: P is J's inverse but for the HODLR's truncation (1e-10 of
+        # the sums), which the slipping state's Woodbury correction, on the columns read
+        # from the HODLR, amplifies (measured 1.8e-5; wrong columns would be O(1) off)
+        assert not P.truncated
+        rtol = 1e-8 if P.lowrank is None else 1e-4
+        assert np.abs(P.solve(v) - xd).max() <= rtol * np.abs(xd).max()
         x = J.solve(v)
         assert np.abs(x - xd).max() <= 1e-8 * np.abs(xd).max()
     assert P.lowrank is not None                                # the slipping state's
