@@ -243,28 +243,43 @@ class StuckFlexibility:
         sigma, H = hz[1:]
         return H, ((s / sigma)[None, :] ** np.arange(FLEX_ORDER)[:, None])[H.powers]
 
-    def columns(self, nus, cols, xi: float = 0.0) -> np.ndarray:
+    def columns(self, nus, cols, xi: float = 0.0, rows=None) -> np.ndarray:
         """The columns ``cols`` of ``(S_h + diag(k))^-1`` at each frequency, shape
         (n_h, n_r, len(cols)), complex [m/N], without forming the inverses (the series'
-        columns read from its HODLR when :meth:`compressed` made one, else sliced)."""
+        columns read from its HODLR when :meth:`compressed` made one, else sliced); on
+        ``rows`` only (shape (n_h, len(rows), len(cols))) when given."""
         nus = np.asarray(nus, dtype=float)
         cols = np.asarray(cols, dtype=np.int64)
+        rsel = slice(None) if rows is None else np.asarray(rows, dtype=np.int64)
         _, PsiL, lamL, C = self._made_for(float(np.abs(nus).max(initial=0.0)))
         s = nus ** 2 + 1j * nus * xi
         d = 1.0 / (lamL[None, :] - s[:, None])                    # (n_h, n_L)
-        out = np.matmul(PsiL * d[:, None, :], PsiL[cols].T)        # (n_h, n_r, m)
+        # the low and the damped modes in one product, (n_h, rows, n_L + n_d) (n_L + n_d, m)
+        n_h, n_l = nus.size, lamL.size
+        A = np.empty((n_h, self.Psi[rsel].shape[0], n_l + self.damped.size), dtype=complex)
+        A[:, :, :n_l] = PsiL[rsel] * d[:, None, :]
+        A[:, :, n_l:] = self.Psi_d[rsel]
+        B = np.empty((n_h, A.shape[2], cols.size), dtype=complex)
+        B[:, :n_l] = PsiL[cols].T
+        if self.damped.size:
+            B[:, n_l:] = self._damped_solve(nus, s, self.Psi_d[cols].T)
+        out = np.matmul(A, B)                                        # (n_h, rows, m)
         hz = self._series_hodlr(s)
         if hz is not None:
-            out += hz[0].columns(cols, hz[1])
+            hz[0].columns(cols, hz[1], rows, add_to=out)
         else:
             powers = s[:, None] ** np.arange(FLEX_ORDER)[None, :]
-            out += np.einsum("hp,prm->hrm", powers, C[:, :, cols])
-        if self.damped.size:
-            lamd = self.lam[self.damped]
-            for i, (nu, si) in enumerate(zip(nus, s)):
-                G = np.diag(lamd - si) + (1j * nu) * self.Cd
-                out[i] += self.Psi_d @ np.linalg.solve(G, self.Psi_d[cols].T)
+            out += np.einsum("hp,prm->hrm", powers, C[:, rsel][:, :, cols])
         return out
+
+    def _damped_solve(self, nus, s, B) -> np.ndarray:
+        """``(diag(lam_d - s_h) + i nu_h C_d)^-1 B[h]`` of the damped modes, every harmonic
+        in one batched solve; ``B`` (n_d, m) or (n_h, n_d, m), returns (n_h, n_d, m)."""
+        lamd = self.lam[self.damped]
+        G = (1j * nus)[:, None, None] * self.Cd[None].astype(complex)
+        G[:, np.arange(lamd.size), np.arange(lamd.size)] += lamd[None, :] - s[:, None]
+        B = np.broadcast_to(B, (nus.size,) + B.shape[-2:])
+        return np.linalg.solve(G, B)
 
     def inverses(self, nus, xi: float = 0.0, single: bool = False) -> np.ndarray:
         """``(S_h + diag(k))^-1`` at each frequency.
@@ -377,10 +392,7 @@ class StuckFlexibility:
             powers = s[:, None] ** np.arange(FLEX_ORDER)[None, :]      # (n_h, P)
             Y += np.einsum("hp,prhm->hrm", powers, CB)
         if self.damped.size:
-            lamd = self.lam[self.damped]
-            for i, (nu, si) in enumerate(zip(nus, s)):
-                G = np.diag(lamd - si) + (1j * nu) * self.Cd
-                Y[i] += self.Psi_d @ np.linalg.solve(G, self.Psi_d.T @ B3[i])
+            Y += np.matmul(self.Psi_d, self._damped_solve(nus, s, np.matmul(self.Psi_d.T, B3)))
         return Y.reshape(B.shape)
 
 
@@ -388,9 +400,9 @@ class FlexibilitySolve:
     """The stuck flexibility at fixed frequencies as a harmonic stage applied by solves
     (:meth:`StuckFlexibility.solve`): no ``n_r x n_r`` inverse is formed (for a loose
     solve whose low-rank stage needs few columns of ``P_h^-1``,
-    :data:`jointsim.solvers.preconditioner.SOLVED_STAGE_COLUMNS`, and for a tight one
-    where the series is compressed, :meth:`StuckFlexibility.compressed`); the columns
-    of ``P_h^-1`` are read (:meth:`columns`).
+    :data:`jointsim.solvers.preconditioner.SOLVED_STAGE_COLUMNS`, and for any solve
+    where the series is compressed, :meth:`StuckFlexibility.compressed`, but a
+    tight shifted one); the columns of ``P_h^-1`` are read (:meth:`columns`).
 
     Parameters
     ----------
@@ -399,28 +411,46 @@ class FlexibilitySolve:
         Angular frequencies of the harmonics [rad/s].
     xi : float
         Self-excitation [1/s].
+    shifted : tuple (i, ndarray), optional
+        The ``i``-th harmonic's block replaced by this inverse, (n_r, n_r) complex [m/N]
+        (a shifted block: the EPMC's bordered solves,
+        :class:`~jointsim.solvers.preconditioner.HarmonicPreconditioner`).
     """
 
-    build_flops = 0.0
-
-    def __init__(self, flex: StuckFlexibility, nus, xi: float = 0.0):
+    def __init__(self, flex: StuckFlexibility, nus, xi: float = 0.0, shifted=None):
         self.flex, self.nus, self.xi = flex, np.asarray(nus, dtype=float), float(xi)
+        self.shifted = shifted
         flex._made_for(float(np.abs(self.nus).max(initial=0.0)))
+
+    @property
+    def build_flops(self) -> float:
+        """Real flops of making it: the shifted block's inverse (``8 n_r^3``), if any."""
+        return 8.0 * self.flex.n_r ** 3 if self.shifted is not None else 0.0
 
     @property
     def apply_flops(self) -> float:
         """Real flops of one solve of one column (every harmonic): the low modes, the
-        quasi-static series and the damped modes."""
+        quasi-static series and the damped modes (and the shifted block's product)."""
         f = self.flex
         n_l = f._series[1].shape[1]
         hz = f._series_hodlr()
         series = 4.0 * (hz[1].stored if hz is not None else FLEX_ORDER * f.n_r ** 2)
-        return self.nus.size * (8.0 * f.n_r * n_l + series + 8.0 * f.n_r * f.damped.size)
+        return self.nus.size * (8.0 * f.n_r * n_l + series + 8.0 * f.n_r * f.damped.size) \
+            + (8.0 * f.n_r ** 2 if self.shifted is not None else 0.0)
 
     def solve(self, Y: np.ndarray) -> np.ndarray:
         """``(S_h + diag(k))^-1 Y[h]`` for every harmonic; ``Y`` (n_h, n_r, k) complex."""
-        return self.flex.solve(self.nus, Y, self.xi)
+        out = self.flex.solve(self.nus, Y, self.xi)
+        if self.shifted is not None:
+            i, Pi = self.shifted
+            out[i] = Pi @ Y[i]
+        return out
 
-    def columns(self, cols) -> np.ndarray:
-        """The columns ``cols`` of every ``(S_h + diag(k))^-1``, (n_h, n_r, len(cols))."""
-        return self.flex.columns(self.nus, cols, self.xi)
+    def columns(self, cols, rows=None) -> np.ndarray:
+        """The columns ``cols`` of every ``(S_h + diag(k))^-1``, (n_h, n_r, len(cols)), or
+        their ``rows`` only, (n_h, len(rows), len(cols))."""
+        out = self.flex.columns(self.nus, cols, self.xi, rows)
+        if self.shifted is not None:
+            i, Pi = self.shifted
+            out[i] = Pi[:, cols] if rows is None else Pi[np.ix_(rows, cols)]
+        return out

@@ -113,15 +113,6 @@ def bisection_tree(positions: np.ndarray, leaf: int = LEAF_ROWS):
     return np.asarray(order, dtype=np.int64), levels, leaves
 
 
-def _places(idx: np.ndarray, n: int) -> np.ndarray:
-    """For every coordinate, the row of the padded index array ``idx`` (blocks, m) that
-    holds it and its place there, shape (n, 2); ``-1`` where none does."""
-    where = np.full((n + 1, 2), -1, dtype=np.int64)
-    b, q = np.nonzero(idx < n)
-    where[idx[b, q]] = np.column_stack([b, q])
-    return where[:n]
-
-
 def _padded(ranges, order, n):
     """Index arrays ``(len(ranges), max length)`` into the coordinates, padded with ``n``."""
     m = max(hi - lo for lo, hi in ranges)
@@ -164,6 +155,14 @@ class HODLR:
         for i, (lo, hi) in enumerate(leaves):
             self.leaf_of[order[lo:hi]] = np.column_stack([np.full(hi - lo, i),
                                                           np.arange(hi - lo)])
+        #: the place of every coordinate in tree order, (n,); each leaf's and each
+        #: off-diagonal block's ranges there, ``(lo, size)`` and ``(row lo, size, column
+        #: lo, size)`` (for :meth:`columns`)
+        self.tree_pos = np.empty(n, dtype=np.int64)
+        self.tree_pos[order] = np.arange(n)
+        self.leaf_span = [(lo, hi - lo) for lo, hi in leaves]
+        self.block_spans = []
+        self._work = None
         self.D = np.zeros((len(leaves), len(parts) * m, m))
         for i, (lo, hi) in enumerate(leaves):
             ix = order[lo:hi]
@@ -187,6 +186,8 @@ class HODLR:
                 V[b, :Vb.shape[0], :Vb.shape[1]] = Vb
                 pid[b, :pb.size] = pb
             self.levels.append((rows, cols, U, V, pid))
+            self.block_spans.append([(r[0], r[1] - r[0], c[0], c[1] - c[0])
+                                     for r, c in blocks])
             self.stored += U.size + V.size
             self.ranks.append(int(max(U.shape[1] for U, _, _ in factors)))
 
@@ -209,39 +210,77 @@ class HODLR:
             return np.zeros((ir.size, 0)), np.zeros((0, ic.size)), np.zeros(0, np.int64)
         return np.hstack(Us), np.vstack(Vs), np.concatenate(pid)
 
-    def columns(self, cols, spow: np.ndarray) -> np.ndarray:
+    def columns(self, cols, spow: np.ndarray, rows=None, add_to=None) -> np.ndarray:
         """Columns of ``sum_p spow[p, h] G_p`` for every ``h``, read from the factors
-        (``O(n k)`` a column and ``h``, no product with unit vectors).
+        (``O(n k)`` a column and ``h``, no product with unit vectors); on ``rows`` only
+        when given; added to ``add_to`` (returned) when given.
+
+        The rows and columns are taken in tree order, where every block of the
+        hierarchy is a contiguous range of both, so that each block adds one product
+        to one slice of the result (no scattered writes: 0.66 -> 0.25 s a call for about
+        540 of 960 columns and 16 combinations in a run, round 55).
 
         Parameters
         ----------
         cols : array_like of int, shape (m,)
         spow : ndarray, shape (len(powers), n_h)
             The factor of each kept part in each of ``n_h`` combinations.
+        rows : array_like of int, shape (r,), optional
+            The rows wanted (default all, in order).
+        add_to : ndarray, shape (n_h, r, m), complex, optional
 
         Returns
         -------
-        ndarray, shape (n_h, n, m), complex
+        ndarray, shape (n_h, r, m), complex (``r = n`` without ``rows``)
         """
-        cols = np.asarray(cols, dtype=np.int64)
         spow = np.asarray(spow, dtype=complex)
-        n, n_h, m = self.n, spow.shape[1], cols.size
-        out = np.zeros((n_h, n + 1, m), dtype=complex)
-        ml, P = self.leaf_idx.shape[1], len(self.powers)
-        leaf, place = self.leaf_of[cols, 0], self.leaf_of[cols, 1]
-        # the dense leaves: D[leaf][p m + r, place] = G_p[leaf_idx[leaf, r], col]
-        Dc = self.D[leaf, :, place].reshape(m, P, ml)                 # (m, P, ml)
-        Yl = np.einsum("jpr,ph->hrj", Dc, spow)                         # (n_h, ml, m)
-        out[:, self.leaf_idx[leaf].T, np.arange(m)[None, :]] += Yl
-        for rows, bcols, U, V, pid in self.levels:
-            where = _places(bcols, n)
-            b, q = where[cols, 0], where[cols, 1]
-            for blk in np.unique(b[b >= 0]):
-                sel = np.flatnonzero(b == blk)
-                Vs = V[blk][:, q[sel]]                                  # (k, |sel|)
-                Vz = Vs[None, :, :] * spow[pid[blk]].T[:, :, None]      # (n_h, k, |sel|)
-                out[:, rows[blk][:, None], sel[None, :]] += U[blk] @ Vz
-        return out[:, :n, :]
+        n, n_h = self.n, spow.shape[1]
+        cols = np.asarray(cols, dtype=np.int64)
+        rows = np.arange(n) if rows is None else np.asarray(rows, dtype=np.int64)
+        # the rows and columns in tree order: ``tr`` and ``tc`` their tree positions
+        kr = np.argsort(self.tree_pos[rows], kind="stable")
+        kc = np.argsort(self.tree_pos[cols], kind="stable")
+        tr, tc = self.tree_pos[rows[kr]], self.tree_pos[cols[kc]]
+        # two work arrays kept for the next call (fresh ones of 130 MB each cost more in
+        # page faults than their use: 0.75 against 0.22 s in a run at 480 points)
+        size = n_h * rows.size * cols.size
+        if self._work is None or self._work.shape[1] < size:
+            self._work = np.empty((2, size), dtype=complex)
+        out = self._work[0, :size].reshape(n_h, rows.size, cols.size)
+        out.fill(0.0)
+
+        def span(t, lo, width):
+            return int(np.searchsorted(t, lo)), int(np.searchsorted(t, lo + width))
+        P, m = len(self.powers), self.leaf_idx.shape[1]
+        for leaf, (lo, width) in enumerate(self.leaf_span):
+            r0, r1 = span(tr, lo, width)
+            c0, c1 = span(tc, lo, width)
+            if r0 == r1 or c0 == c1:
+                continue
+            Dl = self.D[leaf].reshape(P, m, m)[:, tr[r0:r1] - lo][:, :, tc[c0:c1] - lo]
+            out[:, r0:r1, c0:c1] += np.tensordot(spow, Dl, axes=(0, 0))
+        for (_, _, U, V, pid), spans in zip(self.levels, self.block_spans):
+            for b, (rlo, rsize, clo, csize) in enumerate(spans):
+                r0, r1 = span(tr, rlo, rsize)
+                c0, c1 = span(tc, clo, csize)
+                if r0 == r1 or c0 == c1:
+                    continue
+                # (k, n_h, c) complex as real (k, 2 n_h c): one real product
+                Vz = V[b][:, tc[c0:c1] - clo][:, None, :] * spow[pid[b]][:, :, None]
+                Y = (U[b][tr[r0:r1] - rlo] @ Vz.view(float).reshape(Vz.shape[0], -1))
+                out[:, r0:r1, c0:c1] += Y.view(complex).reshape(r1 - r0, n_h, c1 - c0) \
+                    .transpose(1, 0, 2)
+        # back to the order asked, by one gather along a flat axis (0.05 s, against 0.4 s
+        # for a gather along each axis in turn)
+        ir, ic = np.empty_like(kr), np.empty_like(kc)
+        ir[kr], ic[kc] = np.arange(kr.size), np.arange(kc.size)
+        flat = (ir[:, None] * ic.size + ic[None, :]).ravel()
+        if add_to is None:
+            return np.take(out.reshape(n_h, -1), flat, axis=1).reshape(out.shape)
+        back = self._work[1, :size].reshape(n_h, -1)
+        np.take(out.reshape(n_h, -1), flat, axis=1, out=back, mode="clip")   # (unbuffered)
+        add_to += back.reshape(out.shape)
+        return add_to
 
     @property
     def leaves(self) -> np.ndarray:

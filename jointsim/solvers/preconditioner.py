@@ -106,10 +106,11 @@ SINGLE_INVERSE_MIN = 200
 #: ``FLEX_SOLVE_MIN_ROWS`` rows the stuck flexibility's (:class:`~jointsim.solvers.
 #: flexibility.FlexibilitySolve`), else from ``HIERARCHICAL_STAGE_MIN_ROWS`` the
 #: hierarchical ``S_h``'s (:class:`~jointsim.solvers.hierarchical.HierarchicalInverse`).
-#: docs/hbm.md, "Round 38" and "Round 39".  A tight solve takes the flexibility's too
-#: where its series is kept compressed (from ``flexibility.FLEX_HODLR_MIN_ROWS``
-#: coordinates; the columns read from the HODLR): round 54, the 480-point FRC's
-#: applications 5.0 -> 3.0 ms and no inverses formed.
+#: docs/hbm.md, "Round 38" and "Round 39".  Where the flexibility's series is kept
+#: compressed (from ``flexibility.FLEX_HODLR_MIN_ROWS`` coordinates; columns read from
+#: the HODLR) a tight solve with few columns takes it too (round 54: the 480-point FRC's
+#: applications 5.0 -> 3.0 ms), and so does any loose one, shifted too, reading only the
+#: rows ``G`` needs of many columns (round 55: the 480-point EPMC 3.3 -> 2.7 s a point).
 SOLVED_STAGE_RTOL = SINGLE_LU_RTOL
 SOLVED_STAGE_COLUMNS = 0.1
 FLEX_SOLVE_MIN_ROWS = 400
@@ -198,10 +199,8 @@ class HarmonicPreconditioner:
         the cache allows it, with the fundamental's in double in ``self.Pinv_double``;
         or for a loose solve single-precision LU factors ``self.Plu``, but for
         ``LOOSE_DOUBLE_HARMONICS``: ``FACTORED_LOOSE_STAGE``, or a stage applied by
-        solves ``self.Psolve``: ``SOLVED_STAGE_RTOL``, or a tight solve's on the
-        compressed flexibility; ``self.proj``; ``S_h`` kept as
-        ``self.S``); from the stuck flexibility instead where it applies
-        (:meth:`_modal_stage`)."""
+        solves ``self.Psolve``: ``SOLVED_STAGE_*``; ``self.proj``; ``S_h`` kept as
+        ``self.S``); from the stuck flexibility instead where it applies (:meth:`_modal_stage`)."""
         jac, nr = self.jac, self.jac.n_r
         self.omega, self.xi, self.Psolve = jac.freq.omega, jac.freq.xi, None
         self._columns = None
@@ -223,13 +222,15 @@ class HarmonicPreconditioner:
         self.modal = flex is not None and (shift is None or loose_solve
                                            or self._few_columns(stuck))
         nus = np.asarray(jac.basis.harmonics, dtype=float) * self.omega
-        # the flexibility applied by solves: for a loose solve, or for a tight one where its
-        # series is kept compressed (flexibility.FLEX_HODLR_MIN_ROWS)
-        if self.modal and by_solves and shift is None and nr >= FLEX_SOLVE_MIN_ROWS and (
-                loose or flex.compressed(float(nus.max(initial=0.0))) is not None) \
-                and self._few_columns(stuck):
+        # the flexibility applied by solves (SOLVED_STAGE_COLUMNS)
+        compressed = self.modal and by_solves and nr >= FLEX_SOLVE_MIN_ROWS and \
+            flex.compressed(float(nus.max(initial=0.0))) is not None
+        if compressed and loose_solve or self.modal and by_solves and shift is None and \
+                nr >= FLEX_SOLVE_MIN_ROWS and (loose or compressed) and self._few_columns(stuck):
             self.S, self.Plu, self.Pinv, self.Pinv_double = None, None, None, {}
-            self.Psolve = FlexibilitySolve(flex, nus, self.xi)
+            self.proj = stuck
+            self.Psolve = FlexibilitySolve(flex, nus, self.xi, None if shift is None else
+                                           (shift[0], self._shifted_inverse(stuck, shift)))
             return
         if loose and nr >= HIERARCHICAL_STAGE_MIN_ROWS and jac.freq.hierarchical is not None \
                 and self._few_columns(proj()):
@@ -292,10 +293,12 @@ class HarmonicPreconditioner:
         return np.flatnonzero(np.isin(self.jac.basis.harmonics, LOOSE_DOUBLE_HARMONICS))
 
     def _double_harmonics(self) -> list:
-        """The harmonics (indices) of a single-precision stage that are in double."""
+        """The harmonics (indices) of a single-precision stage that are in double (G too)."""
         if self.Plu is not None:
             return [i for i, (lu, _) in enumerate(self.Plu) if lu.dtype == np.complex128]
-        return list(self.Pinv_double) if self.Psolve is None else []
+        if self.Psolve is not None:
+            return self._loose_double().tolist() if self.PinvR is None else []
+        return list(self.Pinv_double)
 
     def _stuck_proj(self, flex) -> dict:
         """``proj`` of the stuck stiffness ``k`` (:meth:`_modal_stage`) for every harmonic."""
@@ -332,13 +335,7 @@ class HarmonicPreconditioner:
         self.S, self.Plu, self.Pinv_double = None, None, {}
         self.proj = stuck
         nus = np.asarray(jac.basis.harmonics, dtype=float) * self.omega
-        shifted = None
-        if shift is not None:
-            i = shift[0]
-            P = np.array(jac.schur(i), dtype=complex)
-            add_projected_tangent(P, jac, i, stuck)
-            P += self._rank_one(P, i, shift[1], shift[2])
-            shifted = (i, stacked_inverse(P[None])[0])
+        shifted = None if shift is None else (shift[0], self._shifted_inverse(stuck, shift))
         loose = jac.rtol >= SINGLE_LU_RTOL       # single precision, LOOSE_DOUBLE_HARMONICS
         single = None if loose else self._single_harmonics()
         # (flex keeps them, read-only, for the builds at one frequency: copied if replaced)
@@ -353,6 +350,15 @@ class HarmonicPreconditioner:
             self.Pinv[shifted[0]] = shifted[1]
             if shifted[0] in self.Pinv_double:
                 self.Pinv_double[shifted[0]] = shifted[1]
+
+    def _shifted_inverse(self, stuck, shift) -> np.ndarray:
+        """The inverse of the shifted harmonic's ``S_h + diag(k)`` plus the shift, (n_r, n_r)
+        complex (the flexibility is singular there, the linear mode ``J``'s null vector)."""
+        jac, i = self.jac, shift[0]
+        P = np.array(jac.schur(i), dtype=complex)
+        add_projected_tangent(P, jac, i, stuck)
+        P += self._rank_one(P, i, shift[1], shift[2])
+        return stacked_inverse(P[None])[0]
 
     def _inverse_times(self, X) -> np.ndarray:
         """``P_h^-1 X[h]`` for every harmonic; ``X`` (n_h, n_r, k) complex."""
@@ -603,12 +609,18 @@ class HarmonicPreconditioner:
         Lr = np.ascontiguousarray(Lb[el, kind])               # (nrb, n_c, d)
         Lr4 = Lr.reshape(nrb, nc, nb, nc)
         # the selected columns of P_h^-1: the correction P^-1 E_r s lives on the Rrow
-        # rows; G is their R rows
-        self.PinvR = self._inverse_columns(Rrow)
+        # rows; G is their R rows.  From the compressed flexibility, only those rows
+        # are read when the columns are many, and the correction is a solve
+        if isinstance(self.Psolve, FlexibilitySolve) and nrb > SOLVED_STAGE_COLUMNS * jac.n_r:
+            self.PinvR, PR, R_PR = None, self.Psolve.columns(Rrow, R), np.arange(R.size)
+            PR[jac._h0] = PR[jac._h0].real             # (R_PR: R's rows in PR)
+        else:
+            self.PinvR = PR = self._inverse_columns(Rrow)
+            R_PR = R
         single = jac.rtol >= SINGLE_LU_RTOL or m >= SINGLE_LU_MIN   # the LU in float32
         dtype = np.float32 if single else float
         if not split:
-            C = capacitance_blocks(jac, self.PinvR, Lr4, R, blk_el, dtype)
+            C = capacitance_blocks(jac, PR, Lr4, R_PR, blk_el, dtype)
             C[np.diag_indices_from(C)] += 1.0
             self.lowrank = LowRankStage(R, Rrow, blk_el, Lr, nb,
                                         lu=sla.lu_factor(C, check_finite=False))
@@ -616,10 +628,9 @@ class HarmonicPreconditioner:
         # split: I + L_r G by its element blocks, G by harmonics for solve_capacitance
         self.lowrank = LowRankStage(
             R, Rrow, blk_el, Lr, nb,
-            blocks=capacitance_element_blocks(jac, self.PinvR, Lr4, R, blk_el, dtype),
-            Q=np.ascontiguousarray(self.PinvR[:, R].astype(np.complex64)),
-            Q_double={i: np.ascontiguousarray(self.PinvR[i][R])
-                      for i in self._double_harmonics()})
+            blocks=capacitance_element_blocks(jac, PR, Lr4, R_PR, blk_el, dtype),
+            Q=np.ascontiguousarray(PR[:, R_PR].astype(np.complex64)),
+            Q_double={i: np.ascontiguousarray(PR[i][R_PR]) for i in self._double_harmonics()})
 
     def _harmonic_solve(self, V):
         """``P^-1`` of the harmonic stage; ``V`` (n_c, n_r, k) real, returns its shape."""
@@ -713,11 +724,16 @@ class HarmonicPreconditioner:
     def _correction(self, s) -> np.ndarray:
         """``P^-1 E_r s`` (n_c, n_r, k) for ``s`` (m, k): only the ``Rrow`` columns of
         ``P_h^-1`` (n_r x nrb per harmonic, not n_r x n_r: the same nonzero terms, a
-        fraction of the memory traffic)."""
+        fraction of the memory traffic), or the stage's solve without them."""
         jac = self.jac
         out = np.empty((jac.n_c, jac.n_r, s.shape[1]))
-        jac._from_complex(np.matmul(self.PinvR, self._amplitudes(s).astype(
-            self.PinvR.dtype, copy=False)), out)
+        A = self._amplitudes(s)
+        if self.PinvR is None:           # the stage's solve on the Rrow coordinates
+            E = np.zeros((A.shape[0], jac.n_r, A.shape[2]), dtype=complex)
+            E[:, self.lowrank.Rrow] = A
+            jac._from_complex(self._inverse_times(E), out)
+        else:
+            jac._from_complex(np.matmul(self.PinvR, A.astype(self.PinvR.dtype, copy=False)), out)
         return out
 
     @property

@@ -343,6 +343,9 @@ def test_compressed_series_solves_and_gives_columns_like_the_inverses(coarse_mod
         assert np.abs(X - ref).max() > 0.0                     # the HODLR, not the sums
         got = fl.columns(nus, cols, xi)
         assert np.abs(got - Y[:, :, cols]).max() <= 1e-8 * np.abs(Y).max()
+        rows = np.array([30, 2, 2, 17, 0])                     # some rows, in any order
+        assert np.abs(fl.columns(nus, cols, xi, rows) - got[:, rows]).max() \
+            <= 1e-14 * np.abs(Y).max()
     # a series made for a higher frequency drops the old HODLR until asked again
     fl.prepare(4.0 * nu_max)
     assert fl._series_hodlr() is None and fl.compressed(4.0 * nu_max)[2] is not H
@@ -383,3 +386,51 @@ def test_a_tight_solves_stage_is_the_compressed_flexibility(coarse_model, monkey
         x = J.solve(v)
         assert np.abs(x - xd).max() <= 1e-8 * np.abs(xd).max()
     assert P.lowrank is not None                                # the slipping state's
+
+
+def _shift_rows(jac, i, ell) -> np.ndarray:
+    """``R2`` (2, n_z): ``Re`` and ``Im`` of ``ell^T (X_c - i X_s)`` over the ``i``-th
+    harmonic, so that the shifted preconditioner's matrix is ``J + C2 R2``."""
+    R2 = np.zeros((2, jac.n_c, jac.n_r), dtype=complex)
+    R2[:, jac._ic[i]] = ell
+    if not jac._h0[i]:
+        R2[:, jac._is[i]] = -1j * ell
+    R2[1] *= -1j                                # Im z = Re(-i z)
+    return R2.real.reshape(2, -1)
+
+
+def test_a_loose_solves_stage_is_the_compressed_flexibility_for_any_columns(coarse_model,
+                                                                         monkeypatch):
+    """With the series compressed, a loose solve (the error indicators') takes the
+    flexibility applied by solves whatever its low-rank stage keeps, shifted too (the
+    EPMC's bordered solves: its shifted harmonic's block inverted alone).  Where the
+    stage keeps many row blocks only their rows ``R`` of its columns are read and the
+    correction is a solve (``PinvR`` not formed).  The preconditioner then solves ``J``
+    (``J + C2 R2`` with the shift) like the dense solve: exact but for the HODLR's
+    truncation and the capacitance LU in single precision (1e-4, measured 6e-6 and
+    1.7e-5), as the formed inverses' stage does.  (Harmonics 1..3: with harmonic 0 the
+    slipping joint's static block makes ``J`` ill-conditioned, 1e9, and both stages'
+    single-precision LU leave 20 % there.)"""
+    sd = HBMSystem(coarse_model, (1, 2, 3), 64, linear_solver="direct")
+    sk = HBMSystem(coarse_model, (1, 2, 3), 64, linear_solver="krylov")
+    sk.krylov_rtol = 1e-3                                      # a loose solve
+    monkeypatch.setattr(pm, "FLEX_SOLVE_MIN_ROWS", 0)
+    F = sk.force_coefficients(20.0)
+    rng = np.random.default_rng(13)
+    z = sk.static_coordinates() + 3e-6 * rng.normal(size=sk.n_z)
+    v = rng.normal(size=sk.n_z)
+    u = rng.normal(size=sk.n_r) + 1j * rng.normal(size=sk.n_r)
+    J, Jd = sk.evaluate(z, 950.0, F).J, sd.evaluate(z, 950.0, F).J
+    formed = [HarmonicPreconditioner(J, shift) for shift in (None, (0, u, u.conj()))]
+    assert all(P.Psolve is None and P.PinvR is not None for P in formed)
+    monkeypatch.setattr(fx, "FLEX_HODLR_MIN_ROWS", 0)
+    monkeypatch.setattr(fx, "FLEX_HODLR_LEAF", 8)
+    for shift, P0 in zip((None, (0, u, u.conj())), formed):
+        P = HarmonicPreconditioner(J, shift)
+        assert isinstance(P.Psolve, fx.FlexibilitySolve) and P.Pinv is None
+        assert (P.Psolve.shifted is None) == (shift is None)
+        assert P.lowrank.Rrow.size > pm.SOLVED_STAGE_COLUMNS * sk.n_r and P.PinvR is None
+        A = Jd if shift is None else Jd + P.C2 @ _shift_rows(J, 0, u.conj())
+        xd = np.linalg.solve(A, v)
+        for Q in (P, P0):
+            assert np.abs(Q.solve(v) - xd).max() <= 1e-4 * np.abs(xd).max()

@@ -206,7 +206,7 @@ def test_hodlr_columns_are_read_from_its_factors():
     """:meth:`HODLR.columns`: the columns of ``sum_p spow[p, h] G_p`` for several ``h``
     (complex factors) equal the product with unit vectors to round-off and the dense
     sums' columns within the truncations' sum; a repeated column and every leaf's are
-    served."""
+    served, and so are some rows only, added to an array."""
     parts, pos = _kernel_parts()
     n = parts[0].shape[0]
     tree = hi.bisection_tree(pos, leaf=32)
@@ -226,3 +226,8 @@ def test_hodlr_columns_are_read_from_its_factors():
         dense = sum(spow[p, h] * parts[p][:, cols] for p in range(3))
         err = np.linalg.norm(C[h] - dense, axis=0)
         assert np.all(err <= bound[h]) and err.max() > 0.0
+    # some rows, in any order (a repeated one too), and added to an array
+    rows = np.concatenate([[n - 1, 3, 3], rng.choice(n, 20, replace=False)])
+    base = rng.normal(size=(4, rows.size, cols.size)) + 0j
+    got = H.columns(cols, spow, rows, add_to=base.copy())
+    assert np.abs(got - base - C[:, rows]).max() <= 1e-14 * np.abs(C).max()
