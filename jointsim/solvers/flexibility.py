@@ -256,7 +256,8 @@ class StuckFlexibility:
         d = 1.0 / (lamL[None, :] - s[:, None])                    # (n_h, n_L)
         # the low and the damped modes in one product, (n_h, rows, n_L + n_d) (n_L + n_d, m)
         n_h, n_l = nus.size, lamL.size
-        A = np.empty((n_h, self.Psi[rsel].shape[0], n_l + self.damped.size), dtype=complex)
+        n_rows = self.n_r if rows is None else rsel.size
+        A = np.empty((n_h, n_rows, n_l + self.damped.size), dtype=complex)
         A[:, :, :n_l] = PsiL[rsel] * d[:, None, :]
         A[:, :, n_l:] = self.Psi_d[rsel]
         B = np.empty((n_h, A.shape[2], cols.size), dtype=complex)

@@ -222,9 +222,9 @@ class HarmonicPreconditioner:
         self.modal = flex is not None and (shift is None or loose_solve
                                            or self._few_columns(stuck))
         nus = np.asarray(jac.basis.harmonics, dtype=float) * self.omega
-        # the flexibility applied by solves (SOLVED_STAGE_COLUMNS)
-        compressed = self.modal and by_solves and nr >= FLEX_SOLVE_MIN_ROWS and \
-            flex.compressed(float(nus.max(initial=0.0))) is not None
+        # the flexibility applied by solves (SOLVED_STAGE_COLUMNS; not a tight shifted one)
+        compressed = self.modal and by_solves and nr >= FLEX_SOLVE_MIN_ROWS and (
+            loose_solve or shift is None) and flex.compressed(float(nus.max())) is not None
         if compressed and loose_solve or self.modal and by_solves and shift is None and \
                 nr >= FLEX_SOLVE_MIN_ROWS and (loose or compressed) and self._few_columns(stuck):
             self.S, self.Plu, self.Pinv, self.Pinv_double = None, None, None, {}
