@@ -109,6 +109,7 @@ class StuckFlexibility:
         #: positions of the contact coordinates [m] (n_r, d), for :meth:`compressed`
         self.positions = None
         self._hodlr = None         # (nu_max, sigma, HODLR of sigma^p C_p) of the series
+        self._damped_last = None   # (key, inverses) of _damped_solve's last frequencies
 
     @property
     def n_summed(self) -> int:
@@ -275,12 +276,15 @@ class StuckFlexibility:
 
     def _damped_solve(self, nus, s, B) -> np.ndarray:
         """``(diag(lam_d - s_h) + i nu_h C_d)^-1 B[h]`` of the damped modes, every harmonic
-        in one batched solve; ``B`` (n_d, m) or (n_h, n_d, m), returns (n_h, n_d, m)."""
-        lamd = self.lam[self.damped]
-        G = (1j * nus)[:, None, None] * self.Cd[None].astype(complex)
-        G[:, np.arange(lamd.size), np.arange(lamd.size)] += lamd[None, :] - s[:, None]
-        B = np.broadcast_to(B, (nus.size,) + B.shape[-2:])
-        return np.linalg.solve(G, B)
+        at once; ``B`` (n_d, m) or (n_h, n_d, m), returns (n_h, n_d, m).  The inverses of
+        the last frequencies asked are kept (a stage's solves repeat them)."""
+        key = (nus.tobytes(), s.tobytes())
+        if self._damped_last is None or self._damped_last[0] != key:
+            lamd = self.lam[self.damped]
+            G = (1j * nus)[:, None, None] * self.Cd[None].astype(complex)
+            G[:, np.arange(lamd.size), np.arange(lamd.size)] += lamd[None, :] - s[:, None]
+            self._damped_last = (key, np.linalg.inv(G))
+        return np.matmul(self._damped_last[1], B)
 
     def inverses(self, nus, xi: float = 0.0, single: bool = False) -> np.ndarray:
         """``(S_h + diag(k))^-1`` at each frequency.

@@ -629,8 +629,8 @@ class HarmonicPreconditioner:
         self.lowrank = LowRankStage(
             R, Rrow, blk_el, Lr, nb,
             blocks=capacitance_element_blocks(jac, PR, Lr4, R_PR, blk_el, dtype),
-            Q=np.ascontiguousarray(PR[:, R_PR].astype(np.complex64)),
-            Q_double={i: np.ascontiguousarray(PR[i][R_PR]) for i in self._double_harmonics()})
+            Q=(PR if self.PinvR is None else PR[:, R_PR]).astype(np.complex64),
+            Q_double={i: PR[i][R_PR] for i in self._double_harmonics()})
 
     def _harmonic_solve(self, V):
         """``P^-1`` of the harmonic stage; ``V`` (n_c, n_r, k) real, returns its shape."""
