@@ -274,17 +274,21 @@ class StuckFlexibility:
             out += np.einsum("hp,prm->hrm", powers, C[:, rsel][:, :, cols])
         return out
 
-    def _damped_solve(self, nus, s, B) -> np.ndarray:
-        """``(diag(lam_d - s_h) + i nu_h C_d)^-1 B[h]`` of the damped modes, every harmonic
-        at once; ``B`` (n_d, m) or (n_h, n_d, m), returns (n_h, n_d, m).  The inverses of
-        the last frequencies asked are kept (a stage's solves repeat them)."""
+    def _damped_inverses(self, nus, s) -> np.ndarray:
+        """``(diag(lam_d - s_h) + i nu_h C_d)^-1`` of the damped modes for every harmonic,
+        (n_h, n_d, n_d); those of the last frequencies asked are kept (a stage's solves
+        repeat them)."""
         key = (nus.tobytes(), s.tobytes())
         if self._damped_last is None or self._damped_last[0] != key:
             lamd = self.lam[self.damped]
             G = (1j * nus)[:, None, None] * self.Cd[None].astype(complex)
             G[:, np.arange(lamd.size), np.arange(lamd.size)] += lamd[None, :] - s[:, None]
             self._damped_last = (key, np.linalg.inv(G))
-        return np.matmul(self._damped_last[1], B)
+        return self._damped_last[1]
+
+    def _damped_solve(self, nus, s, B) -> np.ndarray:
+        """:meth:`_damped_inverses` times ``B`` (n_d, m) or (n_h, n_d, m): (n_h, n_d, m)."""
+        return np.matmul(self._damped_inverses(nus, s), B)
 
     def inverses(self, nus, xi: float = 0.0, single: bool = False) -> np.ndarray:
         """``(S_h + diag(k))^-1`` at each frequency.
@@ -342,13 +346,12 @@ class StuckFlexibility:
         # Psi_d (diag(lam_d - s) + i nu C_d)^-1 Psi_d^T
         B = np.hstack([PsiL, self.Psi_d]).astype(real)
         if B.shape[1]:
-            lamd = self.lam[self.damped]
-            for i, (nu, si) in enumerate(zip(nus, s)):
+            Gd = self._damped_inverses(nus, s) if self.damped.size else None
+            for i, si in enumerate(s):
                 A = np.empty((n_r, B.shape[1]), dtype=complex)
                 A[:, :lamL.size] = PsiL / (lamL - si)
-                if self.damped.size:
-                    A[:, lamL.size:] = self.Psi_d @ np.linalg.inv(
-                        np.diag(lamd - si) + (1j * nu) * self.Cd)
+                if Gd is not None:
+                    A[:, lamL.size:] = self.Psi_d @ Gd[i]
                 out[i].real += A.real.astype(real) @ B.T
                 out[i].imag += A.imag.astype(real) @ B.T
         out[nus == 0.0] = out[nus == 0.0].real
