@@ -9,6 +9,17 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..linalg import stacked_inverse
+from .hierarchical import bisection_tree
+
+#: A split stage's capacitance system (``I + L_r G`` by element blocks) gets a coarse
+#: space: the row blocks of one kind (slip or gap rows) are cut into aggregates of
+#: about this many neighbours (a bisection of their positions), and each coefficient's
+#: constant over an aggregate is solved exactly beside the element blocks (additive
+#: two-level, :func:`capacitance_coarse`).  The element blocks leave ``G`` between
+#: elements out, whose smooth part over a slipping region (the elastic body's
+#: long-wavelength flexibility against the stuck stiffness) their GMRES needed a number
+#: of iterations growing with that region for; docs/hbm.md, "Round 56".  0: none.
+COARSE_ROW_BLOCKS = 16
 
 
 class LowRankStage(NamedTuple):
@@ -43,6 +54,10 @@ class LowRankStage(NamedTuple):
         A split stage's ``Q`` of the harmonics whose stage is in double
         (``preconditioner.LOOSE_DOUBLE_HARMONICS``), index -> (nb n_l, n_rb) complex128;
         ``Q`` holds them in single precision too, unused.
+    coarse : tuple (ndarray, tuple), or None
+        A split stage's coarse space (:func:`capacitance_coarse`): the aggregate
+        indicator ``A`` (n_rb, n_a) and the LU of ``Z^T (I + L_r G) Z`` with ``Z = A
+        (x) I_nc``; else None.
     """
 
     R: np.ndarray
@@ -54,6 +69,7 @@ class LowRankStage(NamedTuple):
     blocks: tuple | None = None
     Q: np.ndarray | None = None
     Q_double: dict | None = None
+    coarse: tuple | None = None
 
     @property
     def split(self) -> bool:
@@ -69,14 +85,21 @@ class LowRankStage(NamedTuple):
         return [self.lu[0].shape[0]]
 
     def capacitance_inverse(self, rhs) -> np.ndarray:
-        """``(I + L_r G)^-1 rhs`` by its LU, or approximately by its element blocks (a
-        split stage); ``rhs`` (m, k)."""
+        """``(I + L_r G)^-1 rhs`` by its LU, or approximately by its element blocks plus
+        its coarse space (a split stage: ``B^-1 rhs + Z E^-1 Z^T rhs``,
+        :func:`capacitance_coarse`); ``rhs`` (m, k)."""
         if self.blocks is None:
             return sla.lu_solve(self.lu, rhs.astype(self.lu[0].dtype, copy=False),
                                 check_finite=False)
         s = np.empty(rhs.shape)
         for coords, inv in self.blocks:
             s[coords] = np.matmul(inv, rhs[coords].astype(inv.dtype, copy=False))
+        if self.coarse is not None:
+            A, lu = self.coarse
+            nrb, k = A.shape[0], rhs.shape[1]
+            y = sla.lu_solve(lu, (A.T @ rhs.reshape(nrb, -1)).reshape(-1, k),
+                             check_finite=False)
+            s += (A @ y.reshape(A.shape[1], -1)).reshape(s.shape)
         return s
 
 
@@ -90,6 +113,41 @@ class RowBlocks(NamedTuple):
     sel: np.ndarray     # the row blocks above LOWRANK_NEGLIGIBLE, index e nb + kind
     most: int           # how many of them are kept at most
     split: bool         # every row block kept, I + L_r G by element blocks
+
+
+def element_tangent(jac) -> tuple:
+    """Each element's own contact tangent: its slip and gap rows over all coefficients,
+    no ``S_h`` (the row blocks of :class:`RowBlocks` and the element-block stage of the
+    harmonic preconditioner).
+
+    Parameters
+    ----------
+    jac : jointsim.solvers.jacobian.HBMJacobian
+
+    Returns
+    -------
+    rows : list of ndarray of int
+        The slip rows and the gap rows of the elements (those the Jacobian has), each
+        (n_e,).
+    nb : int
+        Row kinds per element (``len(rows)``).
+    blocks : ndarray, shape (n_e, nb n_c, nb n_c)
+        The tangents [N/m].
+    """
+    nc, ne = jac.n_c, len(jac.t_row)
+    if jac.Juu is None:
+        rows = [jac.n_row]
+    else:
+        rows = [jac.t_row] + ([jac.n_row] if jac.JNN is not None else [])
+    nb = len(rows)
+    Tk = np.zeros((ne, nb * nc, nb * nc))
+    if jac.Juu is not None:
+        Tk[:, :nc, :nc] += jac.Juu
+        if jac.Jug is not None and nb == 2:
+            Tk[:, :nc, nc:] += jac.Jug
+    if jac.JNN is not None:
+        Tk[:, -nc:, -nc:] -= jac.JNN
+    return rows, nb, Tk
 
 
 def capacitance_blocks(jac, PinvR, Lr4, R, blk_el, dtype) -> np.ndarray:
@@ -198,3 +256,92 @@ def capacitance_element_blocks(jac, PinvR, Lr4, R, blk_el, dtype) -> tuple:
         coords = (idx[:, :, None] * nc + np.arange(nc)).reshape(els.size, c * nc)
         out.append((coords, stacked_inverse(B).astype(dtype, copy=False)))
     return tuple(out)
+
+
+def coarse_aggregates(positions, kind, size: int) -> np.ndarray:
+    """The aggregates of a split stage's coarse space (:func:`capacitance_coarse`): the
+    row blocks of each kind cut into neighbours, at most ``size`` of them each, by a
+    bisection of their positions (:func:`~jointsim.solvers.hierarchical.bisection_tree`).
+
+    Parameters
+    ----------
+    positions : ndarray, shape (n_rb, d)
+        Position of each row block [m].
+    kind : ndarray of int, shape (n_rb,)
+        Its kind (slip rows 0, gap rows 1): an aggregate holds one kind.
+    size : int
+        Row blocks per aggregate at most.
+
+    Returns
+    -------
+    ndarray of int, shape (n_rb,)
+        The aggregate of each row block, ``0 .. n_a - 1``.
+    """
+    agg = np.empty(len(kind), dtype=np.int64)
+    n = 0
+    for k in np.unique(kind):
+        idx = np.flatnonzero(kind == k)
+        order, _, leaves = bisection_tree(positions[idx], max(int(size), 1))
+        for lo, hi in leaves:
+            agg[idx[order[lo:hi]]] = n
+            n += 1
+    return agg
+
+
+def capacitance_coarse(jac, PinvR, Lr4, R, blk_el, Rrow, kind) -> tuple | None:
+    """The coarse space of a split stage's capacitance system ``C = I + L_r G``, or None
+    with at most ``COARSE_ROW_BLOCKS`` row blocks (or with it 0).
+
+    ``Z = A (x) I_nc`` holds, for each aggregate of row blocks (:func:`coarse_aggregates`
+    of the positions of their coordinates, ``jac.lin.positions``, else of their order)
+    and each coefficient, the unit constant over the aggregate; ``E = Z^T C Z`` (``n_a
+    n_c`` square) is formed by harmonics as :func:`capacitance_blocks` forms ``L_r G``,
+    but on the ``n_a`` aggregate sums of ``Q_h``'s columns instead of its ``n_rb``
+    columns (a coarse column is one coefficient, so one harmonic: ``Q_h A``).  Its LU is
+    applied beside the element blocks, ``B^-1 r + Z E^-1 Z^T r``
+    (:meth:`LowRankStage.capacitance_inverse`).
+
+    Parameters
+    ----------
+    jac, PinvR, Lr4, R, blk_el
+        As in :func:`capacitance_blocks`.
+    Rrow : ndarray of int, shape (n_rb,)
+        Contact coordinate of each row block.
+    kind : ndarray of int, shape (n_rb,)
+        Kind of each row block (slip rows 0, gap rows 1).
+
+    Returns
+    -------
+    A : ndarray, shape (n_rb, n_a)
+        The aggregates' indicator (0 or 1).
+    lu : tuple
+        ``scipy.linalg.lu_factor`` of ``E``, rows and columns ``(a, c)`` at ``a n_c + c``,
+        dimensionless.
+    """
+    if not COARSE_ROW_BLOCKS or len(Rrow) <= COARSE_ROW_BLOCKS:
+        return None
+    pos = getattr(jac.lin, "positions", None)
+    agg = coarse_aggregates(np.arange(len(Rrow), dtype=float)[:, None] if pos is None
+                            else np.asarray(pos)[Rrow], kind, COARSE_ROW_BLOCKS)
+    nrb, nc, nb, _ = Lr4.shape
+    nl = R.size // nb
+    na = int(agg.max()) + 1
+    A = np.zeros((nrb, na))
+    A[np.arange(nrb), agg] = 1.0
+    E = np.zeros((na, nc, na, nc))
+    for i, h in enumerate(jac.basis.harmonics):
+        # G's (R, aggregate) part of harmonic h, per row block's element: (nrb, nb, n_a)
+        W = (PinvR[i] @ A)[R].reshape(nb, nl, na).transpose(1, 0, 2)[blk_el]
+        ic, is_ = jac._ic[i], jac._is[i]
+        if h:
+            V = np.matmul(Lr4[:, :, :, ic] + 1j * Lr4[:, :, :, is_], W)   # (nrb, nc, na)
+            E[..., ic] += (A.T @ np.ascontiguousarray(V.real).reshape(nrb, -1)) \
+                .reshape(na, nc, na)
+            E[..., is_] += (A.T @ np.ascontiguousarray(V.imag).reshape(nrb, -1)) \
+                .reshape(na, nc, na)
+        else:
+            V = np.matmul(Lr4[:, :, :, ic], np.ascontiguousarray(W.real))
+            E[..., ic] += (A.T @ V.reshape(nrb, -1)).reshape(na, nc, na)
+    a, c = np.meshgrid(np.arange(na), np.arange(nc), indexing="ij")
+    E[a, c, a, c] += A.sum(axis=0)[:, None]     # Z^T Z: the aggregates' sizes
+    return A, sla.lu_factor(E.reshape(na * nc, na * nc), check_finite=False)

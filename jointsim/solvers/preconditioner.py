@@ -24,7 +24,7 @@ from .gmres import gmres_columns
 from .flexibility import FlexibilitySolve
 from .hierarchical import HierarchicalInverse, schur_entries
 from .lowrank_stage import (LowRankStage, RowBlocks, capacitance_blocks,
-                            capacitance_element_blocks)
+                            capacitance_coarse, capacitance_element_blocks, element_tangent)
 from .tangent_projection import add_projected_tangent, project_tangent
 
 log = logging.getLogger(__name__)
@@ -61,11 +61,11 @@ SINGLE_LU_MIN = 1000
 #: preconditioner, :attr:`.PreconditionerCache.single_solve`) whose low-rank stage exceeds
 #: ``LOOSE_SPLIT_MIN`` coordinates keeps every row block and is solved through its
 #: capacitance system (:meth:`HarmonicPreconditioner.solve_capacitance`): GMRES on
-#: ``I + L_r G`` preconditioned by the inverses of its element blocks
-#: (:func:`.lowrank_stage.capacitance_element_blocks`; by harmonics until round 52),
-#: refined on the system itself; ``inf``: never (round 34).  So does any other loose
-#: solve whose correction would be truncated (an EPMC point's extended Newton steps,
-#: bordered and shifted: round 40).
+#: ``I + L_r G`` preconditioned by the inverses of its element blocks (:func:`.lowrank_stage.
+#: capacitance_element_blocks`; by harmonics until round 52) and a coarse space (round 56,
+#: :func:`.lowrank_stage.capacitance_coarse`), refined on the system itself; ``inf``: never
+#: (round 34).  So does any other loose solve whose correction would be truncated (an
+#: EPMC point's extended Newton steps, bordered and shifted: round 40).
 LOOSE_SPLIT_MIN = 1000
 #: ... and any loose one shared by several solves (an EPMC point's extended Newton
 #: steps) whose correction exceeds this many coordinates, instead of one LU (round 52:
@@ -124,6 +124,13 @@ HIERARCHICAL_STAGE_MIN_ROWS = 800
 #: stuck joint (at most ``SOLVED_STAGE_COLUMNS n_r`` row blocks: "Round 40").
 MODAL_STAGE = True
 SHIFTED_FLEX_MIN_ROWS = 400
+#: From this many rows the EPMC's tight bordered solves (shifted) are built as loose ones
+#: (:attr:`HarmonicPreconditioner.loose`): the stage from the stuck flexibility in single
+#: precision, every row block kept and a large correction split, solved through its
+#: capacitance system and refined on the system to the tight tolerance; each build costs
+#: no ``n_r^3`` inverses and no LU of the correction (docs/hbm.md, "Round 56": 240 Gauss
+#: points, the continuation 12.4 -> 8.3 s).  ``inf``: never.
+SHIFTED_SPLIT_MIN_ROWS = 400
 
 
 class HarmonicPreconditioner:
@@ -154,9 +161,12 @@ class HarmonicPreconditioner:
     """
 
     def __init__(self, jac, shift=None, base=None):
-        self.jac = jac
-        self.C2 = None
+        self.jac, self.C2 = jac, None
         self._sel = None         # (proj, RowBlocks) of _few_columns, for _lowrank
+        #: built as for a loose solve (single precision, split): its solves are refined
+        #: on the system (a loose one, or a large shifted one: SHIFTED_SPLIT_MIN_ROWS)
+        self.loose = jac.rtol >= SINGLE_LU_RTOL or (
+            shift is not None and jac.n_r >= SHIFTED_SPLIT_MIN_ROWS)
         if base is not None:
             # the harmonic stage of ``base`` (S_h at its frequency, the harmonic
             # projection of its tangent): only the low-rank stage is new
@@ -215,7 +225,7 @@ class HarmonicPreconditioner:
         loose = by_solves and jac.rtol >= SOLVED_STAGE_RTOL and shift is None
         # shifted (the EPMC's bordered solves): a loose solve (its correction is split by
         # harmonics, never truncated), or a large one near the stuck joint
-        loose_solve = jac.rtol >= SINGLE_LU_RTOL
+        loose_solve = self.loose
         flex = jac.lin.flexibility if MODAL_STAGE and modal and (
             shift is None or nr >= SHIFTED_FLEX_MIN_ROWS or loose_solve) else None
         stuck = self._stuck_proj(flex) if flex is not None else None
@@ -253,9 +263,8 @@ class HarmonicPreconditioner:
             add_projected_tangent(P, jac, i, self.proj)
             if shift is not None and shift[0] == i:
                 P += self._rank_one(P, i, shift[1], shift[2])
-        self.Pinv = self.Plu = None
-        self.Pinv_double = {}
-        if FACTORED_LOOSE_STAGE and jac.rtol >= SINGLE_LU_RTOL:
+        self.Pinv, self.Plu, self.Pinv_double = None, None, {}
+        if FACTORED_LOOSE_STAGE and self.loose:
             # a loose solve: single-precision LU factors (FACTORED_LOOSE_STAGE)
             dbl = self._loose_double()
             lus = [sla.lu_factor(b if i in dbl else b.astype(np.complex64),
@@ -336,7 +345,7 @@ class HarmonicPreconditioner:
         self.proj = stuck
         nus = np.asarray(jac.basis.harmonics, dtype=float) * self.omega
         shifted = None if shift is None else (shift[0], self._shifted_inverse(stuck, shift))
-        loose = jac.rtol >= SINGLE_LU_RTOL       # single precision, LOOSE_DOUBLE_HARMONICS
+        loose = self.loose                       # single precision, LOOSE_DOUBLE_HARMONICS
         single = None if loose else self._single_harmonics()
         # (flex keeps them, read-only, for the builds at one frequency: copied if replaced)
         self.Pinv = flex.inverses(nus, self.xi, single=loose or bool(single.any()))
@@ -476,31 +485,12 @@ class HarmonicPreconditioner:
         self.C2 = C2.reshape(jac.n_z, 2)
         return np.outer(su, ell)
 
-    def _element_tangent(self):
-        """Each element's own contact tangent (slip and gap rows over all coefficients,
-        no ``S_h``): ``rows`` (nb n_e,) and blocks (n_e, nb n_c, nb n_c)."""
-        jac = self.jac
-        nc, ne = jac.n_c, len(jac.t_row)
-        if jac.Juu is None:
-            rows = [jac.n_row]
-        else:
-            rows = [jac.t_row] + ([jac.n_row] if jac.JNN is not None else [])
-        nb = len(rows)
-        Tk = np.zeros((ne, nb * nc, nb * nc))
-        if jac.Juu is not None:
-            Tk[:, :nc, :nc] += jac.Juu
-            if jac.Jug is not None and nb == 2:
-                Tk[:, :nc, nc:] += jac.Jug
-        if jac.JNN is not None:
-            Tk[:, -nc:, -nc:] -= jac.JNN
-        return rows, nb, Tk
-
     def _selection(self) -> "RowBlocks | None":
         """The row blocks of the low-rank stage with ``P`` holding ``self.proj``
         (:meth:`_lowrank`); None without elements."""
         jac = self.jac
         nc = jac.n_c
-        rows, nb, Tk = self._element_tangent()
+        rows, nb, Tk = element_tangent(self.jac)
         ne = Tk.shape[0]
         if ne == 0:
             return None
@@ -537,7 +527,7 @@ class HarmonicPreconditioner:
         # a raised limit truncates to itself, not to LOWRANK_MAX_FRACTION
         most = sel.size if sel.size <= blocks(LOWRANK_EXACT_FRACTION) else \
             blocks(LOWRANK_EXACT_FRACTION if limit > LOWRANK_MAX else LOWRANK_MAX_FRACTION)
-        if jac.rtol >= SINGLE_LU_RTOL and sel.size * nc > LOOSE_SPLIT_MIN and (
+        if self.loose and sel.size * nc > LOOSE_SPLIT_MIN and (
                 jac.cache.single_solve or most < sel.size
                 or sel.size * nc > LOOSE_SPLIT_SHARED_MIN):
             # a loose solve, one per preconditioner, large or else truncated: every row
@@ -617,7 +607,7 @@ class HarmonicPreconditioner:
         else:
             self.PinvR = PR = self._inverse_columns(Rrow)
             R_PR = R
-        single = jac.rtol >= SINGLE_LU_RTOL or m >= SINGLE_LU_MIN   # the LU in float32
+        single = self.loose or m >= SINGLE_LU_MIN                  # the LU in float32
         dtype = np.float32 if single else float
         if not split:
             C = capacitance_blocks(jac, PR, Lr4, R_PR, blk_el, dtype)
@@ -625,12 +615,13 @@ class HarmonicPreconditioner:
             self.lowrank = LowRankStage(R, Rrow, blk_el, Lr, nb,
                                         lu=sla.lu_factor(C, check_finite=False))
             return
-        # split: I + L_r G by its element blocks, G by harmonics for solve_capacitance
+        # split: I + L_r G by element blocks and a coarse space, G by harmonics (solve_capacitance)
         self.lowrank = LowRankStage(
             R, Rrow, blk_el, Lr, nb,
             blocks=capacitance_element_blocks(jac, PR, Lr4, R_PR, blk_el, dtype),
             Q=(PR if self.PinvR is None else PR[:, R_PR]).astype(np.complex64),
-            Q_double={i: PR[i][R_PR] for i in self._double_harmonics()})
+            Q_double={i: PR[i][R_PR] for i in self._double_harmonics()},
+            coarse=capacitance_coarse(jac, PR, Lr4, R_PR, blk_el, Rrow, kind))
 
     def _harmonic_solve(self, V):
         """``P^-1`` of the harmonic stage; ``V`` (n_c, n_r, k) real, returns its shape."""
@@ -646,7 +637,7 @@ class HarmonicPreconditioner:
         ``S_h``): the second stage of the preconditioner."""
         jac = self.jac
         nc = jac.n_c
-        rows, nb, Bk = self._element_tangent()
+        rows, nb, Bk = element_tangent(self.jac)
         for a, ra in enumerate(rows):
             for b, rb in enumerate(rows):
                 Se = schur_entries(self.Psolve.prod, ra, rb) if self.S is None else None
@@ -751,13 +742,13 @@ class HarmonicPreconditioner:
         Woodbury: ``x = y - P^-1 E_r s``, ``y = P^-1 b``, ``(I + L_r G) s = L_r E_c^T y``.
         Then ``J x - b = -E_r ((I + L_r G) s - L_r E_c^T y)``: the capacitance system's
         residual is the whole system's, so GMRES on its ``m`` unknowns, preconditioned
-        by the inverses of its element blocks (:attr:`LowRankStage.blocks`), stops at
-        ``rtol |b|``.  A product with ``I + L_r G`` reads ``G`` by harmonics
+        by its element blocks and coarse space (:attr:`LowRankStage.blocks`, ``coarse``),
+        stops at ``rtol |b|``.  A product with ``I + L_r G`` reads ``G`` by harmonics
         (:attr:`LowRankStage.Q`) and ``L_r`` by row blocks, not the ``S_h`` and the
         harmonic stage: measured at 240-point gross-slip points (three columns), 7 ms an
         iteration against 27 ms on ``J`` preconditioned by the same split, and about as
-        many iterations (round 34).  ``P^-1`` and ``G`` are in
-        single precision, so the result is refined on ``J`` itself
+        many iterations (round 34).  ``P^-1`` and ``G`` are in single precision, so the
+        result is refined on ``J`` itself
         (:func:`~jointsim.solvers.jacobian.krylov_solve`).
 
         Parameters
