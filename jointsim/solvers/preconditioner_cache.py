@@ -72,7 +72,11 @@ TRUNCATED_REUSE = 0.0
 #: 117.8 s at 1e-3, 112.2 s at 5e-3 (Newton iterations and points unchanged, GMRES
 #: iterations 2,949 / 3,105 / 3,257, X equal to 2.4e-12).  The shifted stages of the
 #: EPMC on 480 Gauss points (error indicators off, round 44): 272.1 -> 212.2 s, the same
-#: 34 points, GMRES iterations 2,904 -> 3,101.
+#: 34 points, GMRES iterations 2,904 -> 3,101.  A stage from the stuck flexibility is
+#: shared only when shifted (round 56: the EPMC's tight bordered solves from
+#: ``preconditioner.SHIFTED_SPLIT_MIN_ROWS`` rows, whose shifted block is inverted; error
+#: indicators off, 240 points 8.16 -> 7.51 s, 480 points 26.32 -> 22.73 s; at 2e-2
+#: instead of 5e-3 9.02 and 26.20 s).
 SHARE_HARMONIC_STAGE = 5e-3
 
 #: A truncated low-rank stage that fails: after ``RAISE_AFTER`` solves in which a
@@ -211,8 +215,10 @@ class PreconditionerCache:
             return None
         if self.share_within_point:
             return P
+        # loose: see the constant; a modal stage is cheap to make, but a shifted one
+        # (its shifted block's n_r^3 inverse: the EPMC's bordered solves, round 56)
         if not (self.reuse and SHARE_HARMONIC_STAGE > 0) or jac.rtol >= SINGLE_LU_RTOL \
-                or P.modal:      # loose: see the constant; a modal stage is cheap to make
+                or (P.modal and P.C2 is None):
             return None
         change = abs(jac.freq.omega - P.omega) + abs(jac.freq.xi - P.xi)
         return P if change <= SHARE_HARMONIC_STAGE * abs(P.omega) else None

@@ -161,3 +161,43 @@ def test_a_large_tight_bordered_solve_is_built_as_a_loose_one(monkeypatch):
     assert not P.loose and not P.capacitance_solves and P.lowrank.lu is not None
     assert P.Pinv is not None and P.Pinv.dtype == np.complex128
     assert np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
+
+
+def test_a_loose_built_shifted_stage_is_shared_within_its_frequency(monkeypatch):
+    """The stage of a tight bordered solve built as a loose one (from the stuck
+    flexibility, its shifted block inverted: ``SHIFTED_SPLIT_MIN_ROWS``) is kept by a
+    build within ``SHARE_HARMONIC_STAGE`` of its frequency, which then builds only its
+    low-rank stage (split, solved through its capacitance system); the bordered solve
+    still equals the dense solve to 1e-9.  An unshifted stage from the flexibility is
+    not shared (it is cheap to make).  Four-DOF Jenkins chain, coupled N, a state with
+    slip and separation, omega 1.1 and 1.1 (1 + 1e-3)."""
+    import jointsim.solvers.jacobian as jm
+    from jointsim.solvers.epmc import EPMCSystem
+    from jointsim.solvers.modes import elastic_mode
+    model = build_model(four_dof("jenkins", "anchor", "coupled"))
+    sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    monkeypatch.setattr(pm, "SHIFTED_SPLIT_MIN_ROWS", sk.n_r)
+    monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
+    monkeypatch.setattr(pm, "LOOSE_SPLIT_SHARED_MIN", 0)
+    ep = EPMCSystem(sk, elastic_mode(model, 1).phi, sk.force_coefficients(0.0))
+    rng = np.random.default_rng(5)
+    z = rng.normal(size=sk.n_z) * 0.4
+    cache = sk.preconditioner
+    b = rng.normal(size=sk.n_z + 2)
+    stages = []
+    for w in (1.1, 1.1 * (1.0 + 1e-3)):
+        A = jm.drop_last_column(ep.fun(np.concatenate([z, [w, 0.01, 0.0]]))[1])
+        cache.forget()                              # a build for each (the stage kept)
+        x = A.solve(b)
+        xd = np.linalg.solve(A.to_dense(), b)
+        assert np.abs(x - xd).max() <= 1e-9 * np.abs(xd).max()
+        stages.append(cache.current)
+    full, partial = stages
+    assert full.loose and full.modal and full.C2 is not None and not full.partial
+    assert partial.partial and partial.Pinv is full.Pinv and partial.C2 is full.C2
+    assert partial.capacitance_solves
+    J = sk.evaluate(z, 1.1, sk.force_coefficients(0.0)).J
+    cache.forget(stage=True)
+    unshifted = cache.refresh(J)
+    assert unshifted.modal and unshifted.C2 is None
+    assert not cache.refresh(J).partial
