@@ -259,20 +259,30 @@ def test_a_shared_harmonic_stage_is_exact_at_its_frequency(law, normal, monkeypa
     assert not cache.refresh(J2).partial
 
 
-def test_a_shifted_harmonic_stage_is_shared_with_its_shift(monkeypatch):
+@pytest.mark.parametrize("stage", ["inverted", "flexibility"])
+def test_a_shifted_harmonic_stage_is_shared_with_its_shift(stage, monkeypatch):
     """The EPMC's bordered solves precondition ``J + C2 R2`` (a shift on the
     fundamental's block).  A build at a frequency within ``SHARE_HARMONIC_STAGE`` of the
     last full shifted one keeps that stage and its shift ``C2``, builds only its low-rank
     stage, and the bordered solve with it still equals the dense solve to 1e-8.  An
-    unshifted build does not share a shifted stage.  Four-DOF Jenkins chain, coupled N,
-    a state with slip and separation, omega 1.1 and 1.1 (1 + 1e-3)."""
+    unshifted build does not share a shifted stage.  So for a stage of inverted blocks
+    and for one from the stuck flexibility with its shifted block inverted (a tight
+    bordered solve built as a loose one, ``SHIFTED_SPLIT_MIN_ROWS``; its low-rank stage
+    split and solved through its capacitance system), which an unshifted stage from the
+    flexibility is not (it is cheap to make).  Four-DOF Jenkins chain, coupled N, a state
+    with slip and separation, omega 1.1 and 1.1 (1 + 1e-3)."""
     import jointsim.solvers.jacobian as jm
     import jointsim.solvers.preconditioner as pm
     from jointsim.solvers.epmc import EPMCSystem
     from jointsim.solvers.modes import elastic_mode
-    monkeypatch.setattr(pm, "MODAL_STAGE", False)     # a stage of inverted blocks
     model = build_model(four_dof("jenkins", "anchor", "coupled"))
     sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    if stage == "inverted":
+        monkeypatch.setattr(pm, "MODAL_STAGE", False)
+    else:
+        monkeypatch.setattr(pm, "SHIFTED_SPLIT_MIN_ROWS", sk.n_r)
+        monkeypatch.setattr(pm, "LOOSE_SPLIT_MIN", 0)
+        monkeypatch.setattr(pm, "LOOSE_SPLIT_SHARED_MIN", 0)
     ep = EPMCSystem(sk, elastic_mode(model, 1).phi, sk.force_coefficients(0.0))
     rng = np.random.default_rng(5)
     z = rng.normal(size=sk.n_z) * 0.4
@@ -290,7 +300,13 @@ def test_a_shifted_harmonic_stage_is_shared_with_its_shift(monkeypatch):
     assert not full.partial and full.C2 is not None and cache.stage is full
     assert partial.partial and partial.Pinv is full.Pinv and partial.C2 is full.C2
     assert partial.omega == 1.1
-    assert not cache.refresh(sk.evaluate(z, 1.1, sk.force_coefficients(0.0)).J).partial
+    assert full.modal == full.loose == (stage == "flexibility")
+    assert partial.capacitance_solves == (stage == "flexibility")
+    J = sk.evaluate(z, 1.1, sk.force_coefficients(0.0)).J
+    assert not cache.refresh(J).partial
+    if stage == "flexibility":
+        assert cache.stage.modal and cache.stage.C2 is None
+        assert not cache.refresh(J).partial
 
 
 def test_single_precision_harmonic_inverses_but_the_fundamental(monkeypatch):
