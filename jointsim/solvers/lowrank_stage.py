@@ -268,7 +268,8 @@ def coarse_aggregates(positions, kind, size: int) -> np.ndarray:
     positions : ndarray, shape (n_rb, d)
         Position of each row block [m].
     kind : ndarray of int, shape (n_rb,)
-        Its kind (slip rows 0, gap rows 1): an aggregate holds one kind.
+        Its kind (the index of its rows in :func:`element_tangent`'s ``rows``: slip rows,
+        then gap rows): an aggregate holds one kind.
     size : int
         Row blocks per aggregate at most.
 
@@ -308,7 +309,7 @@ def capacitance_coarse(jac, PinvR, Lr4, R, blk_el, Rrow, kind) -> tuple | None:
     Rrow : ndarray of int, shape (n_rb,)
         Contact coordinate of each row block.
     kind : ndarray of int, shape (n_rb,)
-        Kind of each row block (slip rows 0, gap rows 1).
+        Kind of each row block (as in :func:`coarse_aggregates`).
 
     Returns
     -------
@@ -320,7 +321,7 @@ def capacitance_coarse(jac, PinvR, Lr4, R, blk_el, Rrow, kind) -> tuple | None:
     """
     if not COARSE_ROW_BLOCKS or len(Rrow) <= COARSE_ROW_BLOCKS:
         return None
-    pos = getattr(jac.lin, "positions", None)
+    pos = jac.lin.positions
     agg = coarse_aggregates(np.arange(len(Rrow), dtype=float)[:, None] if pos is None
                             else np.asarray(pos)[Rrow], kind, COARSE_ROW_BLOCKS)
     nrb, nc, nb, _ = Lr4.shape

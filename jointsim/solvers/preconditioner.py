@@ -223,8 +223,8 @@ class HarmonicPreconditioner:
         # a loose solve whose low-rank stage needs few columns of P_h^-1: a stage applied
         # by solves (SOLVED_STAGE_COLUMNS), the flexibility's first, else the hierarchical
         loose = by_solves and jac.rtol >= SOLVED_STAGE_RTOL and shift is None
-        # shifted (the EPMC's bordered solves): a loose solve (its correction is split by
-        # harmonics, never truncated), or a large one near the stuck joint
+        # shifted (the EPMC's bordered solves): built as a loose solve (its correction is
+        # split, never truncated: self.loose), or a large one near the stuck joint
         loose_solve = self.loose
         flex = jac.lin.flexibility if MODAL_STAGE and modal and (
             shift is None or nr >= SHIFTED_FLEX_MIN_ROWS or loose_solve) else None
