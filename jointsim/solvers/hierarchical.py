@@ -266,7 +266,8 @@ class HODLR:
                 if r0 == r1 or c0 == c1:
                     continue
                 # (k, n_h, c) complex as real (k, 2 n_h c): one real product
-                Vz = V[b][:, tc[c0:c1] - clo][:, None, :] * spow[pid[b]][:, :, None]
+                Vz = np.ascontiguousarray(     # (one harmonic's may come out transposed)
+                    V[b][:, tc[c0:c1] - clo][:, None, :] * spow[pid[b]][:, :, None])
                 Y = (U[b][tr[r0:r1] - rlo] @ Vz.view(float).reshape(Vz.shape[0], -1))
                 out[:, r0:r1, c0:c1] += Y.view(complex).reshape(r1 - r0, n_h, c1 - c0) \
                     .transpose(1, 0, 2)

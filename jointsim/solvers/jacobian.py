@@ -694,7 +694,7 @@ class BorderedJacobian:
 
             def psolve(v):
                 if not got:     # P^-1 (C + C2 D_2), on the first use (a GMRES run from
-                    X = np.column_stack([pj(c) for c in Ce.T])  # a solution makes none)
+                    X = pj(Ce)  # a solution makes none; every column in one application)
                     got.update(X=X, Sinv=np.linalg.pinv(D - R @ X))
                 w = pj(lift(v))
                 s = got["Sinv"] @ (v[nz:] - R @ w)

@@ -21,7 +21,7 @@ import scipy.linalg as sla
 
 from ..linalg import stacked_inverse
 from .gmres import gmres_columns
-from .flexibility import FlexibilitySolve
+from .flexibility import FlexibilitySolve, ShiftedBlock
 from .hierarchical import HierarchicalInverse, schur_entries
 from .lowrank_stage import (LowRankStage, RowBlocks, capacitance_blocks,
                             capacitance_coarse, capacitance_element_blocks, element_tangent)
@@ -240,7 +240,7 @@ class HarmonicPreconditioner:
             self.S, self.Plu, self.Pinv, self.Pinv_double = None, None, None, {}
             self.proj = stuck
             self.Psolve = FlexibilitySolve(flex, nus, self.xi, None if shift is None else
-                                           (shift[0], self._shifted_inverse(stuck, shift)))
+                                           (shift[0], self._shifted_block(shift)))
             return
         if loose and nr >= HIERARCHICAL_STAGE_MIN_ROWS and jac.freq.hierarchical is not None \
                 and self._few_columns(proj()):
@@ -344,7 +344,8 @@ class HarmonicPreconditioner:
         self.S, self.Plu, self.Pinv_double = None, None, {}
         self.proj = stuck
         nus = np.asarray(jac.basis.harmonics, dtype=float) * self.omega
-        shifted = None if shift is None else (shift[0], self._shifted_inverse(stuck, shift))
+        shifted = None if shift is None else (
+            shift[0], self._shifted_block(shift).columns(np.arange(jac.n_r)))
         loose = self.loose                       # single precision, LOOSE_DOUBLE_HARMONICS
         single = None if loose else self._single_harmonics()
         # (flex keeps them, read-only, for the builds at one frequency: copied if replaced)
@@ -360,14 +361,20 @@ class HarmonicPreconditioner:
             if shifted[0] in self.Pinv_double:
                 self.Pinv_double[shifted[0]] = shifted[1]
 
-    def _shifted_inverse(self, stuck, shift) -> np.ndarray:
-        """The inverse of the shifted harmonic's ``S_h + diag(k)`` plus the shift, (n_r, n_r)
-        complex (the flexibility is singular there, the linear mode ``J``'s null vector)."""
+    def _shifted_block(self, shift) -> ShiftedBlock:
+        """The inverse of the shifted harmonic's ``S_h + diag(k)`` plus the shift from the
+        flexibility (:class:`~jointsim.solvers.flexibility.ShiftedBlock`; the
+        flexibility is singular there, the linear mode ``J``'s null vector).  The shift's
+        scale is the largest diagonal entry of the block's static and inertial part
+        (``K_qq + diag(k) - s M_qq``; ``S_h`` is not formed)."""
         jac, i = self.jac, shift[0]
-        P = np.array(jac.schur(i), dtype=complex)
-        add_projected_tangent(P, jac, i, stuck)
-        P += self._rank_one(P, i, shift[1], shift[2])
-        return stacked_inverse(P[None])[0]
+        lin, flex = jac.lin, jac.lin.flexibility
+        nu = float(jac.basis.harmonics[i]) * self.omega
+        s = nu * nu + 1j * nu * self.xi
+        scale = float(np.abs(np.diag(lin.K["qq"]) + flex.k - s * np.diag(lin.M["qq"])).max(
+            initial=0.0))
+        su, ell = self._shift(scale, i, shift[1], shift[2])
+        return ShiftedBlock(flex, nu, self.xi, su, ell)
 
     def _inverse_times(self, X) -> np.ndarray:
         """``P_h^-1 X[h]`` for every harmonic; ``X`` (n_h, n_r, k) complex."""
@@ -468,13 +475,18 @@ class HarmonicPreconditioner:
 
     def _rank_one(self, P, i, u, ell):
         """``sigma u ell^T`` for the ``i``-th harmonic block ``P``; sets ``self.C2``."""
-        jac = self.jac
+        su, ell = self._shift(float(np.abs(np.diag(P)).max(initial=0.0)), i, u, ell)
+        return np.outer(su, ell)
+
+    def _shift(self, scale, i, u, ell):
+        """``(sigma u, ell)`` of the shift of the ``i``-th harmonic, ``sigma`` making its
+        largest entry about ``scale`` (zero where any of them is); sets ``self.C2``."""
+        jac, self.shift_scale = self.jac, scale
         u = np.asarray(u, dtype=complex)
         ell = np.asarray(ell, dtype=complex)
         un, ln = float(np.linalg.norm(u)), float(np.linalg.norm(ell))
-        scale = float(np.abs(np.diag(P)).max(initial=0.0))
         if un == 0.0 or ln == 0.0 or scale == 0.0:
-            return np.zeros_like(P)
+            return np.zeros_like(u), ell
         su = (scale / (un * ln)) * u
         nr = jac.n_r
         C2 = np.zeros((jac.n_c, nr, 2))
@@ -483,7 +495,7 @@ class HarmonicPreconditioner:
             if not jac._h0[i]:
                 C2[jac._is[i], :, k] = -y.imag
         self.C2 = C2.reshape(jac.n_z, 2)
-        return np.outer(su, ell)
+        return su, ell
 
     def _selection(self) -> "RowBlocks | None":
         """The row blocks of the low-rank stage with ``P`` holding ``self.proj``

@@ -162,8 +162,8 @@ def test_modal_preconditioner_is_the_inverse_of_the_jacobian(law, normal, monkey
     its low-rank stage would be truncated the blocks are inverted instead.  With a shift
     (the EPMC's bordered solves) it is taken only from ``SHIFTED_FLEX_MIN_ROWS`` rows and
     near the stuck joint (few elements off the stuck tangent), the shifted harmonic's
-    block inverted: there it is the same preconditioner of ``J + C2 R2`` as the
-    inverted blocks'."""
+    block from the flexibility too (:class:`~jointsim.solvers.flexibility.ShiftedBlock`):
+    there it is the same preconditioner of ``J + C2 R2`` as the inverted blocks'."""
     model = build_model(four_dof(law, "anchor", normal))
     sd = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="direct")
     sk = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
@@ -184,6 +184,9 @@ def test_modal_preconditioner_is_the_inverse_of_the_jacobian(law, normal, monkey
     assert not HarmonicPreconditioner(J, shift=(1, u, u.conj())).modal
     Ps = HarmonicPreconditioner(Jstuck, shift=(1, u, u.conj()))
     monkeypatch.setattr(pm, "MODAL_STAGE", False)
+    # the inverted blocks shifted with the same scale (the flexibility's is not P's)
+    monkeypatch.setattr(pm.HarmonicPreconditioner, "_rank_one", lambda self, P, i, u, ell:
+                        np.outer(*self._shift(Ps.shift_scale, i, u, ell)))
     Pd = HarmonicPreconditioner(Jstuck, shift=(1, u, u.conj()))
     monkeypatch.setattr(pm, "MODAL_STAGE", True)
     assert Ps.modal and not Pd.modal and Ps.lowrank is None
@@ -403,7 +406,8 @@ def test_a_loose_solves_stage_is_the_compressed_flexibility_for_any_columns(coar
                                                                          monkeypatch):
     """With the series compressed, a loose solve (the error indicators') takes the
     flexibility applied by solves whatever its low-rank stage keeps, shifted too (the
-    EPMC's bordered solves: its shifted harmonic's block inverted alone).  Where the
+    EPMC's bordered solves: its shifted harmonic's block from
+    :class:`~jointsim.solvers.flexibility.ShiftedBlock`).  Where the
     stage keeps many row blocks only their rows ``R`` of its columns are read and the
     correction is a solve (``PinvR`` not formed).  The preconditioner then solves ``J``
     (``J + C2 R2`` with the shift) like the dense solve: exact but for the HODLR's
@@ -434,3 +438,49 @@ def test_a_loose_solves_stage_is_the_compressed_flexibility_for_any_columns(coar
         xd = np.linalg.solve(A, v)
         for Q in (P, P0):
             assert np.abs(Q.solve(v) - xd).max() <= 1e-4 * np.abs(xd).max()
+
+
+@pytest.mark.parametrize("case", ["lumped", "undamped", "lap"])
+def test_shifted_block_is_the_inverse_where_the_stuck_block_is_singular(case, request):
+    """At a stuck resonance of the self-excited mode (``nu = omega_j`` and ``xi = c_j``:
+    the EPMC's linear range) ``S_h + diag(k)`` is singular; with the shift ``u ell'`` it
+    is not, and :class:`~jointsim.solvers.flexibility.ShiftedBlock` is its inverse (the
+    oracle: the condensation's block plus the shift, inverted by LU) to the flexibility's
+    accuracy: its columns, on some rows, and its solves.  The resonant mode is a damped
+    one (mass-proportional damping: every mode damped; the lap joint: 12 of them) or an
+    undamped low one (no damping)."""
+    if case == "lap":
+        model, rtol = request.getfixturevalue("coarse_model"), 1e-5
+    else:
+        C = np.zeros((4, 4)).tolist() if case == "undamped" else None
+        model, rtol = build_model(four_dof("jenkins", "anchor", "coupled", C=C)), 1e-10
+    system = HBMSystem(model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    fl = system.lin.flexibility
+    j = int(np.argsort(fl.lam)[3 if case == "lap" else 0])   # lap: the first bending mode
+    nu = float(np.sqrt(fl.lam[j]))
+    xi = 0.0 if j not in fl.damped else float(fl.Cd[np.flatnonzero(fl.damped == j)[0]] @ (
+        fl.damped == j))
+    A = _blocks(system.lin, fl.k, [nu], xi)[0]
+    assert np.linalg.cond(A) > (1e3 if case == "lap" else 1e10)     # (nearly) singular
+    rng = np.random.default_rng(3)
+    u, ell = (rng.standard_normal((2, fl.n_r)) + 1j * rng.standard_normal((2, fl.n_r)))
+    u *= np.abs(np.diag(A)).max() / (np.linalg.norm(u) * np.linalg.norm(ell))
+    ref = np.linalg.inv(A + np.outer(u, ell))
+    block = fx.ShiftedBlock(fl, nu, xi, u, ell)
+    assert np.abs(block.columns(np.arange(fl.n_r)) - ref).max() <= rtol * np.abs(ref).max()
+    cols, rows = np.array([fl.n_r - 1, 0]), np.array([1, fl.n_r - 1])
+    assert np.abs(block.columns(cols, rows) - ref[np.ix_(rows, cols)]).max() \
+        <= rtol * np.abs(ref).max()
+    Y = rng.standard_normal((fl.n_r, 3)) + 0j
+    assert np.abs(block.solve(Y) - ref @ Y).max() <= rtol * np.abs(ref @ Y).max()
+    # as the shifted harmonic of a stage applied by solves (its regular part solved with
+    # the other harmonics')
+    nus = np.array([0.5 * nu, nu, 2.0 * nu])
+    stage = fx.FlexibilitySolve(fl, nus, xi, (1, block))
+    Y3 = rng.standard_normal((3, fl.n_r, 2)) + 0j
+    out, plain = stage.solve(Y3), fl.solve(nus, Y3, xi)
+    assert np.abs(out[1] - ref @ Y3[1]).max() <= rtol * np.abs(ref @ Y3[1]).max()
+    assert np.array_equal(out[[0, 2]], plain[[0, 2]])
+    C, Cp = stage.columns(cols, rows), fl.columns(nus, cols, xi, rows)
+    assert np.abs(C[1] - ref[np.ix_(rows, cols)]).max() <= rtol * np.abs(ref).max()
+    assert np.array_equal(C[[0, 2]], Cp[[0, 2]])
