@@ -133,10 +133,11 @@ def _indicators(writer, a, system, ep, omega0, xi0):
     done = writer.h5["epmc"].attrs.get("branch_status", "") in ("complete", "gave up")
     n = pool_workers(a.workers, len(missing) if done else None, system.n_z) \
         if system.n_z else 1
-    if n > 1:
-        system.prepare_forks(omega0, xi0)   # shared by the workers
     # the workers never start numba threads (a forked process must not): parallel=False
     estimator = ErrorEstimator(system, parallel=n == 1)
+    if n > 1:       # shared by the workers: the extended system's first, which serve both
+        for s in (estimator, system):
+            s.prepare_forks(omega0, xi0)
     steps = a.error_newton_steps
     inds = PointIndicators(writer, "epmc",
                            lambda y: safe_indicators(estimator.epmc, ep, y, steps),

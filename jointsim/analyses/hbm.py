@@ -654,10 +654,9 @@ def _estimator(system, a, parallel: bool) -> ErrorEstimator:
 
 
 def _indicator_pool(writer, a, system, workers):
-    """The error indicators of the FRC points computed in this process
-    (:class:`~jointsim.analyses.indicator_pool.PointIndicators`): on ``workers``
-    forked workers (:func:`~jointsim.analyses.indicator_pool.pool_workers`), or
-    serially when that is 1.  Stored rows left NaN (a killed run) are submitted first."""
+    """The FRC points' error indicators (:class:`~.indicator_pool.PointIndicators`): on
+    ``workers`` forked workers (:func:`~.indicator_pool.pool_workers`), or serially when
+    that is 1.  Stored rows left NaN (a killed run) are submitted first."""
     from ..io.hbm_points import pad_error_indicators
     from .indicator_pool import PointIndicators, pool_workers
 
@@ -668,8 +667,9 @@ def _indicator_pool(writer, a, system, workers):
     writer.h5["hbm"].attrs["indicator_workers"] = n
     if n == 1 and not missing.size:   # serial: each branch computes its own
         return PointIndicators(writer, "hbm", None, ToleranceWatch(a.error_tol, "hbm"), 1)
-    system.prepare_forks(max(a.omega_start, a.omega_end))   # before a fork: shared
     estimator = _estimator(system, a, n == 1 and system.aft.parallel)
+    for s in (estimator, system):     # before a fork, shared: the extended one serves both
+        s.prepare_forks(max(a.omega_start, a.omega_end))
     forces = {ib: system.force_coefficients(fs) for ib, fs in enumerate(a.force_scale)}
     inds = PointIndicators(
         writer, "hbm", lambda z, w, ib: safe_indicators(estimator.hbm, z, w, forces[ib]),

@@ -211,8 +211,10 @@ class HBMSystem:
     def prepare_forks(self, omega_max: float, xi: float = 0.0) -> None:
         """Make the condensation's one-time pieces that the Krylov solves use before
         workers are forked, so that the workers share them instead of each making them
-        again: the stuck joint's flexibility (an eigen-decomposition, ``n^3``, and its
-        quasi-static series, ``n_r^2`` per mode) and the hierarchical interface operator
+        again: the stuck joint's flexibility (an eigen-decomposition, ``n^3``, its
+        quasi-static series, ``n_r^2`` per mode, and that series' HODLR on a large
+        interface, :meth:`~.flexibility.StuckFlexibility.compressed`) and the
+        hierarchical interface operator
         (its quasi-static split and ``G_p``, ``n_r^2 n_y``), made for every harmonic up
         to ``omega_max``.  (Made on first use instead, the series was made twice in each
         worker of the 480-Gauss-point FRC, about 0.4 s each: for the first frequencies
@@ -233,6 +235,7 @@ class HBMSystem:
             h_max = max(self.basis.harmonics)
             if flex is not None and h_max > 0:
                 flex.prepare(h_max * float(omega_max))
+                flex.compressed(h_max * float(omega_max))   # its HODLR, where kept so
             self.harmonic_blocks(float(omega_max), float(xi)).hierarchical
 
     # -- residual --------------------------------------------------------------

@@ -153,6 +153,35 @@ def test_prepare_forks_makes_the_series_for_the_highest_harmonic_once(coarse_mod
         assert np.abs(Y[i] - Ye[i]).max() <= 1e-10 * np.abs(Ye[i]).max()
 
 
+def test_indicators_prepare_forks_makes_one_series_for_both_systems(coarse_model,
+                                                                    monkeypatch):
+    """``ErrorEstimator.prepare_forks`` makes the series (and, on a large interface, its
+    HODLR) for the extended harmonics, up to ``2 h_max + 1``, before indicator workers
+    fork; the point system's ``prepare_forks`` after it and the solves of both systems
+    then make nothing again, and the point system's solves equal those of a flexibility
+    with its own, lower series (to the HODLR's 1e-8; both to the sum over all modes)."""
+    from jointsim.solvers.indicators import ErrorEstimator
+    monkeypatch.setattr(fx, "FLEX_HODLR_MIN_ROWS", 0)
+    monkeypatch.setattr(fx, "FLEX_HODLR_LEAF", 8)
+    system = HBMSystem(coarse_model, (0, 1, 2, 3), 64, linear_solver="krylov")
+    estimator = ErrorEstimator(system, parallel=False)
+    for s in (estimator, system):
+        s.prepare_forks(1100.0)
+    fl = system.lin.flexibility
+    series, hodlr = fl._series, fl._series_hodlr()
+    assert max(estimator.harmonics) == 7 and hodlr is not None
+    assert series[0] == pytest.approx(fx.FLEX_MARGIN * 7 * 1100.0)
+    B = np.random.default_rng(2).standard_normal((3, fl.n_r)) + 0j
+    Y = fl.solve([1100.0, 2200.0, 3300.0], B)
+    fl.solve([4400.0, 6600.0, 7700.0], B)
+    assert fl._series is series and fl._series_hodlr()[1] is hodlr[1]     # not made again
+    own = fx.StuckFlexibility(fl.lam, fl.Psi, fl.k, fl.damped, fl.Cd)
+    own.prepare(3300.0)
+    assert own._series[0] < series[0] and own._series_hodlr() is None
+    Yo = own.solve([1100.0, 2200.0, 3300.0], B)
+    assert np.abs(Y - Yo).max() <= 1e-8 * np.abs(Yo).max()
+
+
 @pytest.mark.parametrize("law,normal", [("jenkins", "coupled"), ("iwan4", "coupled"),
                                         ("jenkins", "fixed")])
 def test_modal_preconditioner_is_the_inverse_of_the_jacobian(law, normal, monkeypatch):
