@@ -329,20 +329,27 @@ def capacitance_coarse(jac, PinvR, Lr4, R, blk_el, Rrow, kind) -> tuple | None:
     na = int(agg.max()) + 1
     A = np.zeros((nrb, na))
     A[np.arange(nrb), agg] = 1.0
-    E = np.zeros((na, nc, na, nc))
+    # the row blocks in aggregate order, so that Z^T sums contiguous runs of them
+    # (np.add.reduceat: a product with A^T cost 20 of a build's 53 ms at 480 points)
+    order = np.argsort(agg, kind="stable")
+    starts = np.searchsorted(agg[order], np.arange(na))
+    Lt = np.ascontiguousarray(np.moveaxis(Lr4[order], 3, 0))     # (n_c, nrb, n_c, nb)
+    el = blk_el[order]
+    Et = np.zeros((nc, na, nc, na))          # E[a, c, a', c'] at Et[c', a, c, a']
     for i, h in enumerate(jac.basis.harmonics):
         # G's (R, aggregate) part of harmonic h, per row block's element: (nrb, nb, n_a)
-        W = (PinvR[i] @ A)[R].reshape(nb, nl, na).transpose(1, 0, 2)[blk_el]
+        W = (PinvR[i] @ A)[R].reshape(nb, nl, na).transpose(1, 0, 2)[el]
         ic, is_ = jac._ic[i], jac._is[i]
+        Lh = Lt[ic] + 1j * Lt[is_] if h else Lt[ic]                # (nrb, n_c, nb)
+        W = W if h else W.real
+        V = Lh[:, :, 0, None] * W[:, None, 0, :]                   # (nrb, n_c, n_a)
+        for x in range(1, nb):
+            V += Lh[:, :, x, None] * W[:, None, x, :]
+        S = np.add.reduceat(V, starts, axis=0)                     # (n_a, n_c, n_a)
+        Et[ic] += S.real
         if h:
-            V = np.matmul(Lr4[:, :, :, ic] + 1j * Lr4[:, :, :, is_], W)   # (nrb, nc, na)
-            E[..., ic] += (A.T @ np.ascontiguousarray(V.real).reshape(nrb, -1)) \
-                .reshape(na, nc, na)
-            E[..., is_] += (A.T @ np.ascontiguousarray(V.imag).reshape(nrb, -1)) \
-                .reshape(na, nc, na)
-        else:
-            V = np.matmul(Lr4[:, :, :, ic], np.ascontiguousarray(W.real))
-            E[..., ic] += (A.T @ V.reshape(nrb, -1)).reshape(na, nc, na)
+            Et[is_] += S.imag
+    E = Et.transpose(1, 2, 3, 0).copy()
     a, c = np.meshgrid(np.arange(na), np.arange(nc), indexing="ij")
     E[a, c, a, c] += A.sum(axis=0)[:, None]     # Z^T Z: the aggregates' sizes
     return A, sla.lu_factor(E.reshape(na * nc, na * nc), check_finite=False)
