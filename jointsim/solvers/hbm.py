@@ -214,9 +214,8 @@ class HBMSystem:
         again: the stuck joint's flexibility (an eigen-decomposition, ``n^3``, its
         quasi-static series, ``n_r^2`` per mode, and that series' HODLR on a large
         interface, :meth:`~.flexibility.StuckFlexibility.compressed`) and the
-        hierarchical interface operator
-        (its quasi-static split and ``G_p``, ``n_r^2 n_y``), made for every harmonic up
-        to ``omega_max``.  (Made on first use instead, the series was made twice in each
+        hierarchical interface operator (its quasi-static split and ``G_p``, ``n_r^2
+        n_y``), made for every harmonic up to ``omega_max``.  (Made on first use instead, the series was made twice in each
         worker of the 480-Gauss-point FRC, about 0.4 s each: for the first frequencies
         of ``frc_scales`` and again for the higher harmonics; round 47.)
 
