@@ -374,6 +374,13 @@ class StuckFlexibility:
         self._last[bool(single)] = (key, out)
         return out
 
+    def solve_flops(self, n_h: int) -> float:
+        """Real flops of :meth:`solve` of one column at ``n_h`` frequencies: the low modes,
+        the quasi-static series (its HODLR where kept so) and the damped modes."""
+        hz = self._series_hodlr()
+        series = 4.0 * (hz[1].stored if hz is not None else FLEX_ORDER * self.n_r ** 2)
+        return n_h * (8.0 * self.n_r * (self._series[1].shape[1] + self.damped.size) + series)
+
     def solve(self, nus, B, xi: float = 0.0, regular=False) -> np.ndarray:
         """``(S_h + diag(k))^-1 b_h`` at each frequency, without forming the inverses
         (at the frequencies ``regular``, its regular part's: :meth:`columns`).
@@ -514,10 +521,7 @@ class ShiftedBlock:
     @property
     def apply_flops(self) -> float:
         """Real flops of one solve of one column (about one harmonic's flexibility solve)."""
-        f = self.flex
-        hz = f._series_hodlr()
-        series = 4.0 * (hz[1].stored if hz is not None else FLEX_ORDER * f.n_r ** 2)
-        return 8.0 * f.n_r * f._series[1].shape[1] + series + self.finish_flops
+        return self.flex.solve_flops(1) + self.finish_flops
 
     @property
     def finish_flops(self) -> float:
@@ -564,11 +568,7 @@ class FlexibilitySolve:
     def apply_flops(self) -> float:
         """Real flops of one solve of one column (every harmonic): the low modes, the
         quasi-static series and the damped modes (and the shifted block's bordering)."""
-        f = self.flex
-        n_l = f._series[1].shape[1]
-        hz = f._series_hodlr()
-        series = 4.0 * (hz[1].stored if hz is not None else FLEX_ORDER * f.n_r ** 2)
-        return self.nus.size * (8.0 * f.n_r * n_l + series + 8.0 * f.n_r * f.damped.size) \
+        return self.flex.solve_flops(self.nus.size) \
             + (self.shifted[1].finish_flops if self.shifted is not None else 0.0)
 
     def solve(self, Y: np.ndarray) -> np.ndarray:
