@@ -262,7 +262,8 @@ class HarmonicPreconditioner:
             P[...] = self.S[i]
             add_projected_tangent(P, jac, i, self.proj)
             if shift is not None and shift[0] == i:
-                P += self._rank_one(P, i, shift[1], shift[2])
+                P += np.outer(*self._shift(float(np.abs(np.diag(P)).max(initial=0.0)),
+                                           i, shift[1], shift[2]))
         self.Pinv, self.Plu, self.Pinv_double = None, None, {}
         if FACTORED_LOOSE_STAGE and self.loose:
             # a loose solve: single-precision LU factors (FACTORED_LOOSE_STAGE)
@@ -472,11 +473,6 @@ class HarmonicPreconditioner:
             apply += matvec + 2.0 * ne * d * d
         self.build_flops = build
         self.iteration_flops = apply + matvec + 4.0 * nz * 20
-
-    def _rank_one(self, P, i, u, ell):
-        """``sigma u ell^T`` for the ``i``-th harmonic block ``P``; sets ``self.C2``."""
-        su, ell = self._shift(float(np.abs(np.diag(P)).max(initial=0.0)), i, u, ell)
-        return np.outer(su, ell)
 
     def _shift(self, scale, i, u, ell):
         """``(sigma u, ell)`` of the shift of the ``i``-th harmonic, ``sigma`` making its

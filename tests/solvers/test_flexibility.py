@@ -214,8 +214,9 @@ def test_modal_preconditioner_is_the_inverse_of_the_jacobian(law, normal, monkey
     Ps = HarmonicPreconditioner(Jstuck, shift=(1, u, u.conj()))
     monkeypatch.setattr(pm, "MODAL_STAGE", False)
     # the inverted blocks shifted with the same scale (the flexibility's is not P's)
-    monkeypatch.setattr(pm.HarmonicPreconditioner, "_rank_one", lambda self, P, i, u, ell:
-                        np.outer(*self._shift(Ps.shift_scale, i, u, ell)))
+    shift = pm.HarmonicPreconditioner._shift
+    monkeypatch.setattr(pm.HarmonicPreconditioner, "_shift", lambda self, scale, i, u, ell:
+                        shift(self, Ps.shift_scale, i, u, ell))
     Pd = HarmonicPreconditioner(Jstuck, shift=(1, u, u.conj()))
     monkeypatch.setattr(pm, "MODAL_STAGE", True)
     assert Ps.modal and not Pd.modal and Ps.lowrank is None
