@@ -11,6 +11,7 @@ the harmonic preconditioner's blocks (:mod:`jointsim.solvers.preconditioner`).
 """
 from __future__ import annotations
 
+import functools
 import logging
 from concurrent.futures import ThreadPoolExecutor
 
@@ -50,6 +51,64 @@ def stacked_inverse(blocks, in_double: bool = False) -> np.ndarray:
     except np.linalg.LinAlgError:
         log.debug("a singular block: its pseudo-inverse is used")
         return np.linalg.pinv(blocks)
+
+
+class PackedSymmetric:
+    """Stacked blocks for products with one vector, the complex symmetric ones kept by
+    their upper triangles (BLAS packed storage, ``cspmv`` and ``zspmv``): such a product
+    reads half the memory of the full block, and it is memory-bound (the harmonic
+    preconditioner's stage from the stuck flexibility, ``S_h + diag(k)`` complex
+    symmetric: docs/hbm.md, "Round 58").
+
+    Parameters
+    ----------
+    blocks : sequence of ndarray, shape (n, n), complex64 or complex128
+        The blocks; a symmetric one's lower triangle is not read.
+    symmetric : sequence of bool
+        Which blocks are symmetric (the others are kept whole and multiplied as they are).
+    """
+
+    def __init__(self, blocks, symmetric):
+        self.n = n = blocks[0].shape[0]
+        upper = _upper_triangle(n)
+        # (the upper triangle by rows is the lower one by columns: spmv's lower=1 layout)
+        self.parts = [(sla.get_blas_funcs("spmv", (B,)), np.take(B.reshape(-1), upper))
+                      if sym else (None, B) for B, sym in zip(blocks, symmetric)]
+
+    def times(self, x) -> np.ndarray:
+        """Each block times its vector: ``x`` (n_h, n) complex, returns (n_h, n) complex128."""
+        out = np.empty(x.shape, dtype=complex)
+        for i, (spmv, a) in enumerate(self.parts):
+            xi = x[i].astype(a.dtype, copy=False)
+            out[i] = a @ xi if spmv is None else spmv(self.n, 1.0, a, xi, lower=1)
+        return out
+
+
+def mixed_times(P, double: dict, X) -> np.ndarray:
+    """``P[h] X[h]`` for every ``h``, in ``P``'s precision (often single) but for the blocks
+    ``double`` holds in double instead (``{h: (n, m) complex128}``).
+
+    Parameters
+    ----------
+    P : ndarray, shape (n_h, n, m)
+    double : dict
+    X : ndarray, shape (n_h, m, k), complex
+
+    Returns
+    -------
+    ndarray, shape (n_h, n, k), complex128
+    """
+    Y = np.empty((P.shape[0], P.shape[1], X.shape[2]), dtype=complex)
+    for h in range(P.shape[0]):
+        B = double.get(h, P[h])
+        Y[h] = B @ X[h].astype(B.dtype, copy=False)
+    return Y
+
+
+@functools.lru_cache(maxsize=4)
+def _upper_triangle(n: int) -> np.ndarray:
+    """The flat indices of an (n, n) array's upper triangle, row by row."""
+    return np.flatnonzero(np.triu(np.ones((n, n), dtype=bool)))
 
 
 def _lapack_inverse(A) -> np.ndarray:

@@ -410,6 +410,7 @@ class HBMJacobian:
             Y[self._h0] = Y[self._h0].real
             self._from_complex(Y, out)
             return out.ravel() / self.col
+        flex.prepare(float(nus.max(initial=0.0)))    # one series for both steps (all harmonics)
         x = step(Bc, active)
         for _ in range(UNCOUPLED_REFINE + 1):
             r = b - self.matvec(x)

@@ -19,7 +19,7 @@ import logging
 import numpy as np
 import scipy.linalg as sla
 
-from ..linalg import stacked_inverse
+from ..linalg import PackedSymmetric, mixed_times, stacked_inverse
 from .gmres import gmres_columns
 from .flexibility import FlexibilitySolve, ShiftedBlock
 from .hierarchical import HierarchicalInverse, schur_entries
@@ -173,11 +173,10 @@ class HarmonicPreconditioner:
             if not base.shares_shift(shift):
                 raise ValueError("a harmonic stage is shared only by builds shifted on "
                                  "the same harmonic as it, or by unshifted ones")
-            self.Pinv, self.Plu, self.Psolve = base.Pinv, base.Plu, base.Psolve
-            self._columns = base._columns        # the columns of P_h^-1 made so far
-            self.proj, self.S, self.Pinv_double = base.proj, base.S, base.Pinv_double
-            self.omega, self.xi = base.omega, base.xi
-            self.modal = base.modal
+            # (with _columns, the columns of P_h^-1 made so far)
+            for name in ("Pinv", "Plu", "Psolve", "Ppacked", "_columns", "proj", "S",
+                         "Pinv_double", "omega", "xi", "modal"):
+                setattr(self, name, getattr(base, name))
             self.C2, shift = base.C2, base._shift
             self.partial = True
         else:
@@ -212,7 +211,7 @@ class HarmonicPreconditioner:
         solves ``self.Psolve``: ``SOLVED_STAGE_*``; ``self.proj``; ``S_h`` kept as
         ``self.S``); from the stuck flexibility instead where it applies (:meth:`_modal_stage`)."""
         jac, nr = self.jac, self.jac.n_r
-        self.omega, self.xi, self.Psolve = jac.freq.omega, jac.freq.xi, None
+        self.omega, self.xi, self.Psolve, self.Ppacked = jac.freq.omega, jac.freq.xi, None, None
         self._columns = None
 
         def proj():     # the complex-form projections of the (h, h) blocks, (n_h, n_e)
@@ -361,6 +360,9 @@ class HarmonicPreconditioner:
             self.Pinv[shifted[0]] = shifted[1]
             if shifted[0] in self.Pinv_double:
                 self.Pinv_double[shifted[0]] = shifted[1]
+        # a vector's product reads the upper triangles of the complex symmetric blocks
+        self.Ppacked = PackedSymmetric([self.Pinv_double.get(i, P) for i, P in enumerate(
+            self.Pinv)], [shifted is None or i != shifted[0] for i in range(nus.size)])
 
     def _shifted_block(self, shift) -> ShiftedBlock:
         """The inverse of the shifted harmonic's ``S_h + diag(k)`` plus the shift from the
@@ -383,12 +385,10 @@ class HarmonicPreconditioner:
             Y = self.Psolve.solve(X)
             Y[self.jac._h0] = Y[self.jac._h0].real
             return Y
+        if self.Ppacked is not None and X.shape[2] == 1:
+            return self.Ppacked.times(X[:, :, 0])[:, :, None]
         if self.Plu is None:
-            Y = np.matmul(self.Pinv, X.astype(self.Pinv.dtype, copy=False)).astype(
-                complex, copy=False)
-            for i, Pd in self.Pinv_double.items():
-                Y[i] = Pd @ X[i]
-            return Y
+            return mixed_times(self.Pinv, self.Pinv_double, X)
         Y = np.empty(X.shape, dtype=complex)
         for i, f in enumerate(self.Plu):
             Y[i] = sla.lu_solve(f, X[i].astype(f[0].dtype, copy=False), check_finite=False)
@@ -478,14 +478,12 @@ class HarmonicPreconditioner:
         """``(sigma u, ell)`` of the shift of the ``i``-th harmonic, ``sigma`` making its
         largest entry about ``scale`` (zero where any of them is); sets ``self.C2``."""
         jac, self.shift_scale = self.jac, scale
-        u = np.asarray(u, dtype=complex)
-        ell = np.asarray(ell, dtype=complex)
+        u, ell = np.asarray(u, dtype=complex), np.asarray(ell, dtype=complex)
         un, ln = float(np.linalg.norm(u)), float(np.linalg.norm(ell))
         if un == 0.0 or ln == 0.0 or scale == 0.0:
             return np.zeros_like(u), ell
         su = (scale / (un * ln)) * u
-        nr = jac.n_r
-        C2 = np.zeros((jac.n_c, nr, 2))
+        C2 = np.zeros((jac.n_c, jac.n_r, 2))
         for k, y in enumerate((su, 1j * su)):      # embed(y): cos rows Re y, sin rows -Im y
             C2[jac._ic[i], :, k] = y.real
             if not jac._h0[i]:
@@ -609,12 +607,16 @@ class HarmonicPreconditioner:
         # the selected columns of P_h^-1: the correction P^-1 E_r s lives on the Rrow
         # rows; G is their R rows.  From the compressed flexibility, only those rows
         # are read when the columns are many, and the correction is a solve
+        self.PinvR_double = {}
         if isinstance(self.Psolve, FlexibilitySolve) and nrb > SOLVED_STAGE_COLUMNS * jac.n_r:
             self.PinvR, PR, R_PR = None, self.Psolve.columns(Rrow, R), np.arange(R.size)
             PR[jac._h0] = PR[jac._h0].real             # (R_PR: R's rows in PR)
-        else:
+        else:       # (the correction's columns in the stage's precision)
             self.PinvR = PR = self._inverse_columns(Rrow)
             R_PR = R
+            if self.Pinv is not None and self.Pinv.dtype == np.complex64 and self.Pinv_double:
+                self.PinvR = PR.astype(np.complex64)
+                self.PinvR_double = {i: PR[i] for i in self.Pinv_double}
         single = self.loose or m >= SINGLE_LU_MIN                  # the LU in float32
         dtype = np.float32 if single else float
         if not split:
@@ -633,10 +635,8 @@ class HarmonicPreconditioner:
 
     def _harmonic_solve(self, V):
         """``P^-1`` of the harmonic stage; ``V`` (n_c, n_r, k) real, returns its shape."""
-        jac = self.jac
-        Y = self._inverse_times(jac._to_complex(V))
         out = np.empty_like(V)
-        jac._from_complex(Y, out)
+        self.jac._from_complex(self._inverse_times(self.jac._to_complex(V)), out)
         return out
 
     def _element_blocks(self):
@@ -732,7 +732,7 @@ class HarmonicPreconditioner:
             E[:, self.lowrank.Rrow] = A
             jac._from_complex(self._inverse_times(E), out)
         else:
-            jac._from_complex(np.matmul(self.PinvR, A.astype(self.PinvR.dtype, copy=False)), out)
+            jac._from_complex(mixed_times(self.PinvR, self.PinvR_double, A), out)
         return out
 
     @property
@@ -782,12 +782,7 @@ class HarmonicPreconditioner:
         def product(S):
             T = np.empty((nc, lr.R.size, S.shape[1]))
             A = self._amplitudes(S)
-            GS = np.matmul(lr.Q, A.astype(lr.Q.dtype))                       # G s
-            if lr.Q_double:
-                GS = GS.astype(complex)
-                for i, Qd in lr.Q_double.items():
-                    GS[i] = Qd @ A[i]
-            jac._from_complex(GS, T)
+            jac._from_complex(mixed_times(lr.Q, lr.Q_double, A), T)            # G s
             return S + np.matmul(lr.Lr, self._column_coordinates(T)[lr.block_element]) \
                 .reshape(S.shape)
 

@@ -323,6 +323,47 @@ def test_stacked_inverse_in_the_blocks_precision(dtype):
         <= 1e3 * n * eps * np.abs(P[2]).max()
 
 
+def test_packed_symmetric_products_are_the_full_blocks_products():
+    """``jointsim.linalg.PackedSymmetric``: each block times its vector from the upper
+    triangle alone (complex symmetric blocks in single and double precision, the
+    preconditioner's mix), to the blocks' rounding; a block flagged not symmetric is
+    multiplied whole (its lower triangle matters), and a symmetric block's lower triangle
+    is not read."""
+    from jointsim.linalg import PackedSymmetric
+    rng = np.random.default_rng(8)
+    n = 37
+    A = rng.normal(size=(4, n, n)) + 1j * rng.normal(size=(4, n, n))
+    A = A + A.transpose(0, 2, 1)
+    A[3] += np.triu(rng.normal(size=(n, n)), 1)                  # not symmetric
+    x = rng.normal(size=(4, n)) + 1j * rng.normal(size=(4, n))
+    ref = np.einsum("hij,hj->hi", A, x)
+    blocks = [A[0].astype(np.complex64), A[1], A[2].astype(np.complex64), A[3]]
+    got = PackedSymmetric(blocks, [True, True, True, False]).times(x)
+    assert got.dtype == np.complex128 and got.shape == x.shape
+    scale = np.abs(A).max() * np.abs(x).sum(axis=1)
+    for h, eps in enumerate((1e-6, 1e-14, 1e-6, 1e-14)):
+        assert np.abs(got[h] - ref[h]).max() <= eps * scale[h]
+    lower_changed = [B.copy() for B in blocks]
+    for B in lower_changed[:3]:
+        B[np.tril_indices(n, -1)] = 7.0
+    again = PackedSymmetric(lower_changed, [True, True, True, False]).times(x)
+    assert np.array_equal(again, got)
+
+
+def test_mixed_times_keeps_the_double_blocks_in_double():
+    """``jointsim.linalg.mixed_times``: the stacked products in the stack's single
+    precision, but for the blocks given in double, which are used instead."""
+    from jointsim.linalg import mixed_times
+    rng = np.random.default_rng(9)
+    P = rng.normal(size=(3, 20, 12)) + 1j * rng.normal(size=(3, 20, 12))
+    X = rng.normal(size=(3, 12, 2)) + 1j * rng.normal(size=(3, 12, 2))
+    ref = np.matmul(P, X)
+    got = mixed_times(P.astype(np.complex64), {1: P[1]}, X)
+    assert got.dtype == np.complex128 and got.shape == ref.shape
+    err = np.abs(got - ref).max(axis=(1, 2)) / np.abs(ref).max(axis=(1, 2))
+    assert err[1] <= 1e-15 and 1e-10 < err[0] <= 1e-6 and 1e-10 < err[2] <= 1e-6
+
+
 def test_symmetric_congruence_is_the_product_on_any_threads():
     """``jointsim.linalg.symmetric_congruence``: ``V' A V`` of a symmetric ``A`` (dense and
     sparse) by blocks on one side of the diagonal equals the whole product to round-off,

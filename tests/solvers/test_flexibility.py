@@ -206,6 +206,10 @@ def test_modal_preconditioner_is_the_inverse_of_the_jacobian(law, normal, monkey
     assert np.abs(P.solve(v) - xd).max() <= 1e-10 * np.abs(xd).max()
     x, it, _, _ = gmres(J.matvec, v, P.solve, rtol=1e-11)
     assert it == 1 and np.abs(x - xd).max() <= 1e-10 * np.abs(xd).max()
+    # one vector through the blocks' upper triangles, two through the whole blocks
+    both = P.solve(np.column_stack([v, 2.0 * v]))
+    assert P.Ppacked is not None
+    assert np.abs(both[:, 1] - 2.0 * xd).max() <= 2e-10 * np.abs(xd).max()
     u = np.linspace(1.0, 2.0, sk.n_r) * np.exp(0.3j)
     Jstuck = sk.evaluate(z * 1e-7, 1.1, F).J
     assert not HarmonicPreconditioner(Jstuck, shift=(1, u, u.conj())).modal   # small

@@ -672,8 +672,14 @@ def test_a_loose_stage_keeps_the_static_and_fundamental_blocks_in_double(modal, 
             assert 1e-12 < err <= 1e-5, (h[i], err)
     lr = P.lowrank
     assert sorted(lr.Q_double) == dbl.tolist()
+    # the correction keeps the inverses' columns in their precision (the LU factors'
+    # solved ones in double)
+    assert P.PinvR.dtype == (np.complex64 if modal else complex)
+    assert sorted(P.PinvR_double) == (dbl.tolist() if modal else [])
     for i, Qd in lr.Q_double.items():
-        assert Qd.dtype == complex and np.array_equal(Qd, P.PinvR[i][lr.R])
+        C = P.PinvR_double.get(i, P.PinvR[i])
+        assert Qd.dtype == complex and C.dtype == complex and np.array_equal(Qd, C[lr.R])
+        assert np.array_equal(P.PinvR[i], C.astype(P.PinvR.dtype))
     monkeypatch.setattr(pm, "LOOSE_DOUBLE_HARMONICS", ())
     assert HarmonicPreconditioner(J)._double_harmonics() == []
 
