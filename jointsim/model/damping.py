@@ -32,8 +32,24 @@ def damping_matrix(M, K, damping, C0=None):
     NotImplementedError
         Modal damping of a model above :data:`MODAL_DAMPING_MAX_DOF` DOFs.
     """
+    return damping_and_modes(M, K, damping, C0)[0]
+
+
+def damping_and_modes(M, K, damping, C0=None) -> tuple:
+    """:func:`damping_matrix`, and the modes of ``(K, M)`` when modal damping made them.
+
+    Returns
+    -------
+    C : scipy.sparse.csr_matrix, shape (n, n) [N s/m]
+    modes : tuple (lam, phi) or None
+        Every eigenvalue ``lam`` (n,) [rad^2/s^2], ascending, and the mass-normalised
+        modes ``phi`` (n, n) of ``K phi = M phi diag(lam)`` (modal damping; None for
+        Rayleigh damping).  The stuck flexibility reuses them (:class:`~jointsim.solvers.
+        condensation.ReducedLinear`): the same decomposition, not made twice.
+    """
     n = M.shape[0]
     C = sp.csr_matrix((n, n)) if C0 is None else sp.csr_matrix(C0)
+    modes = None
     if damping.kind == "rayleigh":
         C = C + damping.alpha * M + damping.beta * K
     elif damping.kind == "modal":
@@ -45,9 +61,9 @@ def damping_matrix(M, K, damping, C0=None):
                                       f"{MODAL_DAMPING_MAX_DOF} DOFs ({n}): reduce it "
                                       f"further (Craig-Bampton) or use Rayleigh damping")
         import scipy.linalg as sla
-        w2, phi = sla.eigh(K.toarray(), M.toarray())
+        w2, phi = modes = sla.eigh(K.toarray(), M.toarray())
         m = min(zeta.size, n)
         w = np.sqrt(np.maximum(w2[:m], 0.0))
         Mphi = M @ phi[:, :m]
         C = C + sp.csr_matrix(Mphi @ np.diag(2.0 * zeta[:m] * w) @ Mphi.T)
-    return sp.csr_matrix(C)
+    return sp.csr_matrix(C), modes

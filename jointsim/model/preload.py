@@ -19,7 +19,7 @@ from .._schema import SceneError
 from ..fem.reduced import ReducedModel
 from ..contact.select import NORMAL_TABLE
 from ..solvers.static import solve_static, stuck_mode, tangent_stiffness
-from .damping import damping_matrix
+from .damping import damping_and_modes
 from .structural import (FEParts, Preload, StructuralModel, fixed_normal_stiffness,
                          make_contact_set, with_fixed_normal_springs)
 
@@ -110,8 +110,8 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
         f_static = f_static + Tn.T @ (N0 + k_fixed * (Tn @ x0))
     K_stuck = tangent_stiffness(K_model, contacts, x0, tangential=stuck_mode(contacts))
     M = sp.csr_matrix(rom.M)
-    C = damping_matrix(M, K_stuck, scene.damping,
-                       None if rom.C is None else sp.csr_matrix(rom.C))
+    C, modes = damping_and_modes(M, K_stuck, scene.damping,
+                                 None if rom.C is None else sp.csr_matrix(rom.C))
     loads = scene.excitation.loads
     load_dofs = reduced_load_dofs(scene, rom)
     preload = Preload(x0=x0, result=pre, f_clamp=f_clamp, K_bolt=K_bolt, time_s=t_pre)
@@ -122,7 +122,8 @@ def structural_model(scene, rom: ReducedModel, *, preload_tangential: str = "stu
                            load_signals=tuple(ld.force for ld in loads),
                            f_static=f_static, dof_labels=tuple(rom.dof_labels),
                            points=dict(rom.points), units=getattr(scene.model, "units", "SI"),
-                           preload=preload, fe=fe, rom=rom, source=source)
+                           preload=preload, fe=fe, rom=rom, source=source,
+                           stuck_modes=modes)
 
 
 #: Fixed-point iterations of :func:`pressure_kt_preload` and their tolerance on

@@ -180,6 +180,12 @@ class StructuralModel:
         Computed once, when the model is constructed (leave it out, or pass
         None, to have it computed; pass None again to ``dataclasses.replace``
         when changing ``K``, the contacts or the loads).
+    stuck_modes : tuple (lam, phi) or None
+        Every mode of the stuck structure ``(K_stuck, M)`` at the preload when the
+        builder made them (modal damping, :func:`~jointsim.model.damping.
+        damping_and_modes`): ``lam`` (n_dof,) [rad^2/s^2], ascending, ``phi`` (n_dof,
+        n_dof) mass-normalised.  The stuck flexibility reuses them where they are the
+        modes of ``(linearisation.K, M)`` (checked).  Pass None when changing ``K``.
     """
 
     M: sp.csr_matrix
@@ -197,6 +203,7 @@ class StructuralModel:
     rom: ReducedModel | None = None
     source: str | None = None
     linearisation: StuckLinearisation | None = None
+    stuck_modes: tuple | None = None
 
     def __post_init__(self):
         if self.linearisation is None:

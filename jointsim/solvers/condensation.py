@@ -35,13 +35,17 @@ model by :mod:`jointsim.solvers.welded`.  The harmonic balance built on it is
 from __future__ import annotations
 
 import functools
+import logging
 
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
 from ..linalg import real_times
+from .flexibility import modes_of
 from .welded import low_rank_factors, orthonormal_factors, welded_coordinates
+
+log = logging.getLogger(__name__)
 
 
 #: Why ``E`` (the structure with its contact coordinates held) has no inverse.
@@ -84,6 +88,11 @@ class ReducedLinear:
     positions : ndarray, shape (n_r, d), optional
         Position of every contact coordinate [m]: orders them for the hierarchical
         form of ``S_h`` (:mod:`jointsim.solvers.hierarchical`).
+    stuck_modes : tuple (lam, phi), optional
+        Every mode of ``(K_stuck, M)`` if already made (the model's, for its modal
+        damping): kept as ``self.stuck_modes`` where they are those modes
+        (:func:`~jointsim.solvers.flexibility.modes_of`), and then :attr:`flexibility`
+        takes them instead of decomposing the stuck structure again.
 
     Attributes
     ----------
@@ -98,9 +107,13 @@ class ReducedLinear:
     See the module docstring for the formulation.
     """
 
-    def __init__(self, M, K, C, T, K_stuck=None, positions=None):
+    def __init__(self, M, K, C, T, K_stuck=None, positions=None, stuck_modes=None):
         self.positions = positions
         self.T_sparse = sp.csr_matrix(T)
+        self.stuck_modes = stuck_modes if stuck_modes is not None and K_stuck is not None \
+            and modes_of(stuck_modes, K_stuck, M) else None
+        if stuck_modes is not None and self.stuck_modes is None:
+            log.debug("the given stuck modes are not those of (K_stuck, M): not used")
         # what the stuck joint adds to K (sparse: its contact DOFs; from sparse inputs
         # without a dense copy of K_stuck)
         self._dK = None

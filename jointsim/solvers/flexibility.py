@@ -75,6 +75,41 @@ FLEX_MARGIN = 1.5
 FLEX_HODLR_MIN_ROWS = 800
 FLEX_HODLR_LEAF = 64
 FLEX_HODLR_EPS = 1e-10
+#: Given modes of the stuck structure (the model's, made for its modal damping) are
+#: taken where they are the pencil's to this relative residual (:func:`modes_of`).
+MODES_RTOL = 1e-8
+
+
+def modes_of(modes, K, M, rtol: float = MODES_RTOL) -> bool:
+    """Whether ``modes = (lam, phi)`` are every mass-normalised mode of ``(K, M)``.
+
+    Checked on four fixed random combinations ``V = phi R``: ``K V = M phi diag(lam) R``
+    to ``rtol`` of ``|K V|`` and ``V^T M V = R^T R`` to ``rtol`` of ``|R^T R|`` (``O(n^2)``,
+    not the ``n^3`` of the decomposition).
+
+    Parameters
+    ----------
+    modes : tuple (lam, phi)
+        ``lam`` (n,) [rad^2/s^2], ``phi`` (n, n).
+    K, M : ndarray or scipy.sparse matrix, shape (n, n)
+        Stiffness [N/m] and mass [kg].
+    rtol : float
+
+    Returns
+    -------
+    bool
+    """
+    lam, phi = (np.asarray(a, dtype=float) for a in modes)
+    n = K.shape[0]
+    if lam.shape != (n,) or phi.shape != (n, n):
+        return False
+    R = np.random.default_rng(0).standard_normal((n, 4))
+    V = phi @ R
+    KV, MV = np.asarray(K @ V), np.asarray(M @ V)
+    RR = R.T @ R
+    return bool(np.abs(KV - np.asarray(M @ (phi @ (lam[:, None] * R)))).max()
+                <= rtol * np.abs(KV).max() and np.abs(V.T @ MV - RR).max()
+                <= rtol * np.abs(RR).max())
 
 
 class StuckFlexibility:
@@ -156,20 +191,29 @@ class StuckFlexibility:
 
         def whole(X):
             return np.block([[X["qq"], X["qy"]], [X["yq"], X["yy"]]]) if lin.n_y else X["qq"]
-        Ks = np.array(whole(lin.K))                  # (a copy: whole() may return a block)
-        Ks[np.arange(n_r), np.arange(n_r)] += k
-        M = whole(lin.M)
-        try:
-            lam, Phi = sla.eigh(0.5 * (Ks + Ks.T), 0.5 * (M + M.T), check_finite=False)
-        except (np.linalg.LinAlgError, ValueError):
-            return None
-        factors = lin.damping_factors
-        if factors is not None:                           # C = W diag(c) W^T
-            Wq, Wy, cw = factors
-            PW = Phi.T @ np.vstack([Wq, Wy])
-            Cm = (PW * cw) @ PW.T
+        if lin.stuck_modes is not None and lin.damping_low_rank is not None:
+            # the model's modes of the stuck structure (checked to be those of K + dK),
+            # in the coordinates x: their contact coordinates are q = T x
+            lam, Phi = lin.stuck_modes
+            Phi_q = np.asarray(T @ Phi)
+            PW = Phi.T @ lin.damping_low_rank[0]                  # C = W diag(c) W^T
+            Cm = (PW * lin.damping_low_rank[1]) @ PW.T
         else:
-            Cm = Phi.T @ whole(lin.C) @ Phi
+            Ks = np.array(whole(lin.K))              # (a copy: whole() may return a block)
+            Ks[np.arange(n_r), np.arange(n_r)] += k
+            M = whole(lin.M)
+            try:
+                lam, Phi = sla.eigh(0.5 * (Ks + Ks.T), 0.5 * (M + M.T), check_finite=False)
+            except (np.linalg.LinAlgError, ValueError):
+                return None
+            Phi_q = Phi[:n_r]
+            factors = lin.damping_factors
+            if factors is not None:                           # C = W diag(c) W^T
+                Wq, Wy, cw = factors
+                PW = Phi.T @ np.vstack([Wq, Wy])
+                Cm = (PW * cw) @ PW.T
+            else:
+                Cm = Phi.T @ whole(lin.C) @ Phi
         if not lam.min(initial=1.0) > 0.0:
             log.debug("stuck flexibility: the stuck structure is not positive definite")
             return None
@@ -182,7 +226,7 @@ class StuckFlexibility:
         if damped.size > FLEX_DAMPED_MAX:
             log.debug("stuck flexibility: the damping reaches %d stuck modes", damped.size)
             return None
-        flex = cls(lam, Phi[:n_r], k, damped, Cm[np.ix_(damped, damped)])
+        flex = cls(lam, Phi_q, k, damped, Cm[np.ix_(damped, damped)])
         flex.positions = lin.positions
         return flex
 

@@ -121,7 +121,8 @@ class HBMSystem:
         self.lin = lin if lin is not None else ReducedLinear(
             model.M, model.K, model.C, T, K_stuck=model.linearisation.K
             if model.linearisation is not None else None,
-            positions=np.vstack([c.position] * (nr // ne)) if nr else None)
+            positions=np.vstack([c.position] * (nr // ne)) if nr else None,
+            stuck_modes=model.stuck_modes)
         self.n_r = nr
         self.n_c = self.basis.n_coeff
         self.n_z = self.n_c * nr

@@ -33,6 +33,7 @@ import scipy.sparse as sp
 
 from ..fem.reduction import dense_spd_factor, shift_invert_modes, spd_lu, with_fixed_signs
 from ..results import SUCCESS, Convergence
+from .flexibility import modes_of
 
 log = logging.getLogger(__name__)
 
@@ -186,7 +187,9 @@ def stuck_modes(model, n_modes: int, suspension_hz=None) -> ModesResult:
 
     The stiffness is ``model.linearisation.K``
     (:func:`jointsim.solvers.static.stuck_linearisation`: the tangent at the
-    preload state ``x0``), the same for every solver.
+    preload state ``x0``), the same for every solver.  The model's own modes of it
+    (``model.stuck_modes``, made for its modal damping) are taken where they are those
+    (:func:`~jointsim.solvers.flexibility.modes_of`).
 
     Parameters
     ----------
@@ -197,7 +200,13 @@ def stuck_modes(model, n_modes: int, suspension_hz=None) -> ModesResult:
         (:func:`rigid_body_modes`).
     """
     K = model.linearisation.K
-    f, phi = eigenmodes(K, model.M, n_modes)
+    given = model.stuck_modes
+    if given is not None and modes_of(given, K, model.M):    # the model's (modal damping)
+        m = min(n_modes, K.shape[0])
+        f = np.sqrt(np.maximum(given[0][:m], 0.0)) / (2 * np.pi)
+        phi = with_fixed_signs(given[1][:, :m]).T
+    else:
+        f, phi = eigenmodes(K, model.M, n_modes)
     rigid, method = rigid_body_modes(model, f, phi, suspension_hz)
     if not np.all(np.isfinite(f)):
         conv = Convergence(False, 3, "non-finite eigenvalues", 0)

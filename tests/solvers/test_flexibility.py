@@ -96,6 +96,42 @@ def test_rayleigh_damping_is_a_block_of_damped_modes(monkeypatch):
     assert ReducedLinear(model.M, model.K, model.C, system.T).flexibility is None
 
 
+def test_the_models_stuck_modes_serve_the_flexibility(coarse_model):
+    """The coarse lap joint's modal damping decomposed its stuck structure
+    (``model.stuck_modes``): the condensation checks them (:func:`~jointsim.solvers.
+    flexibility.modes_of`) and its flexibility takes them instead of a decomposition of
+    its own.  Both give the same stuck frequencies (1e-9), the same damped modes and
+    the same inverses (to the stuck modes' accuracy, 1e-6 as against the blocks).  Modes
+    of another stiffness, unnormalised ones and ones of another size are refused, and
+    a condensation given them decomposes the structure itself."""
+    import dataclasses
+
+    from jointsim.solvers.condensation import ReducedLinear
+    m = coarse_model
+    assert m.stuck_modes is not None
+    system = HBMSystem(m, (0, 1, 2, 3), 64, linear_solver="krylov")
+    assert system.lin.stuck_modes is not None
+    own = HBMSystem(dataclasses.replace(m, stuck_modes=None), (0, 1, 2, 3), 64,
+                    linear_solver="krylov")
+    assert own.lin.stuck_modes is None
+    given, made = system.lin.flexibility, own.lin.flexibility
+    assert np.abs(given.lam - made.lam).max() <= 1e-9 * np.abs(made.lam).max()
+    assert np.array_equal(given.damped, made.damped)
+    nus = [0.0, 900.0, 2700.0]
+    A, B = given.inverses(nus, 0.3), made.inverses(nus, 0.3)
+    assert np.abs(A - B).max() <= 1e-6 * np.abs(B).max()
+    lam, phi = m.stuck_modes
+    K_stuck = m.linearisation.K
+    assert fx.modes_of((lam, phi), K_stuck, m.M)
+    assert not fx.modes_of((lam, phi), m.K, m.M)                  # without the joint
+    assert not fx.modes_of((lam, 2.0 * phi), K_stuck, m.M)
+    assert not fx.modes_of((lam[:-1], phi[:, :-1]), K_stuck, m.M)
+    wrong = ReducedLinear(m.M, m.K, m.C, system.T, K_stuck=K_stuck,
+                          positions=system.lin.positions, stuck_modes=(lam, 2.0 * phi))
+    assert wrong.stuck_modes is None
+    assert np.abs(wrong.flexibility.lam - made.lam).max() <= 1e-9 * np.abs(made.lam).max()
+
+
 def test_flexibility_of_the_coarse_lap_joint(coarse_model):
     """On the coarse lap joint (modal damping of the stuck joint: a block of damped modes,
     the quasi-static series above the frequency) the flexibility equals the inverted

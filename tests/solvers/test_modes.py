@@ -102,3 +102,23 @@ def test_a_dense_model_stored_sparse_takes_the_dense_factor_and_the_same_modes(m
         dense_spd_factor(Kz)
     fz, _ = eigenmodes(sp.csr_matrix(Kz), Ms, 3)
     assert fz[0] == pytest.approx(0.0, abs=1e-6 * fz[1]) and fz[1] > 0.0
+
+
+def test_the_models_stuck_modes_are_the_eigensolvers(coarse_model):
+    """A model whose modal damping decomposed its stuck structure (``model.stuck_modes``)
+    gives its stuck modes from that decomposition: the same elastic frequencies (1e-8
+    relative; the suspension modes, 600 times lower than the first bending mode, to
+    1e-5: a dense decomposition knows a mode to about ``eps lam_max / lam``) and
+    elastic shapes (1e-8, signs fixed alike) as the eigensolver's (shift-invert Lanczos
+    on the reduced model)."""
+    import dataclasses
+    m = coarse_model
+    assert m.stuck_modes is not None
+    a = stuck_modes(m, 8)
+    b = stuck_modes(dataclasses.replace(m, stuck_modes=None), 8)
+    elastic = a.elastic & b.elastic
+    assert np.array_equal(a.elastic, b.elastic) and elastic.sum() >= 4
+    rel = np.abs(a.frequency_hz - b.frequency_hz) / b.frequency_hz
+    assert rel[elastic].max() <= 1e-8 and rel.max() <= 1e-5
+    assert np.abs(a.shapes[elastic] - b.shapes[elastic]).max() \
+        <= 1e-8 * np.abs(b.shapes[elastic]).max()
