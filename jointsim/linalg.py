@@ -69,11 +69,21 @@ class PackedSymmetric:
     """
 
     def __init__(self, blocks, symmetric):
-        self.n = n = blocks[0].shape[0]
-        upper = _upper_triangle(n)
-        # (the upper triangle by rows is the lower one by columns: spmv's lower=1 layout)
-        self.parts = [(sla.get_blas_funcs("spmv", (B,)), np.take(B.reshape(-1), upper))
-                      if sym else (None, B) for B, sym in zip(blocks, symmetric)]
+        self.n = blocks[0].shape[0]
+        self._given, self._parts = (list(blocks), list(symmetric)), None
+
+    @property
+    def parts(self) -> list:
+        """``(spmv, packed upper triangle)`` of each symmetric block, ``(None, block)`` of
+        the others: packed on the first product (a stage shared by several builds packs
+        once, and one whose products all take several vectors never)."""
+        if self._parts is None:
+            upper = _upper_triangle(self.n)
+            # (the upper triangle by rows is the lower one by columns: spmv's lower=1)
+            self._parts = [(sla.get_blas_funcs("spmv", (B,)), np.take(B.reshape(-1), upper))
+                           if sym else (None, B) for B, sym in zip(*self._given)]
+            self._given = None
+        return self._parts
 
     def times(self, x) -> np.ndarray:
         """Each block times its vector: ``x`` (n_h, n) complex, returns (n_h, n) complex128."""

@@ -30,6 +30,7 @@ from ..fem.assembly import FEStructure
 from ..fem.reduced import ReducedModel
 from ..fem.reduction import CraigBampton
 from ..solvers.static import StaticResult, StuckLinearisation, stuck_linearisation
+from ..solvers.flexibility import modes_of
 
 log = logging.getLogger(__name__)
 
@@ -184,8 +185,9 @@ class StructuralModel:
         Every mode of the stuck structure ``(K_stuck, M)`` at the preload when the
         builder made them (modal damping, :func:`~jointsim.model.damping.
         damping_and_modes`): ``lam`` (n_dof,) [rad^2/s^2], ascending, ``phi`` (n_dof,
-        n_dof) mass-normalised.  The stuck flexibility reuses them where they are the
-        modes of ``(linearisation.K, M)`` (checked).  Pass None when changing ``K``.
+        n_dof) mass-normalised.  Kept only where they are the modes of
+        ``(linearisation.K, M)`` (checked when the model is made, :func:`~jointsim.solvers.
+        flexibility.modes_of`); the stuck flexibility and the stuck modes reuse them.
     """
 
     M: sp.csr_matrix
@@ -208,6 +210,10 @@ class StructuralModel:
     def __post_init__(self):
         if self.linearisation is None:
             object.__setattr__(self, "linearisation", stuck_linearisation(self))
+        if self.stuck_modes is not None and not modes_of(self.stuck_modes,
+                                                         self.linearisation.K, self.M):
+            log.debug("the given stuck modes are not those of (linearisation.K, M): dropped")
+            object.__setattr__(self, "stuck_modes", None)
 
     @property
     def n_dof(self) -> int:

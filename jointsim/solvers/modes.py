@@ -33,7 +33,6 @@ import scipy.sparse as sp
 
 from ..fem.reduction import dense_spd_factor, shift_invert_modes, spd_lu, with_fixed_signs
 from ..results import SUCCESS, Convergence
-from .flexibility import modes_of
 
 log = logging.getLogger(__name__)
 
@@ -188,8 +187,7 @@ def stuck_modes(model, n_modes: int, suspension_hz=None) -> ModesResult:
     The stiffness is ``model.linearisation.K``
     (:func:`jointsim.solvers.static.stuck_linearisation`: the tangent at the
     preload state ``x0``), the same for every solver.  The model's own modes of it
-    (``model.stuck_modes``, made for its modal damping) are taken where they are those
-    (:func:`~jointsim.solvers.flexibility.modes_of`).
+    (``model.stuck_modes``, made for its modal damping) are taken where it has them.
 
     Parameters
     ----------
@@ -201,7 +199,7 @@ def stuck_modes(model, n_modes: int, suspension_hz=None) -> ModesResult:
     """
     K = model.linearisation.K
     given = model.stuck_modes
-    if given is not None and modes_of(given, K, model.M):    # the model's (modal damping)
+    if given is not None:                   # the model's, made for its modal damping
         m = min(n_modes, K.shape[0])
         f = np.sqrt(np.maximum(given[0][:m], 0.0)) / (2 * np.pi)
         phi = with_fixed_signs(given[1][:, :m]).T

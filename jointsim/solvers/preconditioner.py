@@ -616,7 +616,7 @@ class HarmonicPreconditioner:
             R_PR = R
             if self.Pinv is not None and self.Pinv.dtype == np.complex64 and self.Pinv_double:
                 self.PinvR = PR.astype(np.complex64)
-                self.PinvR_double = {i: PR[i] for i in self.Pinv_double}
+                self.PinvR_double = {i: PR[i].copy() for i in self.Pinv_double}
         single = self.loose or m >= SINGLE_LU_MIN                  # the LU in float32
         dtype = np.float32 if single else float
         if not split:

@@ -102,8 +102,8 @@ def test_the_models_stuck_modes_serve_the_flexibility(coarse_model):
     flexibility.modes_of`) and its flexibility takes them instead of a decomposition of
     its own.  Both give the same stuck frequencies (1e-9), the same damped modes and
     the same inverses (to the stuck modes' accuracy, 1e-6 as against the blocks).  Modes
-    of another stiffness, unnormalised ones and ones of another size are refused, and
-    a condensation given them decomposes the structure itself."""
+    of another stiffness, unnormalised ones and ones of another size are refused: a
+    model given them drops them, and a condensation decomposes the structure itself."""
     import dataclasses
 
     from jointsim.solvers.condensation import ReducedLinear
@@ -126,6 +126,7 @@ def test_the_models_stuck_modes_serve_the_flexibility(coarse_model):
     assert not fx.modes_of((lam, phi), m.K, m.M)                  # without the joint
     assert not fx.modes_of((lam, 2.0 * phi), K_stuck, m.M)
     assert not fx.modes_of((lam[:-1], phi[:, :-1]), K_stuck, m.M)
+    assert dataclasses.replace(m, stuck_modes=(lam, 2.0 * phi)).stuck_modes is None
     wrong = ReducedLinear(m.M, m.K, m.C, system.T, K_stuck=K_stuck,
                           positions=system.lin.positions, stuck_modes=(lam, 2.0 * phi))
     assert wrong.stuck_modes is None
