@@ -80,8 +80,10 @@ class PackedSymmetric:
         if self._parts is None:
             upper = _upper_triangle(self.n)
             # (the upper triangle by rows is the lower one by columns: spmv's lower=1)
+            blocks = [B.astype(np.promote_types(B.dtype, np.complex64), copy=False)
+                      for B in self._given[0]]                 # (a real block as complex)
             self._parts = [(sla.get_blas_funcs("spmv", (B,)), np.take(B.reshape(-1), upper))
-                           if sym else (None, B) for B, sym in zip(*self._given)]
+                           if sym else (None, B) for B, sym in zip(blocks, self._given[1])]
             self._given = None
         return self._parts
 
@@ -111,7 +113,7 @@ def mixed_times(P, double: dict, X) -> np.ndarray:
     Y = np.empty((P.shape[0], P.shape[1], X.shape[2]), dtype=complex)
     for h in range(P.shape[0]):
         B = double.get(h, P[h])
-        Y[h] = B @ X[h].astype(B.dtype, copy=False)
+        Y[h] = B @ X[h].astype(np.promote_types(B.dtype, np.complex64), copy=False)
     return Y
 
 

@@ -343,6 +343,9 @@ def test_packed_symmetric_products_are_the_full_blocks_products():
     scale = np.abs(A).max() * np.abs(x).sum(axis=1)
     for h, eps in enumerate((1e-6, 1e-14, 1e-6, 1e-14)):
         assert np.abs(got[h] - ref[h]).max() <= eps * scale[h]
+    real = PackedSymmetric([A[0].real, A[3].real.astype(np.float32)], [True, False])
+    want = np.einsum("hij,hj->hi", A[[0, 3]].real, x[[0, 3]])     # a real block, complex x
+    assert np.abs(real.times(x[[0, 3]]) - want).max() <= 1e-6 * np.abs(want).max()
     lower_changed = [B.copy() for B in blocks]
     for B in lower_changed[:3]:
         B[np.tril_indices(n, -1)] = 7.0
@@ -362,6 +365,9 @@ def test_mixed_times_keeps_the_double_blocks_in_double():
     assert got.dtype == np.complex128 and got.shape == ref.shape
     err = np.abs(got - ref).max(axis=(1, 2)) / np.abs(ref).max(axis=(1, 2))
     assert err[1] <= 1e-15 and 1e-10 < err[0] <= 1e-6 and 1e-10 < err[2] <= 1e-6
+    real = mixed_times(P.real.astype(np.float32), {}, X)         # real blocks, complex X
+    want = np.matmul(P.real, X)
+    assert np.abs(real - want).max() <= 1e-6 * np.abs(want).max()
 
 
 def test_symmetric_congruence_is_the_product_on_any_threads():
