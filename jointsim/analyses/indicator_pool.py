@@ -15,6 +15,10 @@ as it comes back (:func:`jointsim.io.hbm_points.set_error_indicators`).
   between workers, so a worker killed at any moment blocks no other).  At most
   :data:`DEPTH` rows are assigned to a worker at once, first in first out: the oldest
   is the one being computed.
+* Once the continuation is done, the parent computes the rows no worker has started
+  (:meth:`IndicatorPool.drain`): a row queued behind a busy worker's is taken back
+  off that worker's queue.  Before (round 59), the last rows of a branch, the
+  dearest, could wait behind each other on one worker while the other core was free.
 * A worker that dies loses the row it was computing (its row stays NaN; the runner
   warns, and ``--resume`` computes it); the rows queued behind it go to the others.
   When no worker is left the parent computes the remaining rows itself once the
@@ -37,6 +41,7 @@ from __future__ import annotations
 import logging
 import multiprocessing.connection as mpc
 import os
+import queue
 from collections import deque
 
 import numpy as np
@@ -55,6 +60,10 @@ POOL_MIN_UNKNOWNS = 200
 #: Rows assigned to one worker at once (one computed, one waiting: no idle gap while
 #: the parent is busy with the continuation and does not dispatch).
 DEPTH = 2
+#: While draining with a row queued behind a busy worker's, results are waited for at
+#: most this long [s] before the queue is tried again (its row may still have been in
+#: the feeder thread's buffer).
+UNSTARTED_POLL = 0.05
 
 
 def pool_workers(setting: int, n_rows_hint: int | None = None,
@@ -248,31 +257,64 @@ class IndicatorPool:
     def drain(self, on_result, desc: str = "indicators") -> None:
         """Wait for every pending row; ``on_result(row, result)`` for each (progress bar).
 
-        When no worker is left, the rows still waiting are computed here, one at a
-        time (a row that raises is reported as ``(row, None)``, as from a worker).
+        This process, idle otherwise, computes the rows no worker has started: those of
+        the backlog, and those queued behind the row a worker is computing, taken back
+        off its task queue (:meth:`_unstarted`).  Without it the last rows of a branch,
+        the dearest, wait behind each other on one worker while a core is free.  When
+        no worker is left, every remaining row is computed here.  A row that raises is
+        reported as ``(row, None)``, as from a worker.
         """
         from tqdm import tqdm
 
         if not self.pending:
             return
-        here = 0
+        here, warned = 0, False
         with tqdm(total=self.pending, desc=f"{desc} ({self.n_workers} workers)", unit="pt",
                   disable=None, leave=False) as bar:
             while self.pending:
-                if self.backlog and not any(w["alive"] for w in self.workers):
-                    if not here:
-                        log.warning("%s: no indicator worker is left; this process computes "
-                                    "the %d remaining point(s)", self.what, len(self.backlog))
+                alive = any(w["alive"] for w in self.workers)
+                if self.backlog and not alive and not warned:
+                    warned = True
+                    log.warning("%s: no indicator worker is left; this process computes "
+                                "the %d remaining point(s)", self.what, len(self.backlog))
+                job = self.backlog.popleft() if self.backlog else self._unstarted()
+                if job is not None:
                     here += 1
-                    row, args = self.backlog.popleft()
-                    on_result(*self._result(*_compute(self.fn, row, args), "here"))
+                    on_result(*self._result(*_compute(self.fn, *job), "here"))
                     bar.update(1)
-                    got = self.poll(timeout=0.0)
-                else:
-                    got = self.poll(timeout=1.0)
+                got = self.poll(timeout=0.0 if job is not None or not alive else
+                                UNSTARTED_POLL if self._queued() else 1.0)
                 for row, res in got:
                     on_result(row, res)
                     bar.update(1)
+        if here:
+            log.info("%s: %d point(s)' error indicators computed here while draining",
+                     self.what, here)
+
+    def _queued(self) -> bool:
+        """Whether a live worker has a row assigned behind the one it computes."""
+        return any(w["alive"] and len(w["rows"]) > 1 for w in self.workers)
+
+    def _unstarted(self) -> tuple | None:
+        """``(row, args)`` of a row assigned to a live worker that it has not started,
+        taken back off its task queue (it is then no longer the worker's), or None.
+
+        The queue's read lock makes the take exclusive: the worker gets the row or
+        this process does, never both.  A worker blocked waiting on its queue holds
+        that lock, and its queue is then empty anyway; a row still in the feeder
+        thread's buffer is not taken (the next call may)."""
+        for w in self.workers:
+            if not (w["alive"] and len(w["rows"]) > 1):
+                continue
+            try:
+                row, args = w["tasks"].get_nowait()
+            except (queue.Empty, OSError, EOFError):
+                continue
+            done = [i for i, (r, _) in enumerate(w["rows"]) if r == row]
+            if done:
+                del w["rows"][done[0]]
+            return row, args
+        return None
 
     def close(self) -> None:
         """Stop the workers (rows still pending are abandoned: they stay NaN)."""

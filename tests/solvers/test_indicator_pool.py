@@ -183,6 +183,37 @@ def test_a_dying_worker_loses_only_its_row():
     assert got == {r: (None if r == 5 else r * r) for r in range(12)}
 
 
+def _pid_after(x, wait_at):
+    """``(x squared, the computing process)``; a worker sleeps on row ``wait_at``."""
+    import time
+    if x == wait_at and os.getpid() != TEST_PID:
+        time.sleep(1.0)
+    return x * x, os.getpid()
+
+
+def test_the_drain_computes_here_the_rows_no_worker_has_started(caplog):
+    """A row queued behind a busy worker's is taken back off its queue and computed by
+    the draining process (once: the worker does not compute it too); every row's result
+    comes once, and the same as from a worker."""
+    with IndicatorPool(lambda x: _pid_after(x, 0), 1, "test") as pool:
+        for r in range(2):
+            pool.submit(r, r)
+        assert pool.pending == 2 and pool._queued()
+        got = {}
+
+        def once(row, res):
+            assert row not in got
+            got[row] = res
+        with caplog.at_level(logging.INFO, logger="jointsim.analyses.indicator_pool"):
+            pool.drain(once)
+        assert pool.pending == 0 and not pool._queued()
+        assert pool.poll(timeout=0.2) == []      # nothing more comes from the worker
+    assert {r: v[0] for r, v in got.items()} == {0: 0, 1: 1}
+    pids = [v[1] for v in got.values()]
+    assert pids.count(TEST_PID) == 1 and len(set(pids)) == 2
+    assert "1 point(s)' error indicators computed here while draining" in caplog.text
+
+
 def test_every_worker_dead_loses_only_their_rows_without_hanging():
     """The rows the dead workers were computing are lost; this process computes the rest."""
     with IndicatorPool(_die_in_a_worker, 2, "test") as pool:
