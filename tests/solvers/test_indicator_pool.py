@@ -173,14 +173,22 @@ def _die_in_a_worker(x):
 
 
 def test_a_dying_worker_loses_only_its_row():
-    """Rows queued behind the one a worker died on go to the other worker."""
-    with IndicatorPool(lambda x: _square_or_die(x, 5), 2, "test") as pool:
+    """Rows queued behind the one a worker died on go on (to the other worker, or to
+    this process once it drains).  Row 1 is the second worker's first: the results are
+    polled until it has died on it, before the drain (which could otherwise compute
+    the row here if the worker had not started it yet)."""
+    import time
+
+    with IndicatorPool(lambda x: _square_or_die(x, 1), 2, "test") as pool:
         for r in range(12):
             pool.submit(r, r)
         got = {}
+        deadline = time.monotonic() + 60.0
+        while not pool.lost and time.monotonic() < deadline:
+            got.update(pool.poll(timeout=0.5))
         pool.drain(got.__setitem__)
-    assert pool.lost == [5]
-    assert got == {r: (None if r == 5 else r * r) for r in range(12)}
+    assert pool.lost == [1]
+    assert got == {r: (None if r == 1 else r * r) for r in range(12)}
 
 
 def _pid_after(x, wait_at):
