@@ -257,11 +257,13 @@ class IndicatorPool:
     def drain(self, on_result, desc: str = "indicators") -> None:
         """Wait for every pending row; ``on_result(row, result)`` for each (progress bar).
 
-        This process, idle otherwise, computes the rows no worker has started: those of
-        the backlog, and those queued behind the row a worker is computing, taken back
-        off its task queue (:meth:`_unstarted`).  Without it the last rows of a branch,
-        the dearest, wait behind each other on one worker while a core is free.  When
-        no worker is left, every remaining row is computed here.  A row that raises is
+        Once the backlog has gone to the workers, this process, idle otherwise, computes
+        the rows no worker has started: those queued behind the row a worker is
+        computing, taken back off its task queue (:meth:`_unstarted`).  Without it the
+        last rows of a branch, the dearest, wait behind each other on one worker while a
+        core is free.  (The backlog itself goes to the workers as they free up: taken
+        here, a row would hold back their next ones while it is computed.)  When no
+        worker is left, every remaining row is computed here.  A row that raises is
         reported as ``(row, None)``, as from a worker.
         """
         from tqdm import tqdm
@@ -277,7 +279,8 @@ class IndicatorPool:
                     warned = True
                     log.warning("%s: no indicator worker is left; this process computes "
                                 "the %d remaining point(s)", self.what, len(self.backlog))
-                job = self.backlog.popleft() if self.backlog else self._unstarted()
+                job = (None if alive else self.backlog.popleft()) if self.backlog \
+                    else self._unstarted()
                 if job is not None:
                     here += 1
                     on_result(*self._result(*_compute(self.fn, *job), "here"))

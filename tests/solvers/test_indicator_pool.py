@@ -222,6 +222,24 @@ def test_the_drain_computes_here_the_rows_no_worker_has_started(caplog):
     assert "1 point(s)' error indicators computed here while draining" in caplog.text
 
 
+def test_the_drain_leaves_the_backlog_to_the_workers():
+    """Rows beyond ``DEPTH`` a worker wait in the backlog; while a worker is alive the
+    drain leaves them to it (taken here, a row would hold back the worker's next ones):
+    with one worker busy on row 0 and rows 2 and 3 in the backlog, rows 0 to 2 are the
+    worker's (row 1 was assigned to it while the backlog still waited, row 2 from the
+    backlog); only row 3, queued behind row 2 once the backlog is empty, may be taken."""
+    from jointsim.analyses.indicator_pool import DEPTH
+
+    with IndicatorPool(lambda x: _pid_after(x, 0), 1, "test") as pool:
+        for r in range(DEPTH + 2):
+            pool.submit(r, r)
+        assert len(pool.backlog) == 2
+        got = {}
+        pool.drain(got.__setitem__)
+    assert {r: v[0] for r, v in got.items()} == {r: r * r for r in range(DEPTH + 2)}
+    assert all(got[r][1] != TEST_PID for r in range(DEPTH + 1))
+
+
 def test_every_worker_dead_loses_only_their_rows_without_hanging():
     """The rows the dead workers were computing are lost; this process computes the rest."""
     with IndicatorPool(_die_in_a_worker, 2, "test") as pool:
